@@ -1,0 +1,162 @@
+"""What the tracer needs to know about a scene, independent of Blender.
+
+The Blender layer (``restframe_addon.export``) fills these from the evaluated
+depsgraph; tests and scripts can build them directly.  All positions are Blender
+world coordinates at the rendered frame, i.e. the shape each object has *in its
+own rest frame* (see ``shared/physics.md``: the artist models rest shapes).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Velocity:
+    """A constant velocity in units of c, world axes, measured in the world frame S.
+
+    ``lorentz_factor`` > 0 sets the speed through gamma and uses ``beta`` only
+    for its direction: the way to enter speeds too close to c for float input.
+    """
+
+    beta: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    lorentz_factor: float = 0.0
+
+    @property
+    def key(self) -> tuple:
+        """Objects whose velocities have equal keys share one rest frame."""
+        return (tuple(float(c) for c in self.beta), float(self.lorentz_factor))
+
+    @property
+    def is_zero(self) -> bool:
+        return self.lorentz_factor in (0.0, 1.0) and not any(self.beta)
+
+
+REST = Velocity()
+
+
+@dataclass
+class Material:
+    """A Principled-BSDF-like surface, evaluated in the surface's rest frame."""
+
+    name: str = "Default"
+    base_color: tuple[float, float, float] = (0.8, 0.8, 0.8)
+    metallic: float = 0.0
+    roughness: float = 0.5
+    ior: float = 1.5
+    transmission: float = 0.0
+    emission: tuple[float, float, float] = (0.0, 0.0, 0.0)  # colour * strength, rest-frame radiance
+    base_color_texture: np.ndarray | None = None  # (H, W, 3) scene-linear, row 0 = bottom (Blender order)
+
+
+@dataclass
+class Mesh:
+    """One evaluated object (or instance) as triangles in world coordinates.
+
+    ``pivot`` is the world position of the object's assembly pivot (the topmost
+    parent with the same velocity): the body contracts about it, and its world
+    line passes through ``(tau=0, pivot)``.
+    """
+
+    name: str
+    vertices: np.ndarray  # (N, 3) float64
+    triangles: np.ndarray  # (M, 3) int
+    velocity: Velocity = REST
+    pivot: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    material_indices: np.ndarray | None = None  # (M,) index into Scene.materials; None = all 0
+    corner_normals: np.ndarray | None = None  # (M, 3, 3) smooth-shading normals; None = flat
+    corner_uvs: np.ndarray | None = None  # (M, 3, 2)
+    object_index: int = 0  # Blender's pass_index, for the IndexOB pass
+
+
+@dataclass
+class Light:
+    """A Blender light, at rest in its own frame.
+
+    ``power`` is Blender's: watts for point, spot and area lights, W/m^2
+    ("strength") for sun lights.  ``matrix`` holds the light's world rotation
+    (columns = local X, Y, Z axes; it emits along local -Z).
+    """
+
+    name: str
+    kind: str  # "POINT", "SPOT", "SUN", "AREA"
+    position: tuple[float, float, float]
+    matrix: np.ndarray = field(default_factory=lambda: np.eye(3))
+    color: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    power: float = 1000.0
+    radius: float = 0.0  # point/spot soft radius
+    spot_size: float = np.pi / 4  # full cone angle
+    spot_blend: float = 0.15
+    sun_angle: float = 0.0  # angular diameter of the sun disc
+    area_shape: str = "SQUARE"  # SQUARE, RECTANGLE, DISK, ELLIPSE
+    area_size: tuple[float, float] = (1.0, 1.0)
+    velocity: Velocity = REST
+    pivot: tuple[float, float, float] | None = None  # None = its own position
+
+    @property
+    def pivot_or_position(self):
+        return self.position if self.pivot is None else self.pivot
+
+
+@dataclass
+class Camera:
+    """The observer.  ``matrix`` is the camera's world transform without scale.
+
+    ``frame`` holds Blender's ``Camera.view_frame`` corners in camera space,
+    ordered top-right, bottom-right, bottom-left, top-left.  For a moving
+    camera (``velocity`` not zero) these describe its optics in its own rest frame.
+    """
+
+    matrix: np.ndarray  # (4, 4)
+    kind: str = "PERSP"  # PERSP, ORTHO, PANO
+    frame: np.ndarray = field(
+        default_factory=lambda: np.array(
+            [[0.5, 0.5, -1.0], [0.5, -0.5, -1.0], [-0.5, -0.5, -1.0], [-0.5, 0.5, -1.0]]
+        )
+    )
+    clip_start: float = 0.1
+    clip_end: float = 1000.0
+    panorama_type: str = "EQUIRECTANGULAR"  # EQUIRECTANGULAR, FISHEYE_EQUIDISTANT, FISHEYE_EQUISOLID
+    latitude_range: tuple[float, float] = (-np.pi / 2, np.pi / 2)
+    longitude_range: tuple[float, float] = (-np.pi, np.pi)
+    fisheye_fov: float = np.pi
+    fisheye_lens: float = 10.5  # mm, equisolid
+    sensor_size: tuple[float, float] = (36.0, 24.0)  # mm (width, height) as fitted to the image
+    velocity: Velocity = REST
+    name: str = "Camera"
+
+
+@dataclass
+class Scene:
+    """Everything one rendered frame needs.
+
+    ``tau_obs`` = c * t_obs: the world time (as a length) of the observation
+    event; ``light_speed`` (scene units per second) only converts it back.
+    """
+
+    camera: Camera
+    meshes: list[Mesh] = field(default_factory=list)
+    materials: list[Material] = field(default_factory=lambda: [Material()])
+    lights: list[Light] = field(default_factory=list)
+    world_color: tuple[float, float, float] = (0.05, 0.05, 0.05)
+    tau_obs: float = 0.0
+    light_speed: float = 299792458.0
+
+
+@dataclass
+class RenderSettings:
+    """How to render: resolution, region, quality and display knobs."""
+
+    resolution: tuple[int, int] = (64, 64)  # (x, y) pixels of the full image
+    region: tuple[int, int, int, int] | None = None  # (x0, y0, x1, y1) pixels, x1/y1 exclusive
+    samples: int = 1  # stratified camera samples per pixel
+    max_bounces: int = 4  # mirror / glass recursion depth
+    doppler_mode: str = "OFF"  # OFF (geometry only), FACTOR (D as grey), SPECTRAL (added with spectral work)
+    searchlight: bool = True  # apply the D^4 intensity transforms (headlamp effect)
+    film_transparent: bool = False
+    tile_size: int = 64
+    threads: int = 0  # 0 = all cores
+    doppler_range: tuple[float, float] | None = None  # FACTOR display: None = the frame's own range
+    doppler_levels: int = 0  # FACTOR display: quantise to N grey levels (0 = continuous)

@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# Run Python inside RESTframe's development environment, creating it on first use.
+# The environment lives outside the clone (cached per requirements file), so reruns are quick:
+#   tools/dev.sh -m pytest -q tests
+#   tools/dev.sh -m restframe_addon render sample_blends/moving_sphere.blend -o out/moving_sphere.png
+set -euo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+req="$root/tools/requirements-dev.txt"
+key=$(sha256sum "$req" | cut -c1-12)
+venv="${RESTFRAME_VENV:-${XDG_CACHE_HOME:-$HOME/.cache}/restframe/venv-$key}"
+if [ ! -f "$venv/.complete" ]; then
+  python=$(command -v python3.11 || command -v python3)
+  echo "restframe: creating the environment in $venv (once)" >&2
+  rm -rf "$venv"
+  "$python" -m venv "$venv"
+  "$venv/bin/python" -m pip install -q --upgrade pip >&2
+  "$venv/bin/python" -m pip install -q -r "$req" >&2
+  touch "$venv/.complete"
+fi
+cd "$root"
+exec "$venv/bin/python" "$@"
