@@ -1,0 +1,258 @@
+"""Render a :class:`~.scene.Scene`: tiles of camera rays through every rest frame, in threads.
+
+The observer is the camera's rest frame (S itself for a camera at rest).  Its
+observation event is the camera's position at world time ``tau_obs``; every
+primary ray starts there (orthographic rays start on the image plane, all at the
+same camera-frame time).  Tiles are independent and every random number is keyed
+by (pixel, sample), so any split into tiles, regions or machines gives the same
+image.  Memory is bounded by the tile size (and samples are batched).
+
+Pass arrays are float32 ``(h, w, C)`` with row 0 at the bottom (Blender's order).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from dataclasses import dataclass
+from typing import Callable, Iterator
+
+import numpy as np
+
+from . import sampling
+from .camera import primary_rays
+from .frames import FrameSet, build_frames, shift_into_frame
+from .scene import RenderSettings, Scene
+from .shading import MaterialTable, Shader, prepare_lights
+from .tracer import trace_nearest
+
+PASSES = {"Doppler": 1, "Emission Time": 1}  # RESTframe's own passes (Depth, Normal, IndexOB are Blender's)
+ALL_PASSES = {"Combined": 4, "Doppler": 1, "Emission Time": 1, "Depth": 1, "Normal": 3, "IndexOB": 1}
+DOPPLER_MODES = ("OFF", "FACTOR")
+_MAX_RAYS = 1 << 16  # rays per batch: bounds memory whatever the tile size and sample count
+
+
+class RenderError(ValueError):
+    """The scene or settings cannot be rendered; the message says what to change."""
+
+
+@dataclass
+class Tile:
+    x0: int
+    y0: int
+    x1: int
+    y1: int
+    passes: dict
+
+
+class Renderer:
+    """A scene prepared for rendering: frames built, lights placed, camera event known."""
+
+    def __init__(self, scene: Scene, settings: RenderSettings, should_stop: Callable[[], bool] = lambda: False):
+        _validate(scene, settings)
+        self.scene = scene
+        self.settings = settings
+        try:
+            self.frames: FrameSet = build_frames(scene, should_stop)
+            lights = prepare_lights(scene, self.frames)
+        except ValueError as error:
+            raise RenderError(str(error)) from error
+        self.warnings = self.frames.warnings
+        self.materials = MaterialTable(scene.materials)
+        self.shader = Shader(self.frames, self.materials, lights, scene.world_color,
+                             settings.max_bounces, settings.searchlight)
+        camera_boost = self.frames.frames[self.frames.camera].boost
+        position = np.asarray(scene.camera.matrix, dtype=np.float64)[:3, 3]
+        world_event = position + camera_boost.b * camera_boost.n * scene.tau_obs
+        tau, _ = camera_boost.events(np.array(scene.tau_obs), world_event)
+        self.camera_tau = float(tau)
+        self.camera_shift = shift_into_frame(camera_boost, position)
+        self.doppler_range = settings.doppler_range
+        if settings.doppler_mode == "FACTOR" and self.doppler_range is None:
+            self.doppler_range = self._measure_doppler_range(should_stop)
+
+    # ------------------------------------------------------------------ layout
+    @property
+    def region(self) -> tuple[int, int, int, int]:
+        width, height = self.settings.resolution
+        return self.settings.region or (0, 0, width, height)
+
+    def tiles(self) -> list[tuple[int, int, int, int]]:
+        x0, y0, x1, y1 = self.region
+        size = max(int(self.settings.tile_size), 1)
+        return [
+            (tx, ty, min(tx + size, x1), min(ty + size, y1))
+            for ty in range(y0, y1, size)
+            for tx in range(x0, x1, size)
+        ]
+
+    # ------------------------------------------------------------------ rays
+    def _camera_rays(self, px, py):
+        origins, d, s_lo, s_hi, valid = primary_rays(self.scene.camera, px, py, self.settings.resolution)
+        tau = np.full(len(d), self.camera_tau)
+        return tau, origins + self.camera_shift, d, s_lo, np.where(valid, s_hi, -np.inf)
+
+    def _pixel_grid(self, rect):
+        x0, y0, x1, y1 = rect
+        ys, xs = np.mgrid[y0:y1, x0:x1]
+        width = self.settings.resolution[0]
+        return xs.ravel(), ys.ravel(), (ys * width + xs).ravel().astype(np.int64)
+
+    def _measure_doppler_range(self, should_stop):
+        """Range of D over the region's pixel-centre rays (for the normalised FACTOR display)."""
+        lo, hi = math.inf, -math.inf
+        for rect in self.tiles():
+            if should_stop():
+                break
+            xs, ys, _ = self._pixel_grid(rect)
+            tau, x, d, s_lo, s_hi = self._camera_rays(xs + 0.5, ys + 0.5)
+            hits = trace_nearest(self.frames, self.frames.camera, tau, x, d, s_lo, s_hi)
+            doppler = 1.0 / hits.w[hits.frame >= 0]
+            if len(doppler):
+                lo, hi = min(lo, doppler.min()), max(hi, doppler.max())
+        return (lo, hi) if lo <= hi else (0.0, 1.0)
+
+    # ------------------------------------------------------------------ one tile
+    def render_tile(self, rect) -> Tile:
+        x0, y0, x1, y1 = rect
+        h, w = y1 - y0, x1 - x0
+        xs, ys, pixel = self._pixel_grid(rect)
+        n = len(pixel)
+        passes = self._centre_passes(xs, ys, pixel)
+        samples = max(int(self.settings.samples), 1)
+        rgb = np.zeros((n, 3))
+        coverage = np.zeros(n)
+        per_batch = max(_MAX_RAYS // max(n, 1), 1)
+        for first in range(0, samples, per_batch):
+            count = min(per_batch, samples - first)
+            pix = np.repeat(pixel, count)
+            smp = np.tile(np.arange(first, first + count), n)
+            ox, oy = sampling.stratified_offsets(pix, smp, samples)
+            color, hit = self._sample(np.repeat(xs, count) + ox, np.repeat(ys, count) + oy, pix, smp)
+            rgb += color.reshape(n, count, 3).sum(axis=1)
+            coverage += hit.reshape(n, count).sum(axis=1)
+        rgb /= samples
+        coverage /= samples
+        alpha = coverage if self.settings.film_transparent else np.ones(n)
+        passes["Combined"] = np.concatenate([rgb, alpha[:, None]], axis=1)
+        return Tile(x0, y0, x1, y1, {k: v.reshape(h, w, -1).astype(np.float32) for k, v in passes.items()})
+
+    def _sample(self, px, py, pixel, sample):
+        """Colour of camera samples and whether they hit anything."""
+        tau, x, d, s_lo, s_hi = self._camera_rays(px, py)
+        camera = self.frames.camera
+        if self.settings.doppler_mode == "FACTOR":
+            hits = trace_nearest(self.frames, camera, tau, x, d, s_lo, s_hi)
+            hit = hits.frame >= 0
+            rgb = np.repeat(self._doppler_grey(1.0 / hits.w)[:, None], 3, axis=1)
+        else:
+            rgb, hits = self.shader.radiance(camera, tau, x, d, s_lo, s_hi, 0, pixel, sample)
+            hit = hits.frame >= 0
+        if self.settings.film_transparent:
+            rgb[~hit] = 0.0
+        elif self.settings.doppler_mode == "FACTOR":
+            rgb[~hit] = self.scene.world_color
+        return rgb, hit
+
+    def _doppler_grey(self, doppler):
+        lo, hi = self.doppler_range
+        t = np.clip((doppler - lo) / (hi - lo), 0.0, 1.0) if hi > lo else np.ones_like(doppler)
+        levels = int(self.settings.doppler_levels)
+        if levels > 1:
+            t = np.minimum(np.floor(t * levels), levels - 1) / (levels - 1)
+        return t
+
+    def _centre_passes(self, xs, ys, pixel):
+        """Passes of the pixel-centre ray: exact, quotable values (no sample averaging)."""
+        tau, x, d, s_lo, s_hi = self._camera_rays(xs + 0.5, ys + 0.5)
+        camera = self.frames.camera
+        hits = trace_nearest(self.frames, camera, tau, x, d, s_lo, s_hi)
+        n = len(d)
+        doppler = np.zeros(n)
+        emission_time = np.zeros(n)
+        depth = np.full(n, 1e10)
+        normal = np.zeros((n, 3))
+        index = np.zeros(n)
+        hit = hits.frame >= 0
+        doppler[hit] = 1.0 / hits.w[hit]
+        depth[hit] = hits.s[hit]
+        # world time of the hit event: back along the ray in the camera frame, then into S
+        world_tau, _ = self.frames.map(camera, self.frames.world).events(tau[hit] - hits.s[hit], x[hit] + hits.s[hit, None] * d[hit])
+        emission_time[hit] = world_tau / self.scene.light_speed
+        for k in np.unique(hits.frame[hit]):
+            sel = np.flatnonzero(hits.frame == k)
+            d_k, _ = self.frames.map(camera, int(k)).rays(d[sel])
+            _, _, ns, _, _ = self.shader.surface_info(int(k), hits.prim[sel], hits.u[sel], hits.v[sel], d_k)
+            normal[sel] = ns
+            index[sel] = self.frames.frames[int(k)].tri_object_index[hits.prim[sel]]
+        return {"Doppler": doppler, "Emission Time": emission_time, "Depth": depth, "Normal": normal, "IndexOB": index}
+
+
+def _validate(scene: Scene, settings: RenderSettings) -> None:
+    if scene.camera is None:
+        raise RenderError("the scene has no camera: add one and make it the scene camera")
+    width, height = settings.resolution
+    if width < 1 or height < 1:
+        raise RenderError(f"the resolution {width}x{height} has no pixels")
+    if settings.region is not None:
+        x0, y0, x1, y1 = settings.region
+        if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
+            raise RenderError(f"the render region {settings.region} is empty or outside the {width}x{height} image")
+    if not (math.isfinite(scene.light_speed) and scene.light_speed > 0):
+        raise RenderError(f"the speed of light must be a positive number (got {scene.light_speed})")
+    if not math.isfinite(scene.tau_obs):
+        raise RenderError("the observation time is not finite: check the reference frame and the speed of light")
+    if settings.doppler_mode not in DOPPLER_MODES:
+        raise RenderError(f"Doppler display mode {settings.doppler_mode!r} is not one of {DOPPLER_MODES}")
+
+
+def _worker_count(settings: RenderSettings) -> int:
+    return settings.threads if settings.threads > 0 else (os.cpu_count() or 1)
+
+
+def render_tiles(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bool] = lambda: False,
+                 renderer: Renderer | None = None) -> Iterator[Tile]:
+    """Yield rendered tiles as they complete; return early once ``should_stop()`` is true."""
+    renderer = renderer or Renderer(scene, settings, should_stop)
+    rects = renderer.tiles()
+    workers = _worker_count(settings)
+    if workers == 1:
+        for rect in rects:
+            if should_stop():
+                return
+            yield renderer.render_tile(rect)
+        return
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        pending = set()
+        queue = iter(rects)
+        try:
+            while True:
+                while len(pending) < 2 * workers and not should_stop():
+                    rect = next(queue, None)
+                    if rect is None:
+                        break
+                    pending.add(pool.submit(renderer.render_tile, rect))
+                if not pending or should_stop():
+                    return
+                done, pending = wait(pending, timeout=0.1, return_when=FIRST_COMPLETED)
+                for future in done:
+                    yield future.result()
+        finally:
+            for future in pending:
+                future.cancel()
+
+
+def render_image(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bool] = lambda: False,
+                 progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
+    """Render the whole image (or region) into full-size pass arrays, row 0 at the bottom."""
+    renderer = Renderer(scene, settings, should_stop)
+    width, height = settings.resolution
+    passes = {name: np.zeros((height, width, channels), dtype=np.float32) for name, channels in ALL_PASSES.items()}
+    total = len(renderer.tiles())
+    for done, tile in enumerate(render_tiles(scene, settings, should_stop, renderer), start=1):
+        for name, data in tile.passes.items():
+            passes[name][tile.y0:tile.y1, tile.x0:tile.x1] = data
+        if progress is not None:
+            progress(done, total)
+    return passes

@@ -1,0 +1,46 @@
+"""Deterministic per-pixel random numbers and stratified sample positions.
+
+Every number depends only on (pixel, sample, dimension), never on how the image
+is split into tiles or threads, so region renders and full renders agree exactly.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+
+
+def _mix(z: np.ndarray) -> np.ndarray:
+    """splitmix64's finaliser: a bijective, well-mixing hash of uint64."""
+    z = (z ^ (z >> np.uint64(30))) * _M1
+    z = (z ^ (z >> np.uint64(27))) * _M2
+    return z ^ (z >> np.uint64(31))
+
+
+def uniform(pixel: np.ndarray, sample: np.ndarray, dimension: int) -> np.ndarray:
+    """Uniform numbers in [0, 1) keyed by pixel id, sample number and dimension."""
+    with np.errstate(over="ignore"):
+        key = pixel.astype(np.uint64) * _GOLDEN
+        key = _mix(key ^ (sample.astype(np.uint64) + np.uint64(1)) * _M2)
+        key = _mix(key + np.uint64(dimension) * _GOLDEN)
+    return (key >> np.uint64(11)).astype(np.float64) * (1.0 / (1 << 53))
+
+
+def stratified_offsets(pixel: np.ndarray, sample: np.ndarray, count: int):
+    """Jittered sub-pixel positions in [0, 1)^2: sample k of ``count`` lands in its own stratum.
+
+    The strata form a ceil(sqrt(count)) grid; a single sample is the pixel centre.
+    """
+    if count == 1:
+        half = np.full(len(pixel), 0.5)
+        return half, half
+    side = int(np.ceil(np.sqrt(count)))
+    # permute strata per pixel so partial grids (non-square counts) stay unbiased
+    order = np.argsort(uniform(np.repeat(pixel[:, None], side * side, 1), np.arange(side * side)[None, :], 0), axis=1)
+    stratum = order[np.arange(len(pixel)), sample % (side * side)]
+    jx = uniform(pixel, sample, 1)
+    jy = uniform(pixel, sample, 2)
+    return (stratum % side + jx) / side, (stratum // side + jy) / side

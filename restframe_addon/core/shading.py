@@ -1,0 +1,369 @@
+"""Shading in each surface's rest frame, with light and colour carried between frames.
+
+A surface is shaded where it is at rest (its frame k): the law of reflection,
+Snell's law, Fresnel and the BSDF hold there.  What crosses frames is light:
+
+* from a light (at rest in frame j) to the surface: the backward ray from the hit
+  event aims at the light's retarded position -- in frame j the light is static,
+  so it is the light's own position -- and is mapped back to frame k.  Its
+  path-length ratio is the Doppler factor D = r / r' of the light seen from the
+  surface; irradiance is ``I' D^4 cos / r^2`` (point-like) or ``E' D^2 cos`` (sun).
+* from a surface to whoever looks at it (camera or another surface): radiance
+  scales by ``D^4`` (frequency-integrated, the searchlight effect).
+
+With ``searchlight`` off these D powers are dropped (geometry only); spectral
+colour shifts are the job of the spectral mode.
+
+The RGB here is scene-linear Rec.709 radiance, in the frame it is evaluated in.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import sampling
+from .frames import FrameSet, shift_into_frame
+from .scene import Light, Material, Scene
+from .tracer import hit_geometry, occluded, trace_nearest
+
+MIRROR_ROUGHNESS = 0.05  # smoother surfaces reflect by traced mirror rays, rougher ones by GGX highlights
+_MIN_ALPHA = 1e-3
+
+# Blender's light units: a point light of power P watts has radiant intensity P / (4 pi) W/sr
+# (irradiance P / (4 pi r^2) head-on); an area light of power P emits radiance P / (pi A);
+# a sun of strength S gives irradiance S on a surface facing it.
+_POINT_INTENSITY_PER_WATT = 1.0 / (4.0 * np.pi)
+
+
+class MaterialTable:
+    """The scene's materials as arrays indexed by material number."""
+
+    def __init__(self, materials: list[Material]):
+        if not materials:
+            materials = [Material()]
+        self.materials = materials
+        self.base = np.array([m.base_color for m in materials], dtype=np.float64).reshape(-1, 3)
+        self.metallic = np.clip([m.metallic for m in materials], 0.0, 1.0)
+        self.roughness = np.clip([m.roughness for m in materials], 0.0, 1.0)
+        self.ior = np.maximum([m.ior for m in materials], 1e-3)
+        self.transmission = np.clip([m.transmission for m in materials], 0.0, 1.0)
+        self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
+        self.textures = [m.base_color_texture for m in materials]
+        self.mirror = self.roughness < MIRROR_ROUGHNESS
+        self.glass = self.transmission > 0.0
+        self.traces_secondary = bool(np.any(self.mirror | self.glass))
+
+    def clamp(self, index):
+        return np.clip(index, 0, len(self.materials) - 1)
+
+    def base_color(self, index, uv):
+        """Base colour per hit, with image textures looked up (bilinear, repeat) where present."""
+        color = self.base[index]
+        if uv is None:
+            return color
+        for m, texture in enumerate(self.textures):
+            if texture is None:
+                continue
+            sel = np.flatnonzero(index == m)
+            if len(sel):
+                color[sel] = _sample_texture(texture, uv[sel])
+        return color
+
+
+def _sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    h, w = texture.shape[:2]
+    x = (uv[:, 0] % 1.0) * w - 0.5
+    y = (uv[:, 1] % 1.0) * h - 0.5
+    x0 = np.floor(x).astype(np.int64)
+    y0 = np.floor(y).astype(np.int64)
+    fx = (x - x0)[:, None]
+    fy = (y - y0)[:, None]
+    x0, x1 = x0 % w, (x0 + 1) % w
+    y0, y1 = y0 % h, (y0 + 1) % h
+    t = texture[..., :3]
+    top = t[y1, x0] * (1 - fx) + t[y1, x1] * fx
+    bottom = t[y0, x0] * (1 - fx) + t[y0, x1] * fx
+    return bottom * (1 - fy) + top * fy
+
+
+@dataclass
+class PreparedLight:
+    """A light placed in its rest frame (the frame index into the FrameSet)."""
+
+    light: Light
+    frame: int
+    position: np.ndarray  # in its frame
+    axes: np.ndarray  # 3x3, columns = local X, Y, Z (emits along -Z)
+    radiant: np.ndarray  # colour * power in Blender units
+
+
+def prepare_lights(scene: Scene, frames: FrameSet) -> list[PreparedLight]:
+    prepared = []
+    for light, frame in zip(scene.lights, frames.light_frames):
+        boost = frames.frames[frame].boost
+        axes = np.asarray(light.matrix, dtype=np.float64)
+        axes = axes / np.maximum(np.linalg.norm(axes, axis=0, keepdims=True), 1e-300)
+        position = np.asarray(light.position, dtype=np.float64) + shift_into_frame(boost, light.pivot_or_position)
+        radiant = np.asarray(light.color, dtype=np.float64) * float(light.power)
+        if light.kind not in ("POINT", "SPOT", "SUN", "AREA"):
+            raise ValueError(f"{light.name}: light type {light.kind} is not supported by RESTframe")
+        if np.any(radiant > 0):
+            prepared.append(PreparedLight(light, frame, position, axes, radiant))
+    return prepared
+
+
+class Shader:
+    """Traces and shades backward rays for one prepared scene (thread-safe: read-only state)."""
+
+    def __init__(self, frames: FrameSet, materials: MaterialTable, lights: list[PreparedLight],
+                 world_color, max_bounces: int, searchlight: bool):
+        self.frames = frames
+        self.materials = materials
+        self.lights = lights
+        self.world_color = np.asarray(world_color, dtype=np.float64)
+        self.max_bounces = max_bounces
+        self.searchlight = searchlight
+        self.epsilon = {
+            k: 1e-5 * float(np.max(frames.frames[k].hi - frames.frames[k].lo)) + 1e-9 * float(np.max(np.abs(frames.frames[k].anchor)))
+            for k in frames.geometry
+        }
+
+    # ------------------------------------------------------------------ helpers
+    def _observed(self, radiance, w):
+        """Radiance seen across a frame change with path ratio w = 1/D."""
+        if not self.searchlight:
+            return radiance
+        return radiance * (1.0 / w**4)[:, None]
+
+    # ------------------------------------------------------------------ rays
+    def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, depth: int, pixel, sample):
+        """Radiance arriving at events (tau0, x0) of frame src from backward directions d.
+
+        Returns (rgb (n, 3), hits) -- the hits of this ray bundle, for the passes.
+        """
+        n = len(d)
+        hits = trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi)
+        rgb = np.empty((n, 3))
+        miss = hits.frame < 0
+        if np.any(miss):
+            _, w_world = self.frames.map(src, self.frames.world).rays(d[miss])
+            rgb[miss] = self._observed(np.broadcast_to(self.world_color, (int(miss.sum()), 3)), w_world)
+        for k in np.unique(hits.frame[~miss]):
+            sel = np.flatnonzero(hits.frame == k)
+            fmap = self.frames.map(src, int(k))
+            tau_k, _ = fmap.events(tau0[sel], x0[sel])
+            d_k, w = fmap.rays(d[sel])
+            local = self._shade_surface(int(k), tau_k - hits.s_frame[sel], d_k, hits.prim[sel],
+                                        hits.u[sel], hits.v[sel], depth, pixel[sel], sample[sel])
+            rgb[sel] = self._observed(local, w)
+        return rgb, hits
+
+    def surface_info(self, k: int, prim, u, v, d_k):
+        """Position, facing geometric and shading normals, and material index at hits of frame k."""
+        frame = self.frames.frames[k]
+        position, ng, ns = hit_geometry(frame, prim, u, v)
+        back = np.einsum("ij,ij->i", ng, d_k) > 0.0
+        ng = np.where(back[:, None], -ng, ng)
+        ns = np.where(back[:, None], -ns, ns)
+        # a shading normal turned away from the viewer falls back to the geometric one
+        away = np.einsum("ij,ij->i", ns, d_k) >= 0.0
+        ns = np.where(away[:, None], ng, ns)
+        material = self.materials.clamp(frame.tri_material[prim])
+        return position, ng, ns, material, back
+
+    def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample):
+        frame = self.frames.frames[k]
+        mats = self.materials
+        position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k)
+        uv = None
+        if frame.corner_uvs is not None:
+            cuv = frame.corner_uvs[prim]
+            uu, vv = u[:, None], v[:, None]
+            uv = (1.0 - uu - vv) * cuv[:, 0] + uu * cuv[:, 1] + vv * cuv[:, 2]
+        base = mats.base_color(mat, uv)
+        rgb = mats.emission[mat].copy()
+        if self.lights:
+            rgb += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample)
+        if mats.traces_secondary and depth < self.max_bounces:
+            rgb += self._secondary(k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample)
+        return rgb
+
+    # ------------------------------------------------------------------ direct light
+    def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample):
+        mats = self.materials
+        diffuse = base * ((1.0 - mats.metallic[mat]) * (1.0 - mats.transmission[mat]))[:, None] / np.pi
+        rough = ~mats.mirror[mat]
+        f0 = _dielectric_f0(mats.ior[mat])[:, None] * (1.0 - mats.metallic[mat])[:, None] + base * mats.metallic[mat][:, None]
+        alpha = np.maximum(mats.roughness[mat] ** 2, _MIN_ALPHA)
+        eps = self.epsilon[k]
+        origin = position + eps * ng
+        total = np.zeros_like(position)
+        for index, light in enumerate(self.lights):
+            dim = 1000 + 100 * depth + 4 * index
+            xi1 = sampling.uniform(pixel, sample, dim)
+            xi2 = sampling.uniform(pixel, sample, dim + 1)
+            e_k, irradiance, s_max = self._incident(light, k, tau, position, xi1, xi2)
+            cos_n = np.einsum("ij,ij->i", ns, e_k)
+            lit = (cos_n > 0.0) & (np.einsum("ij,ij->i", ng, e_k) > 0.0) & np.any(irradiance > 0.0, axis=1)
+            sel = np.flatnonzero(lit)
+            if len(sel) == 0:
+                continue
+            blocked = occluded(self.frames, k, tau[sel], origin[sel], e_k[sel], eps, s_max[sel] - 2.0 * eps)
+            sel = sel[~blocked]
+            if len(sel) == 0:
+                continue
+            brdf = diffuse[sel].copy()
+            r = sel[rough[sel]]
+            if len(r):
+                brdf[rough[sel]] += _ggx(ns[r], view[r], e_k[r], alpha[r], f0[r])
+            total[sel] += brdf * (irradiance[sel] * cos_n[sel, None])
+        return total
+
+    def _incident(self, pl: PreparedLight, k, tau, position, xi1, xi2):
+        """Direction toward the light's retarded position (frame k), the irradiance it gives
+        on a surface facing it (before cos), and the path length to it (inf for the sun)."""
+        light = pl.light
+        to_light = self.frames.map(k, pl.frame)
+        back = self.frames.map(pl.frame, k)
+        n = len(tau)
+        x_axis, y_axis, z_axis = pl.axes[:, 0], pl.axes[:, 1], pl.axes[:, 2]
+        if light.kind == "SUN":
+            e_j = np.broadcast_to(z_axis, (n, 3))
+            if light.sun_angle > 0.0:
+                e_j = _cone_sample(z_axis, 0.5 * light.sun_angle, xi1, xi2)
+            e_k, w = back.rays(e_j)
+            scale = w**2 if self.searchlight else np.ones(n)
+            return e_k, pl.radiant[None, :] * scale[:, None], np.full(n, np.inf)
+        _, x_j = to_light.events(tau, position)
+        sample = np.broadcast_to(pl.position, (n, 3)).copy()
+        if light.kind == "AREA":
+            sx, sy = light.area_size
+            if light.area_shape in ("DISK", "ELLIPSE"):
+                radius, angle = np.sqrt(xi1), 2.0 * np.pi * xi2
+                a, b = 0.5 * radius * np.cos(angle), 0.5 * radius * np.sin(angle)
+            else:
+                a, b = xi1 - 0.5, xi2 - 0.5
+            sample += (a * sx)[:, None] * x_axis + (b * sy)[:, None] * y_axis
+        delta = sample - x_j
+        r_rest = np.linalg.norm(delta, axis=1)
+        e_j = delta / np.maximum(r_rest, 1e-300)[:, None]
+        if light.kind != "AREA" and light.radius > 0.0:
+            # a soft (spherical) light: aim at a point of its disc facing the surface
+            disc = _disc_sample(e_j, light.radius, xi1, xi2)
+            delta = sample + disc - x_j
+            r_rest = np.linalg.norm(delta, axis=1)
+            e_j = delta / np.maximum(r_rest, 1e-300)[:, None]
+        if light.kind == "AREA":
+            intensity = np.maximum(e_j @ z_axis, 0.0) / np.pi  # Lambertian, emitting along -Z
+        else:
+            intensity = np.full(n, _POINT_INTENSITY_PER_WATT)
+            if light.kind == "SPOT":
+                intensity = intensity * _spot_falloff(e_j @ z_axis, light.spot_size, light.spot_blend)
+        e_k, w = back.rays(e_j)
+        r = w * r_rest  # distance to the retarded position in the surface frame
+        scale = w**4 if self.searchlight else np.ones(n)
+        irradiance = pl.radiant[None, :] * (intensity * scale / np.maximum(r, 1e-300) ** 2)[:, None]
+        return e_k, irradiance, r
+
+    # ------------------------------------------------------------------ mirror and glass
+    def _secondary(self, k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample):
+        mats = self.materials
+        rgb = np.zeros_like(position)
+        active = np.flatnonzero(mats.mirror[mat] | mats.glass[mat])
+        if len(active) == 0:
+            return rgb
+        n_a, ng_a, d_a = ns[active], ng[active], d_k[active]
+        m = mat[active]
+        cos_i = -np.einsum("ij,ij->i", n_a, d_a)
+        # relative index of refraction across the surface, as the ray leaves the viewer's side
+        eta = np.where(back[active], mats.ior[m], 1.0 / mats.ior[m])
+        fresnel = _fresnel_dielectric(cos_i, eta)
+        metallic = mats.metallic[m][:, None]
+        reflect_weight = fresnel[:, None] * (1.0 - metallic) + base[active] * metallic
+        transmit_weight = ((1.0 - fresnel) * mats.transmission[m])[:, None] * (1.0 - metallic)
+        eps = self.epsilon[k]
+        reflected = d_a + 2.0 * cos_i[:, None] * n_a
+        rgb[active] += reflect_weight * self._bounce(k, tau[active], position[active] + eps * ng_a, reflected,
+                                                     eps, depth, pixel[active], sample[active])
+        refr = np.flatnonzero(np.any(transmit_weight > 0.0, axis=1))
+        if len(refr):
+            k2 = 1.0 - eta[refr] ** 2 * (1.0 - cos_i[refr] ** 2)
+            ok = k2 > 0.0  # total internal reflection is all in the Fresnel term (F = 1)
+            refr, k2 = refr[ok], k2[ok]
+            transmitted = eta[refr, None] * d_a[refr] + (eta[refr] * cos_i[refr] - np.sqrt(k2))[:, None] * n_a[refr]
+            transmitted /= np.linalg.norm(transmitted, axis=1, keepdims=True)
+            idx = active[refr]
+            rgb[idx] += transmit_weight[refr] * self._bounce(k, tau[idx], position[idx] - eps * ng_a[refr],
+                                                             transmitted, eps, depth, pixel[idx], sample[idx])
+        return rgb
+
+    def _bounce(self, k, tau, origin, d, eps, depth, pixel, sample):
+        if len(d) == 0:
+            return np.zeros((0, 3))
+        rgb, _ = self.radiance(k, tau, origin, d, eps, np.inf, depth + 1, pixel, sample)
+        return rgb
+
+
+def _dielectric_f0(ior):
+    return ((ior - 1.0) / (ior + 1.0)) ** 2
+
+
+def _fresnel_dielectric(cos_i, eta):
+    """Unpolarised Fresnel reflectance; eta = n_incident / n_transmitted; 1 for total internal reflection."""
+    cos_i = np.clip(cos_i, 0.0, 1.0)
+    sin_t2 = eta**2 * (1.0 - cos_i**2)
+    cos_t = np.sqrt(np.maximum(1.0 - sin_t2, 0.0))
+    rs = (eta * cos_i - cos_t) / np.maximum(eta * cos_i + cos_t, 1e-300)
+    rp = (cos_i - eta * cos_t) / np.maximum(cos_i + eta * cos_t, 1e-300)
+    return np.where(sin_t2 >= 1.0, 1.0, 0.5 * (rs**2 + rp**2))
+
+
+def _ggx(n, view, light, alpha, f0):
+    """Cook-Torrance GGX specular BRDF (Schlick Fresnel, separable Smith shadowing)."""
+    h = view + light
+    h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-300)
+    n_h = np.clip(np.einsum("ij,ij->i", n, h), 0.0, 1.0)
+    n_v = np.clip(np.einsum("ij,ij->i", n, view), 1e-6, 1.0)
+    n_l = np.clip(np.einsum("ij,ij->i", n, light), 1e-6, 1.0)
+    v_h = np.clip(np.einsum("ij,ij->i", view, h), 0.0, 1.0)
+    a2 = alpha**2
+    ndf = a2 / (np.pi * (n_h**2 * (a2 - 1.0) + 1.0) ** 2)
+
+    def smith(c):
+        return 2.0 * c / (c + np.sqrt(a2 + (1.0 - a2) * c * c))
+
+    fresnel = f0 + (1.0 - f0) * ((1.0 - v_h) ** 5)[:, None]
+    return fresnel * (ndf * smith(n_v) * smith(n_l) / (4.0 * n_v * n_l))[:, None]
+
+
+def _spot_falloff(cos_angle, spot_size, blend):
+    cos_half = np.cos(0.5 * spot_size)
+    if blend <= 0.0:
+        return (cos_angle > cos_half).astype(np.float64)
+    t = np.clip((cos_angle - cos_half) / ((1.0 - cos_half) * blend), 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def _orthonormal_basis(axis):
+    """Two unit vectors perpendicular to each unit axis (n, 3)."""
+    helper = np.where(np.abs(axis[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    t1 = np.cross(axis, helper)
+    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
+    return t1, np.cross(axis, t1)
+
+
+def _disc_sample(axis, radius, xi1, xi2):
+    t1, t2 = _orthonormal_basis(axis)
+    r, phi = radius * np.sqrt(xi1), 2.0 * np.pi * xi2
+    return (r * np.cos(phi))[:, None] * t1 + (r * np.sin(phi))[:, None] * t2
+
+
+def _cone_sample(axis, half_angle, xi1, xi2):
+    axis = np.broadcast_to(axis, (len(xi1), 3))
+    t1, t2 = _orthonormal_basis(axis)
+    cos_t = 1.0 - xi1 * (1.0 - np.cos(half_angle))
+    sin_t = np.sqrt(np.maximum(1.0 - cos_t**2, 0.0))
+    phi = 2.0 * np.pi * xi2
+    return (sin_t * np.cos(phi))[:, None] * t1 + (sin_t * np.sin(phi))[:, None] * t2 + cos_t[:, None] * axis
