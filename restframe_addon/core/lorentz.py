@@ -154,6 +154,8 @@ class Boost:
         h = np.where(toward, half_s2, 2.0 - half_s2)  # h = 1 + n.d
         # d_perp = d - (n.d) n, from the small difference vector for accuracy
         d_perp = np.where(toward[..., None], s - half_s2[..., None] * n, s + half_s2[..., None] * n)
+        # inputs a few ulps off unit length leave a residue along n; remove it exactly
+        d_perp -= (d_perp @ n)[..., None] * n
         one_plus_bd = self.one_minus_b + b * h
         par = (h - self.one_minus_b) / one_plus_bd
         d_new = par[..., None] * n + d_perp / (self.gamma * one_plus_bd)[..., None]
@@ -167,14 +169,18 @@ class Boost:
 def compose_velocities(u, v):
     """Velocity of a body moving with ``v`` (in S) as measured in the frame moving with ``u``.
 
-    Both in units of c.  Computed by boosting the body's 4-velocity, so the
-    result is the exact relativistic composition (including its direction).
+    Both in units of c.  Returns ``(beta, gamma)``: the body's 4-velocity boosted
+    into the frame, so the result is the exact relativistic composition
+    (direction included); gamma keeps the speed where beta rounds to 1.
     """
     boost = Boost.from_velocity(u, name="frame velocity")
     body = Boost.from_velocity(v, name="body velocity")
-    # 4-velocity (gamma, gamma beta) of the body, boosted into the frame
-    tau, x = boost.events(np.array(body.gamma), body.gamma * body.b * body.n)
-    return x / tau
+    # gamma' = gamma_u gamma_v (1 - u.v), written without cancellation for u.v near 1
+    nn = float(boost.n @ body.n)
+    one_minus_uv = boost.one_minus_b + boost.b * body.one_minus_b + boost.b * body.b * (1.0 - nn)
+    gamma = boost.gamma * body.gamma * one_minus_uv
+    _, x = boost.events(np.array(body.gamma), body.gamma * body.b * body.n)
+    return x / gamma, gamma
 
 
 def speed_report(beta, lorentz_factor: float = 0.0) -> tuple[float, float, float]:
