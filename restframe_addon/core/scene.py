@@ -46,6 +46,7 @@ class Material:
     metallic: float = 0.0
     roughness: float = 0.5
     ior: float = 1.5
+    specular_ior_level: float = 0.5  # Principled "Specular IOR Level": 0.5 = Fresnel of the IOR, 0 = none
     transmission: float = 0.0
     emission: tuple[float, float, float] = (0.0, 0.0, 0.0)  # colour * strength, rest-frame radiance
     base_color_texture: np.ndarray | None = None  # (H, W, 3) scene-linear, row 0 = bottom (Blender order)

@@ -48,6 +48,7 @@ class MaterialTable:
         self.metallic = np.clip([m.metallic for m in materials], 0.0, 1.0)
         self.roughness = np.clip([m.roughness for m in materials], 0.0, 1.0)
         self.ior = np.maximum([m.ior for m in materials], 1e-3)
+        self.specular_scale = 2.0 * np.clip([m.specular_ior_level for m in materials], 0.0, None)
         self.transmission = np.clip([m.transmission for m in materials], 0.0, 1.0)
         self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
         self.textures = [m.base_color_texture for m in materials]
@@ -195,7 +196,8 @@ class Shader:
         mats = self.materials
         diffuse = base * ((1.0 - mats.metallic[mat]) * (1.0 - mats.transmission[mat]))[:, None] / np.pi
         rough = ~mats.mirror[mat]
-        f0 = _dielectric_f0(mats.ior[mat])[:, None] * (1.0 - mats.metallic[mat])[:, None] + base * mats.metallic[mat][:, None]
+        f0_dielectric = np.minimum(_dielectric_f0(mats.ior[mat]) * mats.specular_scale[mat], 1.0)
+        f0 = (f0_dielectric * (1.0 - mats.metallic[mat]))[:, None] + base * mats.metallic[mat][:, None]
         alpha = np.maximum(mats.roughness[mat] ** 2, _MIN_ALPHA)
         eps = self.epsilon[k]
         origin = position + eps * ng

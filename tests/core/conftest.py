@@ -1,0 +1,5 @@
+"""Core tests import the small geometry helpers next to them."""
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))
