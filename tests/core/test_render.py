@@ -191,10 +191,12 @@ def test_nearer_object_emitting_earlier_is_hidden():
     assert passes["IndexOB"][16, 16, 0] == 2
     assert passes["Doppler"][16, 16, 0] == 1.0
     assert abs(passes["Depth"][16, 16, 0] - 10.0) < 1e-5
-    assert passes["IndexOB"][0, 0, 0] == 1
-    # the screen's light at the axis would have come from 50 away: check at the edge pixel instead
-    edge = passes["Depth"][0, 16, 0]
-    assert edge > 10.0
+    # 13.6 degrees off axis (outside the tile): the screen, seen where it was s = 5 / (cos - 0.9) away
+    cos = 1.0 / math.hypot(1.0, 0.5 * 8.0 / 16.5)
+    assert passes["IndexOB"][16, 8, 0] == 1
+    assert abs(passes["Depth"][16, 8, 0] - 5.0 / (cos - 0.9)) < 1e-4
+    # beyond the aberration cone cos > 0.9 the approaching screen is not seen at all
+    assert passes["IndexOB"][0, 0, 0] == 0
     # light arriving at tau = 5 left the screen at tau = 0 from distance 5, in front of the tile
     later = render_image(Scene(camera=scene.camera, meshes=scene.meshes, tau_obs=5.0), settings((33, 33)))
     assert later["IndexOB"][16, 16, 0] == 1
