@@ -1,0 +1,179 @@
+"""Headless rendering with Blender as a Python module (``pip install bpy``).
+
+    python -m restframe_addon render FILE.blend -o OUT.png [--frame N | --frames A-B]
+
+The .blend is opened read-only in spirit: settings are changed in memory for the
+render (engine, output format) and the file is never saved.  Each frame depends
+only on its own time, so frame ranges can be split across machines freely.
+The output format follows OUT's extension (``.exr`` = multilayer EXR with every
+pass); with no extension the scene's own output settings are used.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import sys
+import time
+
+# extension -> (file format, multilayer)
+FORMATS = {
+    ".png": ("PNG", False),
+    ".jpg": ("JPEG", False),
+    ".jpeg": ("JPEG", False),
+    ".tif": ("TIFF", False),
+    ".tiff": ("TIFF", False),
+    ".exr": ("OPEN_EXR_MULTILAYER", True),
+}
+
+
+class CommandError(Exception):
+    """A problem with the command line or the file, reported without a traceback."""
+
+
+def parse_frames(spec: str) -> list[int]:
+    """'5' -> [5]; '1-4' -> [1, 2, 3, 4]; '1-9:4' -> [1, 5, 9]; comma-separated lists combine."""
+    frames: list[int] = []
+    for part in spec.split(","):
+        match = re.fullmatch(r"\s*(-?\d+)\s*(?:(?:-|\.\.)\s*(-?\d+)\s*(?::\s*(\d+)\s*)?)?", part)
+        if not match:
+            raise CommandError(f"bad frame range {part!r}: use N, A-B or A-B:STEP")
+        first = int(match.group(1))
+        last = int(match.group(2)) if match.group(2) is not None else first
+        step = int(match.group(3) or 1)
+        if last < first or step < 1:
+            raise CommandError(f"bad frame range {part!r}: the end is before the start or the step is not positive")
+        frames.extend(range(first, last + 1, step))
+    return list(dict.fromkeys(frames))
+
+
+def output_path(out: str, frame: int, several: bool) -> str:
+    """Where one frame goes: '#' runs become the zero-padded frame number (as in Blender);
+    without '#', several frames get '_NNNN' before the extension."""
+    head, tail = os.path.split(out)
+    runs = list(re.finditer(r"#+", tail))
+    if runs:
+        run = runs[-1]
+        tail = tail[:run.start()] + f"{frame:0{len(run.group())}d}" + tail[run.end():]
+    elif several:
+        stem, ext = os.path.splitext(tail)
+        tail = f"{stem}_{frame:04d}{ext}"
+    return os.path.join(head, tail)
+
+
+def configure_output(scene, out: str) -> str:
+    """Set the scene's image format from OUT's extension; returns the extension to write."""
+    ext = os.path.splitext(out)[1].lower()
+    settings = scene.render.image_settings
+    if not ext:
+        return scene.render.file_extension
+    if ext not in FORMATS:
+        raise CommandError(f"unknown output extension {ext!r}: use one of {', '.join(sorted(FORMATS))}")
+    file_format, multilayer = FORMATS[ext]
+    if hasattr(settings, "media_type"):  # Blender 5.0+: choose the media type first
+        settings.media_type = 'MULTI_LAYER_IMAGE' if multilayer else 'IMAGE'
+        if not multilayer:
+            settings.file_format = file_format
+    else:
+        settings.file_format = file_format
+    if multilayer:
+        settings.color_depth = '32'  # full float: pass values (Doppler, times) are quotable
+    else:
+        settings.color_mode = 'RGBA' if scene.render.film_transparent and file_format != "JPEG" else 'RGB'
+    return ext
+
+
+def open_blend(path: str, scene_name: str | None = None):
+    """Load FILE.blend with the add-on registered and RESTframe as its engine."""
+    import bpy
+
+    if not os.path.isfile(path):
+        raise CommandError(f"{path}: no such .blend file")
+    bpy.ops.wm.open_mainfile(filepath=os.path.abspath(path), load_ui=False)
+    scene = bpy.data.scenes.get(scene_name) if scene_name else bpy.context.scene
+    if scene is None:
+        raise CommandError(f"{path}: no scene named {scene_name!r} "
+                           f"(scenes: {', '.join(s.name for s in bpy.data.scenes)})")
+    scene.render.engine = 'RESTFRAME'
+    return scene
+
+
+def render_frame(scene, frame: int, path: str) -> None:
+    """Render one frame and write it to ``path`` atomically (no half-written files)."""
+    import bpy
+
+    scene.frame_set(frame)
+    try:
+        bpy.ops.render.render(write_still=False, scene=scene.name)
+    except RuntimeError as error:
+        raise CommandError(f"frame {frame}: {str(error).strip()}") from None
+    directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
+    stem, ext = os.path.splitext(os.path.basename(path))
+    partial = os.path.join(directory, f".{stem}.partial-{os.getpid()}{ext}")
+    try:
+        bpy.data.images["Render Result"].save_render(filepath=partial, scene=scene)
+        os.replace(partial, path)
+    finally:
+        if os.path.exists(partial):
+            os.remove(partial)
+
+
+def render_command(args) -> int:
+    import bpy
+
+    import restframe_addon
+
+    if args.frame is not None and args.frames is not None:
+        raise CommandError("give either --frame or --frames, not both")
+    if not hasattr(bpy.types.Scene, "restframe"):
+        restframe_addon.register()
+    scene = open_blend(args.blend, args.scene)
+    if args.samples is not None:
+        scene.restframe.samples = args.samples
+    if args.percentage is not None:
+        scene.render.resolution_percentage = args.percentage
+    ext = configure_output(scene, args.output)
+    out = args.output if os.path.splitext(args.output)[1] else args.output + ext
+    if args.frames is not None:
+        frames = parse_frames(args.frames)
+    else:
+        frames = [args.frame if args.frame is not None else scene.frame_current]
+    for frame in frames:
+        started = time.monotonic()
+        path = output_path(out, frame, len(frames) > 1)
+        render_frame(scene, frame, path)
+        print(f"restframe: frame {frame} -> {path} ({time.monotonic() - started:.2f} s)", flush=True)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m restframe_addon",
+                                     description="RESTframe: relativistic rendering of .blend files")
+    commands = parser.add_subparsers(dest="command", required=True)
+    render = commands.add_parser("render", help="render frames of a .blend file with RESTframe",
+                                 description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    render.add_argument("blend", help="the .blend file (never modified)")
+    render.add_argument("-o", "--output", required=True,
+                        help="output image; '#' runs become the frame number, the extension picks the "
+                        "format (.png .jpg .tif, .exr = multilayer EXR with all passes)")
+    render.add_argument("--frame", type=int, help="the frame to render (default: the file's current frame)")
+    render.add_argument("--frames", help="frames to render: A-B, A-B:STEP or a comma-separated list")
+    render.add_argument("--scene", help="scene name (default: the file's active scene)")
+    render.add_argument("--samples", type=int, help="override the scene's RESTframe samples")
+    render.add_argument("--percentage", type=int, help="override the resolution percentage")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return render_command(args)
+    except CommandError as error:
+        print(f"restframe: error: {error}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

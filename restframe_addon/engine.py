@@ -1,0 +1,113 @@
+"""The RESTframe render engine: F12, animation renders and ``blender -b ... -E RESTFRAME``.
+
+``render()`` exports the evaluated depsgraph, then streams the core's tiles into
+Blender's render result so the image fills in chunk by chunk.  Every failure is
+reported with ``self.report({'ERROR'}, ...)``: Blender swallows exceptions raised
+inside ``render()`` and would show a silent black image instead.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import traceback
+
+import bpy
+
+from . import export
+from .core.render import Renderer, RenderError, render_tiles
+
+# Blender 5.0 renamed its object index pass ("IndexOB" before).
+OBJECT_INDEX_PASS = "Object Index" if bpy.app.version >= (5, 0, 0) else "IndexOB"
+
+# Blender pass name -> the core's pass name
+_CORE_PASS = {OBJECT_INDEX_PASS: "IndexOB"}
+
+
+def list_render_passes(scene, view_layer):
+    """(name, channel ids, type) of every pass a render of this view layer produces."""
+    yield ("Combined", "RGBA", 'COLOR')
+    if view_layer.use_pass_z:
+        yield ("Depth", "Z", 'VALUE')
+    if view_layer.use_pass_normal:
+        yield ("Normal", "XYZ", 'VECTOR')
+    if view_layer.use_pass_object_index:
+        yield (OBJECT_INDEX_PASS, "X", 'VALUE')
+    yield ("Doppler", "X", 'VALUE')
+    yield ("Emission Time", "X", 'VALUE')
+
+
+class RestframeRenderEngine(bpy.types.RenderEngine):
+    bl_idname = "RESTFRAME"
+    bl_label = "RESTframe"
+    bl_use_preview = False  # material previews would need the full tracer per thumbnail
+    bl_use_postprocess = True  # compositor and sequencer run on our result
+    bl_use_eevee_viewport = True  # Material Preview / Rendered viewport shading use EEVEE
+    bl_use_shading_nodes_custom = False  # Blender's own shader nodes define materials
+
+    # Blender 5.0 needs the full signature, or the engine fails silently (empty image).
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+
+    def update_render_passes(self, scene=None, renderlayer=None):
+        for name, channel_ids, channel_type in list_render_passes(scene, renderlayer):
+            self.register_pass(scene, renderlayer, name, len(channel_ids), channel_ids, channel_type)
+
+    def render(self, depsgraph):
+        try:
+            self._render(depsgraph)
+        except Exception as error:  # anything unexpected must still reach the user
+            traceback.print_exc(file=sys.stderr)
+            self.report({'ERROR'}, f"RESTframe: {type(error).__name__}: {error}")
+
+    def _render(self, depsgraph):
+        started = time.monotonic()
+        view_layer = depsgraph.view_layer
+        self.update_stats("", "RESTframe | Exporting scene")
+        try:
+            scene, settings = export.export_scene(
+                depsgraph,
+                self.camera_override,
+                resolution=(self.resolution_x, self.resolution_y),
+                should_stop=self.test_break,
+                warn=lambda message: self.report({'WARNING'}, f"RESTframe: {message}"),
+            )
+            if self.test_break():
+                return
+            self.update_stats("", "RESTframe | Building rest frames")
+            renderer = Renderer(scene, settings, self.test_break)
+        except export.ExportCancelled:
+            return
+        except (export.ExportError, RenderError) as error:
+            self.report({'ERROR'}, f"RESTframe: {error}")
+            return
+        for message in renderer.warnings:
+            self.report({'WARNING'}, f"RESTframe: {message}")
+
+        x_offset, y_offset = renderer.region[:2]
+        total = len(renderer.tiles())
+        triangles = sum(len(mesh.triangles) for mesh in scene.meshes)
+        for done, tile in enumerate(render_tiles(scene, settings, self.test_break, renderer), start=1):
+            result = self.begin_result(tile.x0 - x_offset, tile.y0 - y_offset,
+                                       tile.x1 - tile.x0, tile.y1 - tile.y0, layer=view_layer.name)
+            for render_pass in result.layers[0].passes:
+                data = tile.passes.get(_CORE_PASS.get(render_pass.name, render_pass.name))
+                if data is not None and data.shape[2] == render_pass.channels:
+                    render_pass.rect.foreach_set(data.ravel())
+            self.end_result(result)
+            self.update_progress(done / total)
+            self.update_stats("", f"RESTframe | {len(scene.meshes)} objects, {triangles} triangles | "
+                              f"Tile {done}/{total} | {time.monotonic() - started:.1f} s")
+
+
+classes = (RestframeRenderEngine,)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,212 @@
+"""RESTframe's settings on objects and scenes (``Object.restframe``, ``Scene.restframe``).
+
+The property names are public: scripts, pipelines and the README rely on them.
+Every value is animatable like any Blender property; the physics they feed is
+defined in ``shared/physics.md``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import bpy
+from bpy.props import (
+    BoolProperty,
+    EnumProperty,
+    FloatProperty,
+    FloatVectorProperty,
+    IntProperty,
+    PointerProperty,
+)
+from bpy.types import PropertyGroup
+
+# Explicit numbers keep saved files stable when SPECTRAL (colour shift) joins the list.
+DOPPLER_MODES = (
+    ('OFF', "Off", "Geometry only: aberration, light-travel time and the searchlight effect; "
+     "colours are not shifted", 0),
+    ('FACTOR', "Factor", "Show the Doppler factor D of each pixel as a grey level "
+     "(D > 1: approaching, D < 1: receding)", 1),
+)
+
+
+def speed_of(beta, lorentz_factor: float) -> tuple[float, float, float]:
+    """Speed as (beta, gamma, rapidity) from the two user inputs.
+
+    With ``lorentz_factor`` > 0 the speed comes from gamma, which stays exact for
+    speeds too close to c to write as a float beta.  Values are ``nan`` when the
+    input is not physical (speed >= c, gamma < 1, no direction for gamma > 1).
+    """
+    if lorentz_factor > 0.0:
+        gamma = float(lorentz_factor)
+        if gamma < 1.0 or not math.isfinite(gamma) or (gamma > 1.0 and not any(beta)):
+            return math.nan, math.nan, math.nan
+        # beta = sqrt(1 - 1/gamma^2), written without cancellation
+        return math.sqrt((gamma - 1.0) * (gamma + 1.0)) / gamma, gamma, math.acosh(gamma)
+    b = math.sqrt(sum(float(c) * float(c) for c in beta))
+    if not b < 1.0:  # also catches nan
+        return math.nan, math.nan, math.nan
+    return b, 1.0 / math.sqrt((1.0 - b) * (1.0 + b)), math.atanh(b)
+
+
+class RestframeObjectSettings(PropertyGroup):
+    """Constant velocity of an object, light or camera (``Object.restframe``)."""
+
+    velocity: FloatVectorProperty(
+        name="Velocity",
+        description="Velocity in units of the speed of light c, along the world axes and "
+        "measured in the world frame (|velocity| < 1). On a camera it makes a moving observer",
+        subtype='VELOCITY',
+        size=3,
+        default=(0.0, 0.0, 0.0),
+        soft_min=-1.0,
+        soft_max=1.0,
+        step=1,
+        precision=6,
+    )
+    lorentz_factor: FloatProperty(
+        name="Lorentz Factor",
+        description="0: unused. Above 0 it sets the speed through gamma (at least 1) and Velocity "
+        "gives only the direction: the way to enter speeds too close to c for a decimal fraction",
+        default=0.0,
+        min=0.0,
+        soft_max=1e6,
+        step=10,
+        precision=6,
+    )
+
+    def _speed(self):
+        return speed_of(self.velocity, self.lorentz_factor)
+
+    beta: FloatProperty(
+        name="Speed",
+        description="Speed in units of c (computed)",
+        get=lambda self: self._speed()[0],
+        precision=9,
+    )
+    gamma: FloatProperty(
+        name="Gamma",
+        description="Lorentz factor 1/sqrt(1 - beta^2) (computed)",
+        get=lambda self: self._speed()[1],
+        precision=6,
+    )
+    rapidity: FloatProperty(
+        name="Rapidity",
+        description="Rapidity atanh(beta): adds up along a line, unlike speeds (computed)",
+        get=lambda self: self._speed()[2],
+        precision=6,
+    )
+
+    @property
+    def is_moving(self) -> bool:
+        return any(self.velocity) or self.lorentz_factor > 1.0
+
+    @classmethod
+    def register(cls):
+        bpy.types.Object.restframe = PointerProperty(
+            name="RESTframe", description="RESTframe relativistic motion", type=cls)
+
+    @classmethod
+    def unregister(cls):
+        del bpy.types.Object.restframe
+
+
+class RestframeSceneSettings(PropertyGroup):
+    """Scene-wide clock, quality and display settings (``Scene.restframe``)."""
+
+    light_speed: FloatProperty(
+        name="Speed of Light",
+        description="The speed of light c in scene units per second: converts the frame clock "
+        "into light travel distance. Smaller values make motion across frames visible",
+        default=10.0,
+        min=1e-9,
+        soft_min=0.01,
+        soft_max=1000.0,
+        precision=4,
+    )
+    reference_frame: IntProperty(
+        name="Reference Frame",
+        description="The frame at which every moving object (its assembly pivot) sits where it "
+        "was placed; at other frames it has moved by velocity x elapsed time",
+        default=1,
+    )
+    samples: IntProperty(
+        name="Samples",
+        description="Camera samples per pixel (stratified), for anti-aliasing and soft effects",
+        default=4,
+        min=1,
+        soft_max=256,
+        max=1 << 16,
+    )
+    max_bounces: IntProperty(
+        name="Max Bounces",
+        description="Maximum number of mirror and glass bounces of a light path",
+        default=4,
+        min=0,
+        max=128,
+    )
+    tile_size: IntProperty(
+        name="Tile Size",
+        description="Pixels per side of the chunks the image fills in with",
+        default=64,
+        min=8,
+        max=4096,
+        subtype='PIXEL',
+    )
+    doppler_mode: EnumProperty(
+        name="Doppler",
+        description="How the Doppler shift of received light is shown",
+        items=DOPPLER_MODES,
+        default='OFF',
+    )
+    searchlight: BoolProperty(
+        name="Searchlight",
+        description="Apply the relativistic intensity change (D^4 for radiance, the headlight "
+        "effect): approaching objects brighten, receding ones dim",
+        default=True,
+    )
+    doppler_range_auto: BoolProperty(
+        name="Auto Range",
+        description="Map the frame's own lowest and highest Doppler factor to black and white",
+        default=True,
+    )
+    doppler_range: FloatVectorProperty(
+        name="Range",
+        description="Doppler factors shown as black and white (Factor display)",
+        size=2,
+        default=(0.25, 4.0),
+        min=0.0,
+        soft_max=100.0,
+        precision=4,
+    )
+    doppler_levels: IntProperty(
+        name="Levels",
+        description="Quantise the Factor display to this many grey levels (0: continuous)",
+        default=0,
+        min=0,
+        max=1024,
+    )
+
+    @classmethod
+    def register(cls):
+        bpy.types.Scene.restframe = PointerProperty(
+            name="RESTframe", description="RESTframe render settings", type=cls)
+
+    @classmethod
+    def unregister(cls):
+        del bpy.types.Scene.restframe
+
+
+classes = (
+    RestframeObjectSettings,
+    RestframeSceneSettings,
+)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

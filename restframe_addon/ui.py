@@ -1,0 +1,261 @@
+"""Properties-editor panels for RESTframe, and Blender's own panels enabled for it.
+
+Like the Cycles add-on: our panels poll on ``COMPAT_ENGINES``, and Blender's
+engine-neutral panels (format, output, frame range, camera, colour management,
+material slots and node surfaces) get ``'RESTFRAME'`` added to theirs.
+"""
+
+from __future__ import annotations
+
+import bpy
+from bpy.types import Panel
+
+from . import export
+
+ENGINE = 'RESTFRAME'
+
+# Blender panels (declared for BLENDER_RENDER) that do not apply to RESTframe.
+_EXCLUDE_PANELS = {
+    'DATA_PT_light',  # replaced by RESTFRAME_LIGHT_PT_light, which shows what the tracer uses
+    'DATA_PT_preview',  # no preview renders
+    'MATERIAL_PT_preview',
+    'RENDER_PT_freestyle',  # Freestyle lines are drawn by Blender's internal engines only
+    'MATERIAL_PT_freestyle_line',
+}
+# Engine-specific Blender panels that are right for RESTframe too (node-based surfaces).
+_EXTRA_PANELS = (
+    'EEVEE_MATERIAL_PT_context_material',
+    'EEVEE_MATERIAL_PT_surface',
+    'EEVEE_WORLD_PT_surface',
+)
+
+_MOTION_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META', 'CURVES', 'POINTCLOUD', 'VOLUME',
+                 'EMPTY', 'LIGHT', 'CAMERA'}
+
+
+class RestframeButtonsPanel:
+    bl_space_type = 'PROPERTIES'
+    bl_region_type = 'WINDOW'
+    COMPAT_ENGINES = {ENGINE}
+
+    @classmethod
+    def poll(cls, context):
+        return context.engine in cls.COMPAT_ENGINES
+
+
+# --------------------------------------------------------------------------- render
+class RESTFRAME_RENDER_PT_relativity(RestframeButtonsPanel, Panel):
+    bl_label = "Relativity"
+    bl_context = "render"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = True
+        scene = context.scene
+        rf = scene.restframe
+        col = layout.column()
+        col.prop(rf, "light_speed")
+        col.prop(rf, "reference_frame")
+        col = layout.column(align=True)
+        seconds = export.observation_time(scene)
+        col.label(text=f"Frame {scene.frame_current}: t = {seconds:.6g} s, c·t = {rf.light_speed * seconds:.6g}",
+                  icon='TIME')
+
+
+class RESTFRAME_RENDER_PT_sampling(RestframeButtonsPanel, Panel):
+    bl_label = "Sampling"
+    bl_context = "render"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        rf = context.scene.restframe
+        col = layout.column()
+        col.prop(rf, "samples")
+        col.prop(rf, "max_bounces")
+
+
+class RESTFRAME_RENDER_PT_doppler(RestframeButtonsPanel, Panel):
+    bl_label = "Doppler"
+    bl_context = "render"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        rf = context.scene.restframe
+        col = layout.column()
+        col.prop(rf, "doppler_mode")
+        col.prop(rf, "searchlight")
+        sub = col.column()
+        sub.active = rf.doppler_mode == 'FACTOR'
+        sub.prop(rf, "doppler_range_auto")
+        row = sub.column(align=True)
+        row.active = not rf.doppler_range_auto
+        row.prop(rf, "doppler_range", index=0, text="Black")
+        row.prop(rf, "doppler_range", index=1, text="White")
+        sub.prop(rf, "doppler_levels")
+
+
+class RESTFRAME_RENDER_PT_film(RestframeButtonsPanel, Panel):
+    bl_label = "Film"
+    bl_context = "render"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.prop(context.scene.render, "film_transparent", text="Transparent")
+
+
+class RESTFRAME_RENDER_PT_performance(RestframeButtonsPanel, Panel):
+    bl_label = "Performance"
+    bl_context = "render"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        render = context.scene.render
+        col = layout.column()
+        col.prop(render, "threads_mode")
+        sub = col.column()
+        sub.enabled = render.threads_mode == 'FIXED'
+        sub.prop(render, "threads")
+        col.prop(context.scene.restframe, "tile_size")
+
+
+# --------------------------------------------------------------------------- view layer
+class RESTFRAME_VIEWLAYER_PT_passes(RestframeButtonsPanel, Panel):
+    bl_label = "Passes"
+    bl_context = "view_layer"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        view_layer = context.view_layer
+        col = layout.column(heading="Data", align=True)
+        col.prop(view_layer, "use_pass_z")
+        col.prop(view_layer, "use_pass_normal")
+        col.prop(view_layer, "use_pass_object_index")
+        col = layout.column(align=True)
+        col.label(text="Doppler and Emission Time passes are always rendered", icon='INFO')
+
+
+# --------------------------------------------------------------------------- object
+class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
+    bl_label = "Relativistic Motion"
+    bl_context = "object"
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and context.object is not None and context.object.type in _MOTION_TYPES
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        obj = context.object
+        rf = obj.restframe
+        col = layout.column()
+        col.prop(rf, "velocity", text="Velocity (c)")
+        col.prop(rf, "lorentz_factor")
+
+        box = layout.box()
+        col = box.column(align=True)
+        try:
+            export.object_velocity(obj)
+        except export.ExportError as error:
+            col.label(text=str(error).partition(": ")[2], icon='ERROR')
+        else:
+            col.label(text=f"Speed \u03b2 = {rf.beta:.9g} c")
+            col.label(text=f"Lorentz factor \u03b3 = {rf.gamma:.9g}")
+            col.label(text=f"Rapidity = {rf.rapidity:.6g}")
+        if not rf.is_moving:
+            return
+        if obj.type == 'CAMERA':
+            box.label(text="Moving observer: the image forms in the camera's frame", icon='CAMERA_DATA')
+        root = export.assembly_root(obj)
+        if root != obj:
+            box.label(text=f"Moves rigidly with its parent '{root.name}' (assembly pivot)", icon='LINKED')
+        if export.has_animated_location(obj):
+            warn = layout.column(align=True)
+            warn.alert = True
+            warn.label(text="Location is keyframed: the object will jump between frames", icon='ERROR')
+            warn.label(text="Animate the velocity or the location, not both")
+
+
+# --------------------------------------------------------------------------- light
+class RESTFRAME_LIGHT_PT_light(RestframeButtonsPanel, Panel):
+    bl_label = "Light"
+    bl_context = "data"
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and context.light is not None
+
+    def draw(self, context):
+        layout = self.layout
+        light = context.light
+        layout.row().prop(light, "type", expand=True)
+        layout.use_property_split = True
+        col = layout.column()
+        col.prop(light, "color")
+        col.prop(light, "energy")
+        if hasattr(light, "exposure"):
+            col.prop(light, "exposure")
+        col.separator()
+        if light.type in {'POINT', 'SPOT'}:
+            col.prop(light, "shadow_soft_size", text="Radius")
+        elif light.type == 'SUN':
+            col.prop(light, "angle")
+        elif light.type == 'AREA':
+            col.prop(light, "shape")
+            sub = col.column(align=True)
+            if light.shape in {'SQUARE', 'DISK'}:
+                sub.prop(light, "size")
+            else:
+                sub.prop(light, "size", text="Size X")
+                sub.prop(light, "size_y", text="Y")
+        if light.type == 'SPOT':
+            col.separator()
+            col.prop(light, "spot_size", text="Spot Size")
+            col.prop(light, "spot_blend", text="Blend", slider=True)
+
+
+classes = (
+    RESTFRAME_RENDER_PT_relativity,
+    RESTFRAME_RENDER_PT_sampling,
+    RESTFRAME_RENDER_PT_doppler,
+    RESTFRAME_RENDER_PT_film,
+    RESTFRAME_RENDER_PT_performance,
+    RESTFRAME_VIEWLAYER_PT_passes,
+    RESTFRAME_OBJECT_PT_motion,
+    RESTFRAME_LIGHT_PT_light,
+)
+
+
+def get_panels():
+    """Blender's panels that should also show for RESTframe."""
+    panels = [
+        panel for panel in bpy.types.Panel.__subclasses__()
+        if 'BLENDER_RENDER' in getattr(panel, "COMPAT_ENGINES", ())
+        and panel.__name__ not in _EXCLUDE_PANELS
+        and not panel.__name__.startswith("VIEWLAYER_PT_freestyle")
+    ]
+    panels += [getattr(bpy.types, name) for name in _EXTRA_PANELS if hasattr(bpy.types, name)]
+    return panels
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    for panel in get_panels():
+        panel.COMPAT_ENGINES.add(ENGINE)
+
+
+def unregister():
+    for panel in get_panels():
+        panel.COMPAT_ENGINES.discard(ENGINE)
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)
