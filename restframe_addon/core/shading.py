@@ -196,8 +196,12 @@ class Shader:
         mats = self.materials
         diffuse = base * ((1.0 - mats.metallic[mat]) * (1.0 - mats.transmission[mat]))[:, None] / np.pi
         rough = ~mats.mirror[mat]
+        metallic = mats.metallic[mat]
+        # Specular IOR Level scales the whole dielectric lobe (0 = none), grazing reflection included
+        level = np.minimum(mats.specular_scale[mat], 1.0)
         f0_dielectric = np.minimum(_dielectric_f0(mats.ior[mat]) * mats.specular_scale[mat], 1.0)
-        f0 = (f0_dielectric * (1.0 - mats.metallic[mat]))[:, None] + base * mats.metallic[mat][:, None]
+        f0 = (f0_dielectric * (1.0 - metallic))[:, None] + base * metallic[:, None]
+        f90 = level * (1.0 - metallic) + metallic
         alpha = np.maximum(mats.roughness[mat] ** 2, _MIN_ALPHA)
         eps = self.epsilon[k]
         origin = position + eps * ng
@@ -219,7 +223,7 @@ class Shader:
             brdf = diffuse[sel].copy()
             r = sel[rough[sel]]
             if len(r):
-                brdf[rough[sel]] += _ggx(ns[r], view[r], e_k[r], alpha[r], f0[r])
+                brdf[rough[sel]] += _ggx(ns[r], view[r], e_k[r], alpha[r], f0[r], f90[r])
             total[sel] += brdf * (irradiance[sel] * cos_n[sel, None])
         return total
 
@@ -281,7 +285,7 @@ class Shader:
         cos_i = -np.einsum("ij,ij->i", n_a, d_a)
         # relative index of refraction across the surface, as the ray leaves the viewer's side
         eta = np.where(back[active], mats.ior[m], 1.0 / mats.ior[m])
-        fresnel = _fresnel_dielectric(cos_i, eta)
+        fresnel = np.minimum(_fresnel_dielectric(cos_i, eta) * mats.specular_scale[m], 1.0)
         metallic = mats.metallic[m][:, None]
         reflect_weight = fresnel[:, None] * (1.0 - metallic) + base[active] * metallic
         transmit_weight = ((1.0 - fresnel) * mats.transmission[m])[:, None] * (1.0 - metallic)
@@ -322,8 +326,8 @@ def _fresnel_dielectric(cos_i, eta):
     return np.where(sin_t2 >= 1.0, 1.0, 0.5 * (rs**2 + rp**2))
 
 
-def _ggx(n, view, light, alpha, f0):
-    """Cook-Torrance GGX specular BRDF (Schlick Fresnel, separable Smith shadowing)."""
+def _ggx(n, view, light, alpha, f0, f90):
+    """Cook-Torrance GGX specular BRDF (Schlick Fresnel from f0 to f90, separable Smith shadowing)."""
     h = view + light
     h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-300)
     n_h = np.clip(np.einsum("ij,ij->i", n, h), 0.0, 1.0)
@@ -336,7 +340,7 @@ def _ggx(n, view, light, alpha, f0):
     def smith(c):
         return 2.0 * c / (c + np.sqrt(a2 + (1.0 - a2) * c * c))
 
-    fresnel = f0 + (1.0 - f0) * ((1.0 - v_h) ** 5)[:, None]
+    fresnel = f0 + (f90[:, None] - f0) * ((1.0 - v_h) ** 5)[:, None]
     return fresnel * (ndf * smith(n_v) * smith(n_l) / (4.0 * n_v * n_l))[:, None]
 
 

@@ -1,0 +1,162 @@
+"""Light transport across frames: closed forms for lights, mirrors and glass, and the relativity principle."""
+
+import math
+
+import numpy as np
+import pytest
+from shapes import look_at_camera, quad
+
+from restframe_addon.core.render import render_image
+from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity
+
+WHITE_LAMBERT = Material("white", base_color=(1.0, 1.0, 1.0), specular_ior_level=0.0, roughness=1.0)
+BLACK = (0.0, 0.0, 0.0)
+
+
+def gamma_of(beta):
+    return 1.0 / math.sqrt((1.0 - beta) * (1.0 + beta))
+
+
+def settings(res=(9, 9), **kw):
+    return RenderSettings(resolution=res, threads=1, **kw)
+
+
+def floor_scene(lights, floor_velocity=Velocity(), camera_velocity=Velocity(), tau=0.0):
+    """A camera 1 above a white Lambert floor (z = 0), looking straight down at the origin."""
+    camera = look_at_camera((0, 0, 1.0), (0, 0, 0), up=(0, 1, 0), fov_half_tan=0.01, velocity=camera_velocity)
+    floor = quad((0, 0, 0), (1e4, 1e4))
+    return Scene(camera=camera, meshes=[Mesh("floor", *floor, velocity=floor_velocity)], lights=lights,
+                 materials=[WHITE_LAMBERT], world_color=BLACK, tau_obs=tau)
+
+
+def centre(passes, name="Combined"):
+    data = passes[name]
+    return data[data.shape[0] // 2, data.shape[1] // 2]
+
+
+def test_point_light_units_match_blender():
+    """A point light of P watts at height 2: irradiance P / (4 pi r^2), radiance of white Lambert / pi."""
+    passes = render_image(floor_scene([Light("lamp", "POINT", (0, 0, 2.0), power=1000.0)]), settings())
+    assert centre(passes)[0] == pytest.approx(1000.0 / (4 * math.pi * 4.0) / math.pi, rel=1e-6)
+
+
+def test_sun_and_spot_and_area_units():
+    sun = Light("sun", "SUN", (0, 0, 5.0), matrix=rotation_x(math.radians(60)), power=3.0)
+    assert centre(render_image(floor_scene([sun]), settings()))[0] == pytest.approx(3.0 * 0.5 / math.pi, rel=1e-6)
+    spot = Light("spot", "SPOT", (0, 0, 2.0), power=1000.0, spot_size=1.0, spot_blend=0.0)
+    assert centre(render_image(floor_scene([spot]), settings()))[0] == pytest.approx(1000.0 / (16 * math.pi**2), rel=1e-6)
+    away = Light("spot", "SPOT", (0, 0, 2.0), matrix=rotation_x(math.radians(60)), power=1000.0, spot_size=1.0)
+    assert centre(render_image(floor_scene([away]), settings()))[0] == 0.0
+    # a small square area light facing down: irradiance P / (pi r^2) (Lambertian emitter of radiance P / (pi A))
+    area = Light("area", "AREA", (0, 0, 2.0), power=1000.0, area_size=(0.01, 0.01))
+    value = centre(render_image(floor_scene([area]), settings()))[0]
+    assert value == pytest.approx(1000.0 / (math.pi * 4.0) / math.pi, rel=1e-4)
+
+
+def rotation_x(angle):
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+@pytest.mark.parametrize("beta", [0.3, 0.9])
+def test_light_moving_with_the_surface_shows_only_the_camera_doppler(beta):
+    """Floor and a sun move together: in their frame nothing changes, so the camera sees the
+    rest-frame radiance times D^4 (frequency-integrated radiance), D from the Doppler pass."""
+    v = Velocity((beta, 0.0, 0.0))
+    sun = Light("sun", "SUN", (0, 0, 5.0), power=2.0, velocity=v)
+    for searchlight in (True, False):
+        passes = render_image(floor_scene([sun], floor_velocity=v), settings(searchlight=searchlight))
+        d = centre(passes, "Doppler")[0]
+        assert d == pytest.approx(1.0 / gamma_of(beta), rel=1e-6)  # looking across the motion
+        expected = 2.0 / math.pi * (d**4 if searchlight else 1.0)
+        assert centre(passes)[0] == pytest.approx(expected, rel=1e-5)
+
+
+@pytest.mark.parametrize("beta", [0.5, 0.9])
+def test_relativity_principle_moving_lamp_or_moving_world(beta):
+    """A lamp moving with -beta past a resting camera and floor looks exactly like camera and floor
+    moving with +beta past a resting lamp (same events in the camera frame): D, depth and colour."""
+    g = gamma_of(beta)
+    tau_camera = 1.5
+    lamp_a = Light("lamp", "POINT", (0.0, 0.7, 2.0), power=1000.0, velocity=Velocity((0.0, 0.0, -beta)),
+                   pivot=(0.0, 0.7, 2.0))
+    lamp_a.position = (0.0, 0.7, 2.0)
+    # motion along z, all pivots with n.p = 0 except the floor (pivot at its own origin)
+    a = floor_scene_side([lamp_a], Velocity(), Velocity(), tau_camera)
+    lamp_b = Light("lamp", "POINT", (0.0, 0.7, 2.0), power=1000.0)
+    v = Velocity((0.0, 0.0, beta))
+    b = floor_scene_side([lamp_b], v, v, g * tau_camera)
+    pa = render_image(a, settings((15, 15)))
+    pb = render_image(b, settings((15, 15)))
+    for name in ("Combined", "Doppler", "Depth"):
+        assert np.allclose(pa[name], pb[name], rtol=1e-5, atol=1e-7), name
+    assert pa["Combined"].max() > 0
+
+
+def floor_scene_side(lights, floor_velocity, camera_velocity, tau):
+    """A camera at (0, -4, 0) looking along +y at a white wall y = 0 (pivots off the motion axis z)."""
+    camera = look_at_camera((0, -4.0, 0.0), (0, 0, 0), fov_half_tan=0.4, velocity=camera_velocity)
+    wall = quad((0, 0, 0), (40, 40), normal_axis=1)
+    return Scene(camera=camera, meshes=[Mesh("wall", *wall, velocity=floor_velocity, pivot=(0, 0, 0))], lights=lights,
+                 materials=[WHITE_LAMBERT], world_color=BLACK, tau_obs=tau)
+
+
+def mirror_scene(beta):
+    """Camera at the origin looking +y at a mirror approaching head-on; an emitter behind the camera."""
+    mirror = quad((0, 10.0, 0), (1e3, 1e3), normal_axis=1)
+    emitter = quad((0, -5.0, 0), (1e3, 1e3), normal_axis=1)
+    mats = [Material("mirror", base_color=(1, 1, 1), metallic=1.0, roughness=0.0),
+            Material("glow", base_color=(0, 0, 0), emission=(1.0, 1.0, 1.0), specular_ior_level=0.0)]
+    return Scene(camera=look_at_camera((0, 0, 0), (0, 1, 0), fov_half_tan=0.01),
+                 meshes=[Mesh("mirror", *mirror, velocity=Velocity((0, -beta, 0)), pivot=(0, 10, 0),
+                              material_indices=np.zeros(2, int)),
+                         Mesh("glow", *emitter, material_indices=np.ones(2, int))],
+                 materials=mats, world_color=BLACK)
+
+
+@pytest.mark.parametrize("beta", [0.0, 0.1, 0.5])
+def test_approaching_mirror_doubles_the_doppler_shift(beta):
+    """Light reflected by a mirror approaching head-on returns with (1 + b)/(1 - b): the Doppler
+    factors of the two frame changes multiply; the radiance scales with its 4th power."""
+    passes = render_image(mirror_scene(beta), settings())
+    double = (1 + beta) / (1 - beta)
+    assert centre(passes)[0] == pytest.approx(double**4, rel=1e-6)
+    assert centre(passes, "Doppler")[0] == pytest.approx(math.sqrt(double), rel=1e-6)  # the mirror itself
+
+
+def test_glass_slab_transmits_fresnel_weighted_light():
+    """Normal incidence through a glass slab (n = 1.5): (1 - F)^2 with F = 0.04, plus the small
+    multiply reflected terms the bounce limit allows."""
+    front = quad((0, 5.0, 0), (100, 100), normal_axis=1)
+    back = quad((0, 5.5, 0), (100, 100), normal_axis=1)
+    emitter = quad((0, 20.0, 0), (1e3, 1e3), normal_axis=1)
+    mats = [Material("glass", base_color=(1, 1, 1), transmission=1.0, roughness=0.0, ior=1.5),
+            Material("glow", base_color=(0, 0, 0), emission=(1.0, 1.0, 1.0), specular_ior_level=0.0)]
+    scene = Scene(camera=look_at_camera((0, 0, 0), (0, 1, 0), fov_half_tan=0.01),
+                  meshes=[Mesh("front", *front, material_indices=np.zeros(2, int)),
+                          Mesh("back", *back, material_indices=np.zeros(2, int)),
+                          Mesh("glow", *emitter, material_indices=np.ones(2, int))],
+                  materials=mats, world_color=BLACK)
+    value = centre(render_image(scene, settings(max_bounces=8)))[0]
+    f = 0.04
+    series = (1 - f) ** 2 / (1 - f**2)  # all internal reflections summed
+    assert value == pytest.approx(series, rel=1e-3)
+    assert centre(render_image(scene, settings(max_bounces=0)))[0] == 0.0  # refraction needs a bounce
+
+
+def test_sun_seen_from_a_moving_surface_is_aberrated_and_scaled_by_d_squared():
+    """A floor sliding along x at beta under a sun straight above (at rest in S).
+
+    The sunlight is perpendicular to the motion in the *emitter's* frame, so the floor sees it
+    blue-shifted, D = gamma, arriving from ahead: backward direction (beta, 0, 1/gamma), cos = 1/gamma.
+    Irradiance E' D^2 cos = 2 gamma^2 / gamma.
+    """
+    beta = 0.6
+    g = gamma_of(beta)
+    sun = Light("sun", "SUN", (0, 0, 5.0), power=2.0)
+    v = Velocity((beta, 0, 0))
+    passes = render_image(floor_scene([sun], floor_velocity=v, camera_velocity=v), settings())
+    assert centre(passes)[0] == pytest.approx(2.0 * g**2 / g / math.pi, rel=1e-6)
+    assert centre(passes, "Doppler")[0] == pytest.approx(1.0, rel=1e-9)  # the camera moves with the floor
+    still = render_image(floor_scene([sun], floor_velocity=v, camera_velocity=v), settings(searchlight=False))
+    assert centre(still)[0] == pytest.approx(2.0 / g / math.pi, rel=1e-6)  # only the aberrated cosine
