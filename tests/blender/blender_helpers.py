@@ -1,0 +1,95 @@
+"""Scene building and EXR reading shared by the Blender-layer tests."""
+
+from __future__ import annotations
+
+import math
+
+import bpy
+import numpy as np
+import OpenEXR
+
+
+def add_camera(scene, location=(0.0, 0.0, 10.0), rotation=(0.0, 0.0, 0.0), **data):
+    cam = bpy.data.cameras.new("Camera")
+    for key, value in data.items():
+        setattr(cam, key, value)
+    obj = bpy.data.objects.new("Camera", cam)
+    obj.location = location
+    obj.rotation_euler = rotation
+    scene.collection.objects.link(obj)
+    scene.camera = obj
+    return obj
+
+
+def add_plane(scene, name="Plane", size=4.0, location=(0.0, 0.0, 0.0), velocity=(0.0, 0.0, 0.0)):
+    half = size / 2
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata([(-half, -half, 0), (half, -half, 0), (half, half, 0), (-half, half, 0)], [], [(0, 1, 2, 3)])
+    obj = bpy.data.objects.new(name, mesh)
+    obj.location = location
+    obj.restframe.velocity = velocity
+    scene.collection.objects.link(obj)
+    return obj
+
+
+def add_sun(scene, strength=2.0, rotation=(math.radians(20), 0.0, 0.0)):
+    light = bpy.data.lights.new("Sun", 'SUN')
+    light.energy = strength
+    obj = bpy.data.objects.new("Sun", light)
+    obj.rotation_euler = rotation
+    scene.collection.objects.link(obj)
+    return obj
+
+
+def use_multilayer_exr(scene, path):
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):
+        settings.media_type = 'MULTI_LAYER_IMAGE'
+    else:
+        settings.file_format = 'OPEN_EXR_MULTILAYER'
+    settings.color_depth = '32'
+    scene.render.filepath = str(path)
+
+
+def read_exr(path, layer="ViewLayer") -> dict[str, np.ndarray]:
+    """Pass name -> (H, W, C) float array, row 0 = bottom (Blender's order)."""
+    passes = {}
+    with OpenEXR.File(str(path)) as exr:
+        for part in exr.parts:
+            for name, channel in part.channels.items():
+                pixels = np.asarray(channel.pixels, dtype=np.float64)
+                if pixels.ndim == 2:
+                    pixels = pixels[..., None]
+                # "ViewLayer.Doppler.X" -> "Doppler"; "ViewLayer.Combined" (RGBA grouped) -> "Combined"
+                pass_name = name[len(layer) + 1:] if name.startswith(layer + ".") else name
+                if pixels.shape[2] == 1 and "." in pass_name:
+                    pass_name = pass_name.rsplit(".", 1)[0]
+                passes.setdefault(pass_name, []).append(pixels[::-1])
+    return {name: np.concatenate(parts, axis=2) for name, parts in passes.items()}
+
+
+def render_exr(scene, path) -> dict[str, np.ndarray]:
+    """An F12 render written as a multilayer EXR (what the user gets), read back."""
+    use_multilayer_exr(scene, path)
+    bpy.ops.render.render(write_still=True)
+    return read_exr(path)
+
+
+def render_rgba(scene, path) -> np.ndarray:
+    """An F12 render saved as a plain RGBA EXR (single part), read back (H, W, 4), row 0 = bottom.
+
+    (Blender 5.0 cannot write a multi-part EXR when the pixel aspect is not 1.)
+    """
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):
+        settings.media_type = 'IMAGE'
+    settings.file_format = 'OPEN_EXR'
+    settings.color_mode = 'RGBA'
+    settings.color_depth = '32'
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True)
+    with OpenEXR.File(str(path)) as exr:
+        channels = exr.parts[0].channels
+        rgba = channels["RGBA"].pixels if "RGBA" in channels else np.stack(
+            [channels[c].pixels for c in "RGBA"], axis=-1)
+    return np.asarray(rgba, dtype=np.float64)[::-1]
