@@ -9,13 +9,20 @@ req="$root/tools/requirements-dev.txt"
 key=$(sha256sum "$req" | cut -c1-12)
 venv="${RESTFRAME_VENV:-${XDG_CACHE_HOME:-$HOME/.cache}/restframe/venv-$key}"
 if [ ! -f "$venv/.complete" ]; then
-  python=$(command -v python3.11 || command -v python3)
-  echo "restframe: creating the environment in $venv (once)" >&2
-  rm -rf "$venv"
-  "$python" -m venv "$venv"
-  "$venv/bin/python" -m pip install -q --upgrade pip >&2
-  "$venv/bin/python" -m pip install -q -r "$req" >&2
-  touch "$venv/.complete"
+  mkdir -p "$(dirname "$venv")"
+  # one creator at a time: parallel test runs or sessions share the cache
+  exec 9>"$venv.lock"
+  flock 9
+  if [ ! -f "$venv/.complete" ]; then
+    python=$(command -v python3.11 || command -v python3)
+    echo "restframe: creating the environment in $venv (once)" >&2
+    rm -rf "$venv"
+    "$python" -m venv "$venv"
+    "$venv/bin/python" -m pip install -q --upgrade pip >&2
+    "$venv/bin/python" -m pip install -q -r "$req" >&2
+    touch "$venv/.complete"
+  fi
+  flock -u 9
 fi
 cd "$root"
 exec "$venv/bin/python" "$@"
