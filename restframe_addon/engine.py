@@ -49,6 +49,10 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
 
+    def should_stop(self) -> bool:
+        """Esc pressed: checked between exported objects and between tiles."""
+        return self.test_break()
+
     def update_render_passes(self, scene=None, renderlayer=None):
         for name, channel_ids, channel_type in list_render_passes(scene, renderlayer):
             self.register_pass(scene, renderlayer, name, len(channel_ids), channel_ids, channel_type)
@@ -69,13 +73,13 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
                 depsgraph,
                 self.camera_override,
                 resolution=(self.resolution_x, self.resolution_y),
-                should_stop=self.test_break,
+                should_stop=self.should_stop,
                 warn=lambda message: self.report({'WARNING'}, f"RESTframe: {message}"),
             )
-            if self.test_break():
+            if self.should_stop():
                 return
             self.update_stats("", "RESTframe | Building rest frames")
-            renderer = Renderer(scene, settings, self.test_break)
+            renderer = Renderer(scene, settings, self.should_stop)
         except export.ExportCancelled:
             return
         except (export.ExportError, RenderError) as error:
@@ -87,7 +91,7 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         x_offset, y_offset = renderer.region[:2]
         total = len(renderer.tiles())
         triangles = sum(len(mesh.triangles) for mesh in scene.meshes)
-        for done, tile in enumerate(render_tiles(scene, settings, self.test_break, renderer), start=1):
+        for done, tile in enumerate(render_tiles(scene, settings, self.should_stop, renderer), start=1):
             result = self.begin_result(tile.x0 - x_offset, tile.y0 - y_offset,
                                        tile.x1 - tile.x0, tile.y1 - tile.y0, layer=view_layer.name)
             for render_pass in result.layers[0].passes:

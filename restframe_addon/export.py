@@ -51,7 +51,7 @@ def object_velocity(obj) -> Velocity:
     elif not speed_of(beta, 0.0)[0] < 1.0:
         speed = math.sqrt(sum(c * c for c in beta))
         raise ExportError(
-            f"{obj.name}: speed {speed:.9g} c is not below the speed of light; "
+            f"{obj.name}: speed {speed:.7g} c is not below the speed of light; "
             "use the Lorentz factor for speeds very close to c")
     return Velocity(beta, gamma)
 

@@ -11,12 +11,14 @@ import bpy
 from bpy.types import Panel
 
 from . import export
+from .properties import speed_of
 
 ENGINE = 'RESTFRAME'
 
 # Blender panels (declared for BLENDER_RENDER) that do not apply to RESTframe.
 _EXCLUDE_PANELS = {
     'DATA_PT_light',  # replaced by RESTFRAME_LIGHT_PT_light, which shows what the tracer uses
+    'NODE_DATA_PT_light',  # shares DATA_PT_light's COMPAT_ENGINES set
     'DATA_PT_preview',  # no preview renders
     'MATERIAL_PT_preview',
     'RENDER_PT_freestyle',  # Freestyle lines are drawn by Blender's internal engines only
@@ -168,9 +170,13 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
         except export.ExportError as error:
             col.label(text=str(error).partition(": ")[2], icon='ERROR')
         else:
-            col.label(text=f"Speed \u03b2 = {rf.beta:.9g} c")
-            col.label(text=f"Lorentz factor \u03b3 = {rf.gamma:.9g}")
-            col.label(text=f"Rapidity = {rf.rapidity:.6g}")
+            beta, gamma, rapidity = speed_of(rf.velocity, rf.lorentz_factor)  # double precision
+            if gamma > 1e3:  # show how far below c, which a decimal fraction would hide
+                col.label(text=f"Speed \u03b2 = 1 \u2212 {1.0 / (gamma * gamma * (1.0 + beta)):.6g} c")
+            else:
+                col.label(text=f"Speed \u03b2 = {beta:.9g} c")
+            col.label(text=f"Lorentz factor \u03b3 = {gamma:.9g}")
+            col.label(text=f"Rapidity = {rapidity:.6g}")
         if not rf.is_moving:
             return
         if obj.type == 'CAMERA':

@@ -1,0 +1,204 @@
+"""The engine inside Blender: registration, properties, passes, errors and cancelling."""
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+import restframe_addon
+from blender_helpers import add_camera, add_plane, render_exr
+from restframe_addon import engine, ui
+from restframe_addon.engine import OBJECT_INDEX_PASS, RestframeRenderEngine
+from restframe_addon.properties import speed_of
+
+
+def engine_available() -> bool:
+    """Whether Blender accepts RESTFRAME as a scene's render engine (the menu is dynamic)."""
+    render = bpy.data.scenes[0].render
+    previous = render.engine
+    try:
+        render.engine = 'RESTFRAME'
+    except TypeError:
+        return False
+    render.engine = previous
+    return True
+
+
+def registered():
+    return (
+        engine_available()
+        and hasattr(bpy.types.Object, "restframe")
+        and hasattr(bpy.types.Scene, "restframe")
+        and hasattr(bpy.types, "RESTFRAME_OBJECT_PT_motion")
+        and "restframe" in bpy.types.Object.bl_rna.properties
+        and 'RESTFRAME' in bpy.types.RENDER_PT_format.COMPAT_ENGINES
+    )
+
+
+def unregistered():
+    return not (
+        engine_available()
+        or hasattr(bpy.types.Object, "restframe")
+        or hasattr(bpy.types.Scene, "restframe")
+        or hasattr(bpy.types, "RESTFRAME_OBJECT_PT_motion")
+        or "restframe" in bpy.types.Object.bl_rna.properties
+        or 'RESTFRAME' in bpy.types.RENDER_PT_format.COMPAT_ENGINES
+    )
+
+
+def test_register_and_unregister_twice_in_a_row(addon):
+    assert registered()
+    try:
+        for _ in range(2):
+            restframe_addon.unregister()
+            assert unregistered()
+            restframe_addon.register()
+            assert registered()
+    finally:
+        if not registered():
+            restframe_addon.register()
+
+
+def test_engine_identity():
+    assert RestframeRenderEngine.bl_idname == "RESTFRAME"
+    assert RestframeRenderEngine.bl_label == "RESTframe"
+
+
+def test_object_properties(scene):
+    props = bpy.types.Object.bl_rna.properties["restframe"].fixed_type.properties
+    velocity = props["velocity"]
+    assert (velocity.type, velocity.subtype, velocity.array_length) == ('FLOAT', 'VELOCITY', 3)
+    assert velocity.is_animatable and props["lorentz_factor"].is_animatable
+    assert props["lorentz_factor"].hard_min == 0.0 and props["lorentz_factor"].default == 0.0
+    for computed in ("beta", "gamma", "rapidity"):
+        assert props[computed].is_readonly
+
+    obj = add_plane(scene, velocity=(0.6, 0.0, 0.0))
+    rf = obj.restframe
+    assert (rf.beta, rf.gamma, rf.rapidity) == pytest.approx((0.6, 1.25, math.atanh(0.6)), rel=1e-6)
+    rf.velocity = (0.0, 0.0, 1.0)
+    rf.lorentz_factor = 1e6  # speed from gamma, velocity = direction only
+    assert rf.gamma == 1e6 and rf.beta == pytest.approx(1.0, abs=1e-7)  # single precision display
+    assert speed_of(rf.velocity, rf.lorentz_factor)[0] == pytest.approx(1.0 - 0.5e-12, abs=1e-15)
+    assert rf.rapidity == pytest.approx(math.acosh(1e6))
+    rf.lorentz_factor = 0.0
+    rf.velocity = (0.9, 0.9, 0.0)
+    assert math.isnan(rf.gamma)
+
+
+def test_scene_properties(scene):
+    props = bpy.types.Scene.bl_rna.properties["restframe"].fixed_type.properties
+    expected = {"light_speed", "reference_frame", "samples", "max_bounces", "tile_size", "doppler_mode",
+                "searchlight", "doppler_range_auto", "doppler_range", "doppler_levels"}
+    assert expected <= set(props.keys())
+    assert [item.identifier for item in props["doppler_mode"].enum_items] == ['OFF', 'FACTOR']
+    assert props["light_speed"].hard_min > 0.0
+    assert all(props[name].is_animatable for name in expected)
+
+
+def test_velocity_is_keyframeable(scene):
+    obj = add_plane(scene)
+    obj.restframe.velocity = (0.0, 0.0, 0.0)
+    obj.keyframe_insert("restframe.velocity", frame=1)
+    obj.restframe.velocity = (0.8, 0.0, 0.0)
+    obj.keyframe_insert("restframe.velocity", frame=11)
+    scene.frame_set(11)
+    assert obj.restframe.velocity[0] == pytest.approx(0.8)
+    scene.frame_set(1)
+    assert obj.restframe.velocity[0] == pytest.approx(0.0)
+    scene.restframe.keyframe_insert("light_speed", frame=1)
+
+
+def test_pass_names_follow_the_view_layer(scene, tmp_path):
+    add_camera(scene)
+    add_plane(scene)
+    layer = scene.view_layers[0]
+    layer.use_pass_z = layer.use_pass_normal = layer.use_pass_object_index = False
+    assert set(render_exr(scene, tmp_path / "a.exr")) == {"Combined", "Doppler", "Emission Time"}
+    layer.use_pass_z = layer.use_pass_normal = layer.use_pass_object_index = True
+    assert set(render_exr(scene, tmp_path / "b.exr")) == {
+        "Combined", "Depth", "Normal", OBJECT_INDEX_PASS, "Doppler", "Emission Time"}
+    assert [p[0] for p in engine.list_render_passes(scene, layer)] == [
+        "Combined", "Depth", "Normal", OBJECT_INDEX_PASS, "Doppler", "Emission Time"]
+
+
+def test_blender_panels_show_for_restframe():
+    for name in ("RENDER_PT_format", "RENDER_PT_output", "RENDER_PT_frame_range", "RENDER_PT_color_management",
+                 "DATA_PT_camera", "DATA_PT_lens", "DATA_PT_context_light", "EEVEE_MATERIAL_PT_context_material",
+                 "EEVEE_MATERIAL_PT_surface", "EEVEE_WORLD_PT_surface"):
+        assert 'RESTFRAME' in getattr(bpy.types, name).COMPAT_ENGINES, name
+    for name in ("DATA_PT_light", "NODE_DATA_PT_light", "RENDER_PT_freestyle", "DATA_PT_preview"):
+        assert 'RESTFRAME' not in getattr(bpy.types, name).COMPAT_ENGINES, name
+
+
+def test_invalid_velocity_fails_the_render_with_its_message(scene):
+    add_camera(scene)
+    add_plane(scene, "Tachyon", velocity=(0.0, 0.0, 1.2))
+    with pytest.raises(RuntimeError, match="Tachyon: speed 1.2 c is not below the speed of light"):
+        bpy.ops.render.render()
+
+
+def test_missing_camera_fails_the_render(scene):
+    add_plane(scene)
+    with pytest.raises(RuntimeError, match="camera"):
+        bpy.ops.render.render()
+
+
+def test_unsupported_panorama_fails_the_render(scene):
+    add_camera(scene, type='PANO', panorama_type='MIRRORBALL')
+    add_plane(scene)
+    with pytest.raises(RuntimeError, match="panorama type MIRRORBALL is not supported"):
+        bpy.ops.render.render()
+
+
+def test_cancel_during_render_leaves_tiles_unrendered(scene, tmp_path, monkeypatch):
+    """Esc (test_break) mid-render: the render ends early, Blender stays usable."""
+    add_camera(scene)
+    add_plane(scene, size=1000.0, velocity=(0.3, 0.0, 0.0))
+    scene.restframe.tile_size = 8  # 21x15 -> 3 x 2 tiles
+    scene.render.threads_mode, scene.render.threads = 'FIXED', 1
+    tiles = []
+
+    def counted_tiles(*args, **kwargs):
+        for tile in engine_render_tiles(*args, **kwargs):
+            tiles.append(tile)
+            yield tile
+
+    engine_render_tiles = engine.render_tiles
+    monkeypatch.setattr(engine, "render_tiles", counted_tiles)
+    # the user presses Esc once the first tile is on screen
+    monkeypatch.setattr(RestframeRenderEngine, "should_stop", lambda self: bool(tiles))
+    doppler = render_exr(scene, tmp_path / "cancelled.exr")["Doppler"][..., 0]
+    assert len(tiles) == 1
+    assert np.count_nonzero(doppler) == 8 * 8  # exactly the first tile
+    monkeypatch.undo()
+    doppler = render_exr(scene, tmp_path / "again.exr")["Doppler"][..., 0]
+    assert np.count_nonzero(doppler) == doppler.size  # a second render right after works
+
+
+def test_cancel_during_export_renders_nothing(scene, monkeypatch):
+    """Esc while the scene is exported: no tracing starts and no error is shown."""
+    add_camera(scene)
+    for i in range(3):
+        add_plane(scene, f"P{i}", location=(0, 0, -i))
+    outcomes = []
+    export_scene = engine.export.export_scene
+
+    def spy_export(*args, **kwargs):
+        try:
+            return export_scene(*args, **kwargs)
+        except BaseException as error:
+            outcomes.append(type(error).__name__)
+            raise
+
+    monkeypatch.setattr(engine.export, "export_scene", spy_export)
+    monkeypatch.setattr(engine, "Renderer", lambda *args: outcomes.append("traced"))
+    monkeypatch.setattr(RestframeRenderEngine, "should_stop", lambda self: True)
+    # (no write_still: Blender itself skips writing a cancelled frame)
+    assert bpy.ops.render.render() == {'FINISHED'}
+    assert outcomes == ["ExportCancelled"]
+
+
+def test_ui_module_lists_its_panels():
+    assert {cls.__name__ for cls in ui.classes} >= {"RESTFRAME_OBJECT_PT_motion", "RESTFRAME_RENDER_PT_relativity"}
