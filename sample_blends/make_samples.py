@@ -89,6 +89,8 @@ def build_moving_sphere():
 
     path = os.path.join(HERE, "moving_sphere.blend")
     bpy.ops.wm.save_as_mainfile(filepath=path, compress=True)
+    if os.path.exists(path + "1"):  # Blender's backup of the previous version
+        os.remove(path + "1")
     print(f"wrote {path}")
 
 
