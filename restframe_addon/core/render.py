@@ -23,14 +23,16 @@ import numpy as np
 from . import sampling
 from .camera import primary_rays
 from .frames import FrameSet, build_frames, shift_into_frame
+from .colour import RGBColour, SpectralColour
 from .scene import RenderSettings, Scene
 from .shading import MaterialTable, Shader, prepare_lights
 from .tracer import trace_nearest
 
 PASSES = {"Doppler": 1, "Emission Time": 1}  # RESTframe's own passes (Depth, Normal, IndexOB are Blender's)
 ALL_PASSES = {"Combined": 4, "Doppler": 1, "Emission Time": 1, "Depth": 1, "Normal": 3, "IndexOB": 1}
-DOPPLER_MODES = ("OFF", "FACTOR")
-_MAX_RAYS = 1 << 16  # rays per batch: bounds memory whatever the tile size and sample count
+DOPPLER_MODES = ("OFF", "FACTOR", "SPECTRAL")
+_MAX_VALUES = 3 << 16  # ray colour values per batch: bounds memory whatever the tile size, samples and wavelengths
+_EXPOSURE_PREVIEW = 48  # pixels on the longer side of the exposure-normalisation preview
 
 
 class RenderError(ValueError):
@@ -60,8 +62,12 @@ class Renderer:
             raise RenderError(str(error)) from error
         self.warnings = self.frames.warnings
         self.materials = MaterialTable(scene.materials)
-        self.shader = Shader(self.frames, self.materials, lights, scene.world_color,
-                             settings.max_bounces, settings.searchlight)
+        if settings.doppler_mode == "SPECTRAL":
+            colour = SpectralColour(self.materials, lights, scene.world_color, settings.spectral_samples)
+        else:
+            colour = RGBColour(self.materials, lights, scene.world_color)
+        self.colour = colour
+        self.shader = Shader(self.frames, self.materials, lights, colour, settings.max_bounces, settings.searchlight)
         camera_boost = self.frames.frames[self.frames.camera].boost
         position = np.asarray(scene.camera.matrix, dtype=np.float64)[:3, 3]
         world_event = position + camera_boost.b * camera_boost.n * scene.tau_obs
@@ -71,6 +77,9 @@ class Renderer:
         self.doppler_range = settings.doppler_range
         if settings.doppler_mode == "FACTOR" and self.doppler_range is None:
             self.doppler_range = self._measure_doppler_range(should_stop)
+        self.exposure = 1.0
+        if settings.normalize_exposure and settings.doppler_mode != "FACTOR":
+            self.exposure = self._measure_exposure(scene, settings, lights, should_stop)
 
     # ------------------------------------------------------------------ layout
     @property
@@ -113,6 +122,32 @@ class Renderer:
                 lo, hi = min(lo, doppler.min()), max(hi, doppler.max())
         return (lo, hi) if lo <= hi else (0.0, 1.0)
 
+    def _measure_exposure(self, scene, settings, lights, should_stop) -> float:
+        """Exposure that gives the image the mean luminance of the same view without Doppler
+        intensity or colour changes (the paper's dynamic-range re-normalisation, section 4.2).
+
+        Both are estimated on a small preview of the region (one ray per preview pixel).
+        """
+        x0, y0, x1, y1 = self.region
+        scale = _EXPOSURE_PREVIEW / max(x1 - x0, y1 - y0, 1)
+        nx, ny = max(int((x1 - x0) * scale), 1), max(int((y1 - y0) * scale), 1)
+        gx, gy = np.meshgrid(x0 + (np.arange(nx) + 0.5) * (x1 - x0) / nx, y0 + (np.arange(ny) + 0.5) * (y1 - y0) / ny)
+        px, py = gx.ravel(), gy.ravel()
+        pixel = np.arange(len(px), dtype=np.int64)
+        plain = Shader(self.frames, self.materials, lights, RGBColour(self.materials, lights, scene.world_color),
+                       settings.max_bounces, searchlight=False)
+        luminance = np.array([0.2126, 0.7152, 0.0722])
+        means = []
+        for shader in (self.shader, plain):
+            if should_stop():
+                return 1.0
+            lam = shader.colour.camera_wavelengths(pixel, pixel * 0)
+            tau, x, d, s_lo, s_hi = self._camera_rays(px, py)
+            values, _ = shader.radiance(self.frames.camera, tau, x, d, s_lo, s_hi, 0, pixel, pixel * 0, lam)
+            means.append(float(np.mean(shader.colour.to_rgb(values, lam) @ luminance)))
+        rendered, reference = means
+        return reference / rendered if rendered > 0 and reference > 0 else 1.0
+
     # ------------------------------------------------------------------ one tile
     def render_tile(self, rect) -> Tile:
         x0, y0, x1, y1 = rect
@@ -123,7 +158,7 @@ class Renderer:
         samples = max(int(self.settings.samples), 1)
         rgb = np.zeros((n, 3))
         coverage = np.zeros(n)
-        per_batch = max(_MAX_RAYS // max(n, 1), 1)
+        per_batch = max(_MAX_VALUES // (max(n, 1) * self.colour.channels), 1)
         for first in range(0, samples, per_batch):
             count = min(per_batch, samples - first)
             pix = np.repeat(pixel, count)
@@ -132,7 +167,7 @@ class Renderer:
             color, hit = self._sample(np.repeat(xs, count) + ox, np.repeat(ys, count) + oy, pix, smp)
             rgb += color.reshape(n, count, 3).sum(axis=1)
             coverage += hit.reshape(n, count).sum(axis=1)
-        rgb /= samples
+        rgb *= self.exposure / samples
         coverage /= samples
         alpha = coverage if self.settings.film_transparent else np.ones(n)
         passes["Combined"] = np.concatenate([rgb, alpha[:, None]], axis=1)
@@ -147,7 +182,9 @@ class Renderer:
             hit = hits.frame >= 0
             rgb = np.repeat(self._doppler_grey(1.0 / hits.w)[:, None], 3, axis=1)
         else:
-            rgb, hits = self.shader.radiance(camera, tau, x, d, s_lo, s_hi, 0, pixel, sample)
+            lam = self.colour.camera_wavelengths(pixel, sample)
+            values, hits = self.shader.radiance(camera, tau, x, d, s_lo, s_hi, 0, pixel, sample, lam)
+            rgb = self.colour.to_rgb(values, lam)
             hit = hits.frame >= 0
         if self.settings.film_transparent:
             rgb[~hit] = 0.0

@@ -93,6 +93,7 @@ class Light:
     sun_angle: float = 0.0  # angular diameter of the sun disc
     area_shape: str = "SQUARE"  # SQUARE, RECTANGLE, DISK, ELLIPSE
     area_size: tuple[float, float] = (1.0, 1.0)
+    temperature: float = 0.0  # K; > 0: a black body at this temperature, tinted by ``color``
     velocity: Velocity = REST
     pivot: tuple[float, float, float] | None = None  # None = its own position
 
@@ -154,8 +155,10 @@ class RenderSettings:
     region: tuple[int, int, int, int] | None = None  # (x0, y0, x1, y1) pixels, x1/y1 exclusive
     samples: int = 1  # stratified camera samples per pixel
     max_bounces: int = 4  # mirror / glass recursion depth
-    doppler_mode: str = "OFF"  # OFF (geometry only), FACTOR (D as grey), SPECTRAL (added with spectral work)
+    doppler_mode: str = "OFF"  # OFF (geometry only), FACTOR (D as grey), SPECTRAL (colour shift)
     searchlight: bool = True  # apply the D^4 intensity transforms (headlamp effect)
+    spectral_samples: int = 32  # SPECTRAL: wavelengths per camera ray over 360-830 nm
+    normalize_exposure: bool = False  # scale the image to the mean brightness it would have without Doppler intensity changes
     film_transparent: bool = False
     tile_size: int = 64
     threads: int = 0  # 0 = all cores

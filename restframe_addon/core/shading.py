@@ -11,10 +11,10 @@ Snell's law, Fresnel and the BSDF hold there.  What crosses frames is light:
 * from a surface to whoever looks at it (camera or another surface): radiance
   scales by ``D^4`` (frequency-integrated, the searchlight effect).
 
-With ``searchlight`` off these D powers are dropped (geometry only); spectral
-colour shifts are the job of the spectral mode.
-
-The RGB here is scene-linear Rec.709 radiance, in the frame it is evaluated in.
+With ``searchlight`` off these D powers are dropped (geometry only).  Colour
+values are ``(n, C)`` arrays handled by a colour model (:mod:`.colour`): RGB, or
+spectra whose wavelengths are multiplied by D at every frame change (one more
+power of D for spectral densities).  Values are in the frame they are evaluated in.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import sampling
+from . import sampling, spectral
 from .frames import FrameSet, shift_into_frame
 from .scene import Light, Material, Scene
 from .tracer import hit_geometry, occluded, trace_nearest
@@ -108,6 +108,8 @@ def prepare_lights(scene: Scene, frames: FrameSet) -> list[PreparedLight]:
         axes = axes / np.maximum(np.linalg.norm(axes, axis=0, keepdims=True), 1e-300)
         position = np.asarray(light.position, dtype=np.float64) + shift_into_frame(boost, light.pivot_or_position)
         radiant = np.asarray(light.color, dtype=np.float64) * float(light.power)
+        if light.temperature > 0.0:
+            radiant = radiant * spectral.blackbody_rgb(light.temperature)
         if light.kind not in ("POINT", "SPOT", "SUN", "AREA"):
             raise ValueError(f"{light.name}: light type {light.kind} is not supported by RESTframe")
         if np.any(radiant > 0):
@@ -119,11 +121,11 @@ class Shader:
     """Traces and shades backward rays for one prepared scene (thread-safe: read-only state)."""
 
     def __init__(self, frames: FrameSet, materials: MaterialTable, lights: list[PreparedLight],
-                 world_color, max_bounces: int, searchlight: bool):
+                 colour, max_bounces: int, searchlight: bool):
         self.frames = frames
         self.materials = materials
         self.lights = lights
-        self.world_color = np.asarray(world_color, dtype=np.float64)
+        self.colour = colour
         self.max_bounces = max_bounces
         self.searchlight = searchlight
         self.epsilon = {
@@ -132,34 +134,39 @@ class Shader:
         }
 
     # ------------------------------------------------------------------ helpers
-    def _observed(self, radiance, w):
-        """Radiance seen across a frame change with path ratio w = 1/D."""
+    def _power(self, doppler, exponent: int):
+        """D^(exponent + the colour model's extra power), or 1 with the searchlight off."""
         if not self.searchlight:
-            return radiance
-        return radiance * (1.0 / w**4)[:, None]
+            return np.ones_like(doppler)
+        return doppler ** (exponent + self.colour.extra_power)
 
     # ------------------------------------------------------------------ rays
-    def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, depth: int, pixel, sample):
-        """Radiance arriving at events (tau0, x0) of frame src from backward directions d.
+    def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, depth: int, pixel, sample, lam):
+        """Radiance arriving at events (tau0, x0) of frame src from backward directions d,
+        at the wavelengths ``lam`` of frame src (None in RGB mode).
 
-        Returns (rgb (n, 3), hits) -- the hits of this ray bundle, for the passes.
+        Returns (values (n, C), hits) -- the hits of this ray bundle, for the passes.
         """
         n = len(d)
         hits = trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi)
-        rgb = np.empty((n, 3))
-        miss = hits.frame < 0
-        if np.any(miss):
+        values = np.empty((n, self.colour.channels))
+        miss = np.flatnonzero(hits.frame < 0)
+        if len(miss):
             _, w_world = self.frames.map(src, self.frames.world).rays(d[miss])
-            rgb[miss] = self._observed(np.broadcast_to(self.world_color, (int(miss.sum()), 3)), w_world)
-        for k in np.unique(hits.frame[~miss]):
+            doppler = 1.0 / w_world
+            world = self.colour.world(self.colour.shift(_rows(lam, miss), doppler), len(miss))
+            values[miss] = world * self._power(doppler, 4)[:, None]
+        for k in np.unique(hits.frame[hits.frame >= 0]):
             sel = np.flatnonzero(hits.frame == k)
             fmap = self.frames.map(src, int(k))
             tau_k, _ = fmap.events(tau0[sel], x0[sel])
             d_k, w = fmap.rays(d[sel])
-            local = self._shade_surface(int(k), tau_k - hits.s_frame[sel], d_k, hits.prim[sel],
-                                        hits.u[sel], hits.v[sel], depth, pixel[sel], sample[sel])
-            rgb[sel] = self._observed(local, w)
-        return rgb, hits
+            doppler = 1.0 / w
+            local = self._shade_surface(int(k), tau_k - hits.s_frame[sel], d_k, hits.prim[sel], hits.u[sel],
+                                        hits.v[sel], depth, pixel[sel], sample[sel],
+                                        self.colour.shift(_rows(lam, sel), doppler))
+            values[sel] = local * self._power(doppler, 4)[:, None]
+        return values, hits
 
     def surface_info(self, k: int, prim, u, v, d_k):
         """Position, facing geometric and shading normals, and material index at hits of frame k."""
@@ -174,25 +181,24 @@ class Shader:
         material = self.materials.clamp(frame.tri_material[prim])
         return position, ng, ns, material, back
 
-    def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample):
+    def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample, lam):
         frame = self.frames.frames[k]
-        mats = self.materials
         position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k)
         uv = None
         if frame.corner_uvs is not None:
             cuv = frame.corner_uvs[prim]
             uu, vv = u[:, None], v[:, None]
             uv = (1.0 - uu - vv) * cuv[:, 0] + uu * cuv[:, 1] + vv * cuv[:, 2]
-        base = mats.base_color(mat, uv)
-        rgb = mats.emission[mat].copy()
+        base = self.colour.base_color(mat, uv, lam)
+        values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
         if self.lights:
-            rgb += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample)
-        if mats.traces_secondary and depth < self.max_bounces:
-            rgb += self._secondary(k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample)
-        return rgb
+            values += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam)
+        if self.materials.traces_secondary and depth < self.max_bounces:
+            values += self._secondary(k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam)
+        return values
 
     # ------------------------------------------------------------------ direct light
-    def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample):
+    def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam):
         mats = self.materials
         diffuse = base * ((1.0 - mats.metallic[mat]) * (1.0 - mats.transmission[mat]))[:, None] / np.pi
         rough = ~mats.mirror[mat]
@@ -205,14 +211,14 @@ class Shader:
         alpha = np.maximum(mats.roughness[mat] ** 2, _MIN_ALPHA)
         eps = self.epsilon[k]
         origin = position + eps * ng
-        total = np.zeros_like(position)
+        total = np.zeros_like(base)
         for index, light in enumerate(self.lights):
             dim = 1000 + 100 * depth + 4 * index
             xi1 = sampling.uniform(pixel, sample, dim)
             xi2 = sampling.uniform(pixel, sample, dim + 1)
-            e_k, irradiance, s_max = self._incident(light, k, tau, position, xi1, xi2)
+            e_k, strength, doppler, s_max = self._incident(light, k, tau, position, xi1, xi2)
             cos_n = np.einsum("ij,ij->i", ns, e_k)
-            lit = (cos_n > 0.0) & (np.einsum("ij,ij->i", ng, e_k) > 0.0) & np.any(irradiance > 0.0, axis=1)
+            lit = (cos_n > 0.0) & (np.einsum("ij,ij->i", ng, e_k) > 0.0) & (strength > 0.0)
             sel = np.flatnonzero(lit)
             if len(sel) == 0:
                 continue
@@ -224,12 +230,19 @@ class Shader:
             r = sel[rough[sel]]
             if len(r):
                 brdf[rough[sel]] += _ggx(ns[r], view[r], e_k[r], alpha[r], f0[r], f90[r])
-            total[sel] += brdf * (irradiance[sel] * cos_n[sel, None])
+            emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel))
+            total[sel] += brdf * emitted * (strength[sel] * cos_n[sel])[:, None]
         return total
 
     def _incident(self, pl: PreparedLight, k, tau, position, xi1, xi2):
-        """Direction toward the light's retarded position (frame k), the irradiance it gives
-        on a surface facing it (before cos), and the path length to it (inf for the sun)."""
+        """Light arriving at hit events of frame k from one light.
+
+        Returns the direction toward the light's retarded position (frame k), the
+        geometric and Doppler factor of its irradiance on a surface facing it (to
+        multiply the light's colour at the shifted wavelengths), the Doppler
+        factor D = r / r' of the light seen from the surface, and the path length
+        to the light (inf for the sun).
+        """
         light = pl.light
         to_light = self.frames.map(k, pl.frame)
         back = self.frames.map(pl.frame, k)
@@ -239,9 +252,8 @@ class Shader:
             e_j = np.broadcast_to(z_axis, (n, 3))
             if light.sun_angle > 0.0:
                 e_j = _cone_sample(z_axis, 0.5 * light.sun_angle, xi1, xi2)
-            e_k, w = back.rays(e_j)
-            scale = w**2 if self.searchlight else np.ones(n)
-            return e_k, pl.radiant[None, :] * scale[:, None], np.full(n, np.inf)
+            e_k, doppler = back.rays(e_j)
+            return e_k, self._power(doppler, 2), doppler, np.full(n, np.inf)
         _, x_j = to_light.events(tau, position)
         sample = np.broadcast_to(pl.position, (n, 3)).copy()
         if light.kind == "AREA":
@@ -267,19 +279,17 @@ class Shader:
             intensity = np.full(n, _POINT_INTENSITY_PER_WATT)
             if light.kind == "SPOT":
                 intensity = intensity * _spot_falloff(e_j @ z_axis, light.spot_size, light.spot_blend)
-        e_k, w = back.rays(e_j)
-        r = w * r_rest  # distance to the retarded position in the surface frame
-        scale = w**4 if self.searchlight else np.ones(n)
-        irradiance = pl.radiant[None, :] * (intensity * scale / np.maximum(r, 1e-300) ** 2)[:, None]
-        return e_k, irradiance, r
+        e_k, doppler = back.rays(e_j)  # s_surface / s_light: the Doppler factor seen by the surface
+        r = doppler * r_rest  # distance to the retarded position in the surface frame
+        return e_k, intensity * self._power(doppler, 4) / np.maximum(r, 1e-300) ** 2, doppler, r
 
     # ------------------------------------------------------------------ mirror and glass
-    def _secondary(self, k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample):
+    def _secondary(self, k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam):
         mats = self.materials
-        rgb = np.zeros_like(position)
+        values = np.zeros_like(base)
         active = np.flatnonzero(mats.mirror[mat] | mats.glass[mat])
         if len(active) == 0:
-            return rgb
+            return values
         n_a, ng_a, d_a = ns[active], ng[active], d_k[active]
         m = mat[active]
         cos_i = -np.einsum("ij,ij->i", n_a, d_a)
@@ -291,8 +301,8 @@ class Shader:
         transmit_weight = ((1.0 - fresnel) * mats.transmission[m])[:, None] * (1.0 - metallic)
         eps = self.epsilon[k]
         reflected = d_a + 2.0 * cos_i[:, None] * n_a
-        rgb[active] += reflect_weight * self._bounce(k, tau[active], position[active] + eps * ng_a, reflected,
-                                                     eps, depth, pixel[active], sample[active])
+        values[active] += reflect_weight * self._bounce(k, tau[active], position[active] + eps * ng_a, reflected,
+                                                        eps, depth, pixel[active], sample[active], _rows(lam, active))
         refr = np.flatnonzero(np.any(transmit_weight > 0.0, axis=1))
         if len(refr):
             k2 = 1.0 - eta[refr] ** 2 * (1.0 - cos_i[refr] ** 2)
@@ -301,15 +311,21 @@ class Shader:
             transmitted = eta[refr, None] * d_a[refr] + (eta[refr] * cos_i[refr] - np.sqrt(k2))[:, None] * n_a[refr]
             transmitted /= np.linalg.norm(transmitted, axis=1, keepdims=True)
             idx = active[refr]
-            rgb[idx] += transmit_weight[refr] * self._bounce(k, tau[idx], position[idx] - eps * ng_a[refr],
-                                                             transmitted, eps, depth, pixel[idx], sample[idx])
-        return rgb
+            values[idx] += transmit_weight[refr] * self._bounce(k, tau[idx], position[idx] - eps * ng_a[refr],
+                                                                transmitted, eps, depth, pixel[idx], sample[idx],
+                                                                _rows(lam, idx))
+        return values
 
-    def _bounce(self, k, tau, origin, d, eps, depth, pixel, sample):
+    def _bounce(self, k, tau, origin, d, eps, depth, pixel, sample, lam):
         if len(d) == 0:
-            return np.zeros((0, 3))
-        rgb, _ = self.radiance(k, tau, origin, d, eps, np.inf, depth + 1, pixel, sample)
-        return rgb
+            return np.zeros((0, self.colour.channels))
+        values, _ = self.radiance(k, tau, origin, d, eps, np.inf, depth + 1, pixel, sample, lam)
+        return values
+
+
+def _rows(lam, index):
+    """The wavelengths of some rays (None in RGB mode)."""
+    return None if lam is None else lam[index]
 
 
 def _dielectric_f0(ior):

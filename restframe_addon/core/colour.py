@@ -1,0 +1,140 @@
+"""Colour models for the shader: plain RGB, or spectra shifted by every Doppler factor.
+
+Both give the shader the same operations on ``(n, C)`` arrays of colour values:
+reflectances, emissions, light and world colours evaluated at the *local*
+wavelengths of a frame, and ``shift`` to carry wavelengths across a frame change.
+In RGB mode (C = 3 channels, no wavelengths) the shift is the identity and the
+D powers are those of frequency-integrated light (radiance D^4, point irradiance
+D^4, sun D^2).  In spectral mode (C = K wavelengths per ray) a ray seeing a frame
+with Doppler factor D samples that frame at ``lambda * D`` and every density
+gains one more power of D (D^5, D^5, D^3), as in ``shared/physics.md``.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from . import spectral
+
+_LUT_SIZE = 17  # RGB cube resolution for textured reflectances (exact RGB by linearity)
+
+
+class RGBColour:
+    """Scene-linear RGB throughout: no wavelengths, frequency-integrated D powers."""
+
+    channels = 3
+    extra_power = 0
+
+    def __init__(self, materials, lights, world_color):
+        self.materials = materials
+        self.light_rgb = [pl.radiant for pl in lights]
+        self.world_rgb = np.asarray(world_color, dtype=np.float64)
+
+    def camera_wavelengths(self, pixel, sample):
+        return None
+
+    def shift(self, lam, doppler):
+        return lam
+
+    def base_color(self, mat, uv, lam):
+        return self.materials.base_color(mat, uv)
+
+    def emission(self, mat, lam):
+        return self.materials.emission[mat]
+
+    def light(self, index, lam, n):
+        return np.broadcast_to(self.light_rgb[index], (n, 3))
+
+    def world(self, lam, n):
+        return np.broadcast_to(self.world_rgb, (n, 3))
+
+    def to_rgb(self, values, lam):
+        return values
+
+
+class SpectralColour:
+    """K wavelengths per camera ray: the fixed nodes of a :class:`~.spectral.Quadrature`.
+
+    Spectra come from :mod:`.spectral`; they are analytic, so any shifted wavelength
+    (far infrared, far ultraviolet) has a value.
+    """
+
+    extra_power = 1
+
+    def __init__(self, materials, lights, world_color, wavelengths: int):
+        self.quadrature = spectral.quadrature(wavelengths)
+        self.channels = self.quadrature.count
+        self.materials = materials
+        q = self.quadrature
+        self.base_coeffs = q.fit_reflectance(materials.base)
+        self.emission_coeffs, self.emission_scale = q.fit_emission(materials.emission)
+        self.lights = []
+        for pl in lights:
+            coeffs, scale = q.fit_emission(pl.light.color)
+            self.lights.append((coeffs, scale * float(pl.light.power), float(pl.light.temperature)))
+        self.world_coeffs, self.world_scale = q.fit_emission(world_color)
+
+    def camera_wavelengths(self, pixel, sample):
+        return np.broadcast_to(self.quadrature.wavelengths, (len(pixel), self.channels))
+
+    def shift(self, lam, doppler):
+        """Wavelengths in the emitting frame: observed lambda times D."""
+        return lam * doppler[:, None]
+
+    def base_color(self, mat, uv, lam):
+        values = spectral.sigmoid_spectrum(self.base_coeffs[mat], lam)
+        if uv is not None:
+            for m, texture in enumerate(self.materials.textures):
+                if texture is None:
+                    continue
+                sel = np.flatnonzero(mat == m)
+                if len(sel):
+                    rgb = self.materials.base_color(np.full(len(sel), m), uv[sel])
+                    values[sel] = _lut_reflectance(self.quadrature.count, rgb, lam[sel])
+        return values
+
+    def emission(self, mat, lam):
+        return self._emitter(self.emission_coeffs[mat], self.emission_scale[mat], lam)
+
+    def light(self, index, lam, n):
+        coeffs, scale, temperature = self.lights[index]
+        shape = spectral.sigmoid_spectrum(np.broadcast_to(coeffs, (n, 3)), lam)
+        if temperature > 0.0:
+            return scale * shape * spectral.blackbody_spectrum(lam, temperature)
+        return scale * shape * spectral.white_spectrum(lam)
+
+    def world(self, lam, n):
+        return self._emitter(np.broadcast_to(self.world_coeffs, (n, 3)), np.broadcast_to(self.world_scale, (n,)), lam)
+
+    def to_rgb(self, values, lam):
+        return self.quadrature.observed_rgb(values)
+
+    @staticmethod
+    def _emitter(coeffs, scale, lam):
+        return scale[:, None] * spectral.sigmoid_spectrum(coeffs, lam) * spectral.white_spectrum(lam)
+
+
+@lru_cache(maxsize=4)
+def _lut_coefficients(count: int):
+    axis = np.linspace(0.0, 1.0, _LUT_SIZE)
+    grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
+    return spectral.quadrature(count).fit_reflectance(grid).reshape(_LUT_SIZE, _LUT_SIZE, _LUT_SIZE, 3)
+
+
+def _lut_reflectance(count, rgb, lam):
+    """Reflectance spectra for arbitrary (texture) colours: trilinear blend of the spectra at
+    the 8 surrounding RGB-cube nodes.  The RGB of a spectrum is linear in it, so the blend
+    reproduces the colour exactly, and stays within [0, 1]."""
+    lut = _lut_coefficients(count)
+    pos = np.clip(rgb, 0.0, 1.0) * (_LUT_SIZE - 1)
+    base = np.minimum(np.floor(pos).astype(np.int64), _LUT_SIZE - 2)
+    frac = pos - base
+    out = np.zeros(lam.shape)
+    for corner in range(8):
+        bits = np.array([(corner >> 2) & 1, (corner >> 1) & 1, corner & 1])
+        weight = np.prod(np.where(bits, frac, 1.0 - frac), axis=1)
+        idx = base + bits
+        out += weight[:, None] * spectral.sigmoid_spectrum(lut[idx[:, 0], idx[:, 1], idx[:, 2]], lam)
+    return out
