@@ -303,15 +303,14 @@ def _matrix(m) -> np.ndarray:
 def _light(obj, matrix: np.ndarray, velocity: Velocity, pivot) -> Light:
     data = obj.data
     rotation = matrix[:3, :3] / np.linalg.norm(matrix[:3, :3], axis=0)
-    color = np.array(data.color[:3], dtype=np.float64)
-    if getattr(data, "use_temperature", False):
-        color = color * np.array(data.temperature_color[:3])
     light = Light(
         name=obj.name,
         kind=data.type,
         position=tuple(matrix[:3, 3]),
         matrix=rotation,
-        color=tuple(float(c) for c in color),
+        color=tuple(float(c) for c in data.color[:3]),
+        # a black body (a spectrum the core Doppler-shifts), tinted by the colour
+        temperature=float(data.temperature) if getattr(data, "use_temperature", False) else 0.0,
         power=float(data.energy) * 2.0 ** float(getattr(data, "exposure", 0.0)),
         velocity=velocity,
         pivot=pivot,
@@ -429,6 +428,8 @@ def render_settings(scene, resolution=None) -> RenderSettings:
         max_bounces=rf.max_bounces,
         doppler_mode=rf.doppler_mode,
         searchlight=rf.searchlight,
+        spectral_samples=rf.spectral_samples,
+        normalize_exposure=rf.normalize_exposure,
         film_transparent=render.film_transparent,
         tile_size=rf.tile_size,
         threads=render.threads if render.threads_mode == 'FIXED' else 0,

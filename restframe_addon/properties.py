@@ -20,12 +20,14 @@ from bpy.props import (
 )
 from bpy.types import PropertyGroup
 
-# Explicit numbers keep saved files stable when SPECTRAL (colour shift) joins the list.
+# Explicit numbers keep saved files stable as modes are added.
 DOPPLER_MODES = (
     ('OFF', "Off", "Geometry only: aberration, light-travel time and the searchlight effect; "
      "colours are not shifted", 0),
     ('FACTOR', "Factor", "Show the Doppler factor D of each pixel as a grey level "
      "(D > 1: approaching, D < 1: receding)", 1),
+    ('SPECTRAL', "Spectral", "Shift colours as seen: surfaces and lights as spectra, every wavelength "
+     "scaled by D (blue shift when approaching, red shift when receding)", 2),
 )
 
 
@@ -163,6 +165,20 @@ class RestframeSceneSettings(PropertyGroup):
         description="Apply the relativistic intensity change (D^4 for radiance, the headlight "
         "effect): approaching objects brighten, receding ones dim",
         default=True,
+    )
+    spectral_samples: IntProperty(
+        name="Wavelengths",
+        description="Wavelengths per camera ray between 360 and 830 nm (Spectral mode)",
+        default=32,
+        min=4,
+        soft_max=128,
+        max=1024,
+    )
+    normalize_exposure: BoolProperty(
+        name="Normalize Exposure",
+        description="Scale the image to the mean brightness the same view has without Doppler "
+        "intensity and colour changes, so strongly shifted scenes stay visible",
+        default=False,
     )
     doppler_range_auto: BoolProperty(
         name="Auto Range",

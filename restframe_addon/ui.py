@@ -90,6 +90,12 @@ class RESTFRAME_RENDER_PT_doppler(RestframeButtonsPanel, Panel):
         col.prop(rf, "doppler_mode")
         col.prop(rf, "searchlight")
         sub = col.column()
+        sub.active = rf.doppler_mode == 'SPECTRAL'
+        sub.prop(rf, "spectral_samples")
+        sub = col.column()
+        sub.active = rf.doppler_mode != 'FACTOR'
+        sub.prop(rf, "normalize_exposure")
+        sub = col.column()
         sub.active = rf.doppler_mode == 'FACTOR'
         sub.prop(rf, "doppler_range_auto")
         row = sub.column(align=True)
@@ -206,7 +212,13 @@ class RESTFRAME_LIGHT_PT_light(RestframeButtonsPanel, Panel):
         layout.row().prop(light, "type", expand=True)
         layout.use_property_split = True
         col = layout.column()
-        col.prop(light, "color")
+        if hasattr(light, "use_temperature"):  # Blender 4.5+
+            row = col.row(heading="Temperature")
+            row.prop(light, "use_temperature", text="")
+            sub = row.row()
+            sub.active = light.use_temperature
+            sub.prop(light, "temperature", text="")
+        col.prop(light, "color", text="Tint" if getattr(light, "use_temperature", False) else "Color")
         col.prop(light, "energy")
         if hasattr(light, "exposure"):
             col.prop(light, "exposure")

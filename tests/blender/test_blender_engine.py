@@ -90,9 +90,11 @@ def test_object_properties(scene):
 def test_scene_properties(scene):
     props = bpy.types.Scene.bl_rna.properties["restframe"].fixed_type.properties
     expected = {"light_speed", "reference_frame", "samples", "max_bounces", "tile_size", "doppler_mode",
-                "searchlight", "doppler_range_auto", "doppler_range", "doppler_levels"}
+                "searchlight", "spectral_samples", "normalize_exposure", "doppler_range_auto", "doppler_range",
+                "doppler_levels"}
     assert expected <= set(props.keys())
-    assert [item.identifier for item in props["doppler_mode"].enum_items] == ['OFF', 'FACTOR']
+    assert [(item.identifier, item.value) for item in props["doppler_mode"].enum_items] == [
+        ('OFF', 0), ('FACTOR', 1), ('SPECTRAL', 2)]
     assert props["light_speed"].hard_min > 0.0
     assert all(props[name].is_animatable for name in expected)
 

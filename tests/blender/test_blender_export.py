@@ -238,6 +238,8 @@ def test_lights_world_and_camera(scene):
         scene.collection.objects.link(obj)
     bpy.data.objects["Area"].scale = (3.0, 1.0, 1.0)
     bpy.data.lights["Point"].exposure = 1.0
+    bpy.data.lights["Sun"].use_temperature = True
+    bpy.data.lights["Sun"].temperature = 3000.0
     bpy.data.objects["Spot"].restframe.velocity = (0.0, 0.0, -0.3)
     world = bpy.data.worlds.new("W")
     scene.world = world
@@ -252,6 +254,7 @@ def test_lights_world_and_camera(scene):
     assert (lights["Spot"].spot_size, lights["Spot"].spot_blend) == pytest.approx((0.8, 0.3))
     assert lights["Spot"].velocity.beta == pytest.approx((0.0, 0.0, -0.3))
     assert lights["Sun"].power == pytest.approx(3.0) and lights["Sun"].sun_angle == pytest.approx(0.1)
+    assert lights["Sun"].temperature == 3000.0 and lights["Point"].temperature == 0.0
     assert lights["Area"].area_shape == 'RECTANGLE' and lights["Area"].area_size == pytest.approx((6.0, 0.5))
     assert lights["Point"].position == pytest.approx((0.0, 0.0, 5.0))
     assert out.world_color == pytest.approx((0.2, 0.4, 0.8))
@@ -271,6 +274,7 @@ def test_render_settings_follow_the_scene(scene):
     rf.samples, rf.max_bounces, rf.tile_size = 9, 3, 16
     rf.doppler_mode, rf.searchlight, rf.doppler_range_auto = 'FACTOR', False, False
     rf.doppler_range, rf.doppler_levels = (0.5, 2.0), 5
+    rf.spectral_samples, rf.normalize_exposure = 12, True
     scene.render.resolution_percentage = 200
     scene.render.film_transparent = True
     scene.render.threads_mode, scene.render.threads = 'FIXED', 3
@@ -279,6 +283,7 @@ def test_render_settings_follow_the_scene(scene):
     assert (settings.samples, settings.max_bounces, settings.tile_size, settings.threads) == (9, 3, 16, 3)
     assert (settings.doppler_mode, settings.searchlight, settings.doppler_levels) == ('FACTOR', False, 5)
     assert settings.doppler_range == pytest.approx((0.5, 2.0)) and settings.film_transparent
+    assert settings.spectral_samples == 12 and settings.normalize_exposure
 
 
 def test_observation_time_uses_subframes_and_fps_base(scene):

@@ -121,3 +121,40 @@ def test_read_exr_round_trip(tmp_path):
         exr.write(str(tmp_path / "t.exr"))
     back = read_exr(tmp_path / "t.exr")["Doppler"][..., 0]
     np.testing.assert_array_equal(back, data[::-1])
+
+
+def emissive_plane(scene, velocity):
+    plane = add_plane(scene, size=1000.0, velocity=velocity)
+    mat = bpy.data.materials.new("Glow")
+    if bpy.app.version < (5, 0, 0):
+        mat.use_nodes = True
+    bsdf = mat.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Base Color"].default_value = (0.0, 0.0, 0.0, 1.0)
+    bsdf.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    bsdf.inputs["Emission Strength"].default_value = 1.0
+    plane.data.materials.append(mat)
+    return plane
+
+
+def test_spectral_mode_blue_shifts_an_approaching_white_emitter(scene, tmp_path):
+    add_camera(scene)
+    emissive_plane(scene, velocity=(0.0, 0.0, 0.3))
+    scene.restframe.searchlight = False
+    scene.restframe.doppler_mode = 'OFF'
+    off = render_exr(scene, tmp_path / "off.exr")["Combined"][AXIS][:3]
+    assert off == pytest.approx([1.0, 1.0, 1.0], rel=1e-4)  # colour unshifted
+    scene.restframe.doppler_mode = 'SPECTRAL'
+    scene.restframe.spectral_samples = 16
+    shifted = render_exr(scene, tmp_path / "spectral.exr")["Combined"][AXIS][:3]
+    assert shifted[2] > 1.2 * shifted[0]  # D = 1.36: bluer than white
+
+
+def test_animation_render_writes_every_frame(scene, tmp_path):
+    """Ctrl+F12 / blender -a: each frame rendered at its own time and written."""
+    add_camera(scene)
+    add_plane(scene, velocity=(0.0, 0.0, 0.5))
+    scene.frame_start, scene.frame_end = 3, 4
+    scene.render.image_settings.file_format = 'PNG'
+    scene.render.filepath = str(tmp_path / "anim_")
+    bpy.ops.render.render(animation=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["anim_0003.png", "anim_0004.png"]
