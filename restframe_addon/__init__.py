@@ -12,16 +12,18 @@ usable without Blender.
 
 
 def register():
-    from . import engine, properties, ui
+    from . import engine, overlay, properties, ui
 
     properties.register()
     engine.register()
     ui.register()
+    overlay.register()
 
 
 def unregister():
-    from . import engine, properties, ui
+    from . import engine, overlay, properties, ui
 
+    overlay.unregister()
     ui.unregister()
     engine.unregister()
     properties.unregister()

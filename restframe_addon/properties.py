@@ -131,6 +131,12 @@ class RestframeSceneSettings(PropertyGroup):
         "was placed; at other frames it has moved by velocity x elapsed time",
         default=1,
     )
+    show_velocity: BoolProperty(
+        name="Velocity Arrows",
+        description="Draw each moving object's velocity in the 3D viewport, as long as the "
+        "distance it covers in one second",
+        default=True,
+    )
     samples: IntProperty(
         name="Samples",
         description="Camera samples per pixel (stratified), for anti-aliasing and soft effects",

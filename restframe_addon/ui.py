@@ -59,6 +59,7 @@ class RESTFRAME_RENDER_PT_relativity(RestframeButtonsPanel, Panel):
         col = layout.column()
         col.prop(rf, "light_speed")
         col.prop(rf, "reference_frame")
+        col.prop(rf, "show_velocity")
         col = layout.column(align=True)
         seconds = export.observation_time(scene)
         col.label(text=f"Frame {scene.frame_current}: t = {seconds:.6g} s, c·t = {rf.light_speed * seconds:.6g}",

@@ -7,6 +7,7 @@ texts the artist relies on (speed readouts, warnings) must appear.
 from types import SimpleNamespace
 
 import bpy
+import numpy as np
 import pytest
 
 from blender_helpers import add_camera, add_plane
@@ -127,3 +128,60 @@ def test_panels_hide_for_other_engines(scene):
     context = context_for(scene, add_plane(scene))
     assert not ui.RESTFRAME_RENDER_PT_relativity.poll(context)
     assert not ui.RESTFRAME_OBJECT_PT_motion.poll(context)
+
+
+def test_velocity_arrows_geometry(scene):
+    from restframe_addon.overlay import arrow_segments
+
+    scene.restframe.light_speed = 10.0
+    add_plane(scene, "Still")
+    ship = add_plane(scene, "Ship", location=(1.0, 2.0, 3.0), velocity=(0.0, 0.6, 0.0))
+    fast = add_plane(scene, "Fast", velocity=(0.0, 0.0, -1.0))
+    fast.restframe.lorentz_factor = 1e9  # beta = 1 - 5e-19: the arrow is c x 1 s long
+    add_plane(scene, "Broken", velocity=(2.0, 0.0, 0.0))  # invalid: no arrow
+    scene.view_layers[0].update()  # matrix_world, as the viewport has it
+    segments = arrow_segments(scene, scene.view_layers[0])
+    assert segments.shape == (6, 2, 3)
+    np.testing.assert_allclose(segments[0], [(1.0, 2.0, 3.0), (1.0, 8.0, 3.0)], atol=1e-5)  # 0.6 c x 1 s
+    np.testing.assert_allclose(segments[3], [(0.0, 0.0, 0.0), (0.0, 0.0, -10.0)], atol=1e-5)
+    head = segments[1:3, 1] - segments[1:3, 0]
+    assert np.all(head[:, 1] < 0)  # head strokes point back along the shaft
+    ship.hide_set(True)
+    assert arrow_segments(scene, scene.view_layers[0]).shape == (3, 2, 3)
+
+
+def test_velocity_arrows_draw_call(scene, monkeypatch):
+    """The draw handler's gpu calls (no GPU in module mode: a recording stand-in)."""
+    import sys
+    import types
+
+    from restframe_addon import overlay
+
+    calls = []
+
+    class Shader:
+        def uniform_float(self, name, value):
+            calls.append((name, tuple(value) if hasattr(value, "__len__") else value))
+
+    class Batch:
+        def draw(self, shader):
+            calls.append("draw")
+
+    def batch_for_shader(shader, kind, content):
+        calls.append((kind, content["pos"].shape))
+        return Batch()
+
+    fake_gpu = types.SimpleNamespace(
+        shader=types.SimpleNamespace(from_builtin=lambda name: calls.append(name) or Shader()),
+        state=types.SimpleNamespace(viewport_get=lambda: (0, 0, 640, 480), blend_set=lambda mode: None))
+    monkeypatch.setitem(sys.modules, "gpu", fake_gpu)
+    monkeypatch.setitem(sys.modules, "gpu_extras.batch", types.SimpleNamespace(batch_for_shader=batch_for_shader))
+
+    add_plane(scene, velocity=(0.5, 0.0, 0.0))
+    overlay.draw_arrows()
+    assert calls == ['POLYLINE_UNIFORM_COLOR', ('LINES', (6, 3)), ("viewportSize", (640, 480)),
+                     ("lineWidth", 2.0), ("color", overlay.COLOR), "draw"]
+    calls.clear()
+    scene.restframe.show_velocity = False
+    overlay.draw_arrows()
+    assert calls == []
