@@ -5,8 +5,6 @@ Every value is animatable like any Blender property; the physics they feed is
 defined in ``shared/physics.md``.
 """
 
-from __future__ import annotations
-
 import math
 
 import bpy
