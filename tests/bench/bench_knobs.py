@@ -1,0 +1,169 @@
+"""Section 1: error against run time for each quality knob.
+
+Every study renders one scene at a list of settings of one knob plus a reference
+setting, and reports run time and the relative RMS error (RMSE over pixels and RGB
+channels of the Combined pass, divided by the reference's mean) of each setting.
+
+A new knob is one more :class:`KnobStudy` in :func:`studies` (the motion-sampling
+knobs of the accelerated-motion work go there once the core has them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from bench_common import Goal, Section, ball_scene, look_at_camera, quad, rel_rmse, settings, timed, uv_sphere
+from restframe_addon.core.render import render_image
+from restframe_addon.core.scene import Light, Material, Mesh, Scene, Velocity
+
+
+@dataclass
+class KnobStudy:
+    key: str  # short name, used for plot files and numbers
+    knob: str  # the RenderSettings field
+    title: str
+    scene: Callable[[], Scene]
+    base: dict  # other RenderSettings fields
+    values: list
+    reference: object
+    what: str  # one sentence: the scene and why the knob matters there
+
+
+def spectral_scene():
+    """Four coloured balls moving at different speeds toward/away from and across the view."""
+    meshes, materials = [], []
+    colours = [(0.9, 0.1, 0.1), (0.1, 0.8, 0.2), (0.1, 0.2, 0.9), (0.8, 0.8, 0.8)]
+    betas = [(0.0, -0.5, 0.0), (0.0, 0.4, 0.0), (0.6, 0.0, 0.0), (-0.3, -0.3, 0.0)]
+    for i, (colour, beta) in enumerate(zip(colours, betas)):
+        centre = np.array([-3.0 + 2.0 * i, 0.0, 0.0])
+        v, t = uv_sphere((0.0, 0.0, 0.0), 0.8, 32, 16)
+        meshes.append(Mesh(f"ball{i}", v + centre, t, velocity=Velocity(beta), pivot=tuple(centre),
+                           material_indices=np.full(len(t), i)))
+        materials.append(Material(f"m{i}", base_color=colour, roughness=0.5))
+    fv, ft = quad((0.0, 0.0, -0.8), (20.0, 20.0))
+    meshes.append(Mesh("floor", fv, ft, velocity=Velocity((0.0, 0.0, 0.0)), material_indices=np.full(2, 4)))
+    materials.append(Material("floor", base_color=(0.6, 0.6, 0.5)))
+    camera = look_at_camera((0.0, -8.0, 2.0), (0.0, 0.0, 0.0), aspect=2.0, fov_half_tan=0.6)
+    lights = [Light("sun", "SUN", (0.0, 0.0, 10.0), power=3.0, temperature=5500.0)]
+    return Scene(camera=camera, meshes=meshes, materials=materials, lights=lights, world_color=(0.1, 0.12, 0.2))
+
+
+def mirror_glass_scene():
+    """A mirror ball and a glass ball (moving at 0.5c) in a box of coloured walls: light bounces many times."""
+    meshes, materials = [], []
+
+    def add(name, vt, material, velocity=Velocity(), pivot=(0.0, 0.0, 0.0)):
+        v, t = vt
+        meshes.append(Mesh(name, v, t, velocity=velocity, pivot=pivot, material_indices=np.full(len(t), material)))
+
+    materials += [Material("mirror", base_color=(0.9, 0.9, 0.9), metallic=1.0, roughness=0.0),
+                  Material("glass", base_color=(1.0, 1.0, 1.0), roughness=0.0, transmission=1.0, ior=1.5),
+                  Material("red", base_color=(0.8, 0.1, 0.1)), Material("green", base_color=(0.1, 0.7, 0.1)),
+                  Material("white", base_color=(0.8, 0.8, 0.8)), Material("mirror wall", base_color=(0.9, 0.9, 0.9),
+                                                                           metallic=1.0, roughness=0.0)]
+    add("mirror ball", uv_sphere((-1.2, 0.5, -1.0), 1.0, 48, 24), 0)
+    add("glass ball", uv_sphere((1.3, -0.5, -1.2), 0.8, 48, 24), 1, Velocity((0.0, 0.0, 0.5)), (1.3, -0.5, -1.2))
+    add("floor", quad((0.0, 0.0, -2.0), (6.0, 8.0)), 4)
+    add("left", quad((-3.0, 0.0, 0.0), (8.0, 4.0), normal_axis=0), 2)
+    add("right", quad((3.0, 0.0, 0.0), (8.0, 4.0), normal_axis=0), 3)
+    add("back", quad((0.0, 4.0, 0.0), (6.0, 4.0), normal_axis=1), 5)  # a mirror wall: a hall of mirrors
+    add("front", quad((0.0, -4.0, 0.0), (6.0, 4.0), normal_axis=1), 5)
+    add("ceiling", quad((0.0, 0.0, 2.0), (6.0, 8.0)), 4)
+    lights = [Light("lamp", "POINT", (0.0, -1.0, 1.5), power=400.0)]
+    camera = look_at_camera((0.0, -3.6, 0.5), (0.0, 0.0, -0.8), fov_half_tan=0.7)
+    return Scene(camera=camera, meshes=meshes, materials=materials, lights=lights, world_color=(0.0, 0.0, 0.0))
+
+
+def studies(smoke: bool) -> list[KnobStudy]:
+    res = (24, 18) if smoke else (160, 120)
+    out = [
+        KnobStudy("samples", "samples", "Samples per pixel",
+                  lambda: ball_scene(beta=0.6, soft=0.6, tau=0.0),
+                  dict(resolution=res), [1, 4] if smoke else [1, 2, 4, 8, 16, 32, 64], 16 if smoke else 512,
+                  "A ball moving at 0.6c over a floor, lit by a soft (radius 0.6) point light: samples "
+                  "anti-alias edges and sample the soft shadow."),
+        KnobStudy("spectral", "spectral_samples", "Spectral samples (SPECTRAL Doppler mode)", spectral_scene,
+                  dict(resolution=(24, 12) if smoke else (160, 80), doppler_mode="SPECTRAL"),
+                  [4, 8] if smoke else [4, 6, 8, 12, 16, 24, 32, 48, 64, 128], 470,
+                  "Four coloured balls moving at 0.4-0.6c toward, away from and across the view, a 5500 K sun: "
+                  "Doppler-shifted spectra resolved by K wavelengths per ray (reference K = 470, 1 nm strata)."),
+        KnobStudy("bounces", "max_bounces", "Bounce limit (mirror and glass)", mirror_glass_scene,
+                  dict(resolution=(24, 24) if smoke else (128, 128)),
+                  [0, 2] if smoke else [0, 1, 2, 3, 4, 6, 8, 12], 6 if smoke else 32,
+                  "A mirror ball and a glass ball (moving at 0.5c) in a box with two facing mirror walls."),
+    ]
+    # Motion-sampling knobs of the accelerated-motion work: add their KnobStudy here when the
+    # core's RenderSettings has them; nothing is reported for them until then.
+    return out
+
+
+def run_study(study: KnobStudy, ctx) -> dict:
+    scene = study.scene()
+    ref_time, ref = timed(lambda: render_image(scene, settings(**study.base, **{study.knob: study.reference})))
+    ref = ref["Combined"]
+    rows = []
+    failures = []
+    for value in study.values:
+        try:
+            seconds, passes = timed(lambda: render_image(scene, settings(**study.base, **{study.knob: value})))
+        except Exception as error:  # a setting the core cannot render is reported, not hidden
+            failures.append((value, f"{type(error).__name__}: {error}"))
+            ctx.log(f"  {study.key}={value}: FAILED {failures[-1][1]}")
+            continue
+        rows.append((value, seconds, rel_rmse(passes["Combined"], ref)))
+        ctx.log(f"  {study.key}={value}: {seconds:.2f} s, error {rows[-1][2]:.3g}")
+    return {"rows": rows, "reference_time": ref_time, "failures": failures}
+
+
+def run(ctx) -> Section:
+    sec = Section("1. Error against run time for each quality knob")
+    sec.add("Error norm: **relative RMSE** = root-mean-square difference of the Combined RGB from the "
+            "reference render, over all pixels and channels, divided by the reference's mean value. "
+            "Times are single-thread `render_image` wall times (`threads=1`), including scene "
+            "preparation, each measured once in this run.")
+    sec.add("")
+    import matplotlib.pyplot as plt
+
+    all_studies = studies(ctx.smoke)
+    fig, axes = plt.subplots(1, len(all_studies), figsize=(4.2 * len(all_studies), 3.4))
+    for ax, study in zip(np.atleast_1d(axes), all_studies):
+        ctx.log(f" knob {study.key}")
+        result = run_study(study, ctx)
+        rows = result["rows"]
+        sec.add(f"### {study.title} (`{study.knob}`)")
+        sec.add("")
+        sec.add(study.what + f" Resolution {study.base['resolution'][0]}x{study.base['resolution'][1]}; "
+                f"reference `{study.knob}={study.reference}` ({result['reference_time']:.2f} s).")
+        sec.add("")
+        t1 = rows[0][1]
+        sec.table([f"`{study.knob}`", "time (s)", "time / first", "relative RMSE"],
+                  [[v, s, s / t1, e] for v, s, e in rows])
+        for v, message in result["failures"]:
+            sec.add(f"- `{study.knob}={v}` **fails**: `{message}`")
+            sec.goals.append(Goal(f"`{study.knob}={v}` renders", "no error", message, False))
+        if result["failures"]:
+            sec.add("")
+        for v, s, e in rows:
+            sec.number(f"{study.key}_{v}_time", s)
+            sec.number(f"{study.key}_{v}_error", e)
+        times = np.array([r[1] for r in rows])
+        errors = np.array([max(r[2], 1e-12) for r in rows])
+        ax.loglog(times, errors, "o-")
+        for v, s, e in zip([r[0] for r in rows], times, errors):
+            ax.annotate(str(v), (s, e), textcoords="offset points", xytext=(4, 4), fontsize=7)
+        ax.set_xlabel("render time (s, 1 thread)")
+        ax.set_ylabel("relative RMSE")
+        ax.set_title(study.title, fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    name = "knobs.png"
+    fig.savefig(ctx.out_dir / name, dpi=80)
+    plt.close(fig)
+    sec.add(f"![error against run time]({ctx.plot_prefix}/{name})")
+    sec.add("")
+    sec.add("Motion-sampling knobs (accelerated motion): the core has no such knob yet, so there is no curve; "
+            "`tests/bench/bench_knobs.py` takes one more `KnobStudy` when it has.")
+    return sec
