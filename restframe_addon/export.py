@@ -188,6 +188,7 @@ class MaterialExporter:
         out.metallic = self._value(mat, inputs["Metallic"])
         out.roughness = self._value(mat, inputs["Roughness"])
         out.ior = self._value(mat, inputs["IOR"])
+        out.specular_ior_level = self._value(mat, inputs["Specular IOR Level"])
         out.transmission = self._value(mat, inputs["Transmission Weight"])
         out.emission = self._emission(mat, inputs["Emission Color"], inputs["Emission Strength"])
 

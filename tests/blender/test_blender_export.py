@@ -157,6 +157,7 @@ def test_principled_materials_textures_and_fallbacks(scene):
     a = add_plane(scene, "A")
     a.data.materials.append(principled("Gold", **{
         "Base Color": (0.9, 0.6, 0.2, 1.0), "Metallic": 1.0, "Roughness": 0.25, "IOR": 1.33,
+        "Specular IOR Level": 0.7,
         "Transmission Weight": 0.5, "Emission Color": (1.0, 0.5, 0.0, 1.0), "Emission Strength": 4.0}))
 
     image = bpy.data.images.new("Grid", 16, 8)
@@ -187,6 +188,7 @@ def test_principled_materials_textures_and_fallbacks(scene):
     assert gold.base_color == pytest.approx((0.9, 0.6, 0.2))
     assert (gold.metallic, gold.roughness, gold.ior, gold.transmission) == pytest.approx((1.0, 0.25, 1.33, 0.5))
     assert gold.emission == pytest.approx((4.0, 2.0, 0.0))
+    assert gold.specular_ior_level == pytest.approx(0.7)
     assert all(out.materials[i] is gold for i in by_name(out.meshes, "A").material_indices)
 
     texture = materials["Textured"].base_color_texture
