@@ -7,6 +7,11 @@ is ``p`` sits in its frame at ``boost(0, p)`` plus its Blender shape relative to
 is translated by ``(gamma - 1)(n.p) n`` (the time part only shifts the static
 frame's clock).  At world time 0 its pivot is where the artist put it, and the
 body is Lorentz-contracted about it as seen from S.
+
+Bodies in accelerated motion or rotation become several frames (inertial
+segments, see :mod:`.motion`) that share one :class:`Geometry` placed by an
+offset, each valid only in a window of frame time; a rotating body is one
+frame whose pose the tracer sets per ray.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ import numpy as np
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
+from . import motion
 from .lorentz import Boost
 from .scene import REST, Scene, Velocity
 
@@ -59,28 +65,86 @@ def shift_into_frame(boost: Boost, pivot) -> np.ndarray:
     return boost.gamma_minus_one * float(boost.n @ pivot) * boost.n
 
 
+def clock_shift(boost: Boost, pivot) -> float:
+    """Frame time of the body's origin event (tau = 0, pivot): its clock reads 0 there."""
+    if boost.is_identity:
+        return 0.0
+    return -boost.gamma * boost.b * float(boost.n @ np.asarray(pivot, dtype=np.float64))
+
+
+@dataclass
+class Geometry:
+    """Static triangles in local coordinates and their embreex scene (coordinates relative to ``anchor``)."""
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    tri_material: np.ndarray
+    tri_object_index: np.ndarray
+    tri_clock: np.ndarray  # object clock = frame time + RestFrame.clock_offset + this
+    corner_normals: np.ndarray | None
+    corner_uvs: np.ndarray | None
+    lo: np.ndarray
+    hi: np.ndarray
+    anchor: np.ndarray
+    embree: object
+
+    @property
+    def extent(self) -> float:
+        return float(np.max(self.hi - self.lo))
+
+    @property
+    def radius(self) -> float:
+        """Distance from the local origin (the pivot, for moving bodies) to the farthest vertex."""
+        return float(np.max(np.linalg.norm(self.vertices[np.unique(self.triangles)], axis=1)))
+
+
 @dataclass
 class RestFrame:
-    """One inertial frame and the triangles at rest in it (possibly none)."""
+    """One inertial frame, and the triangles at rest in it (possibly none).
+
+    Local geometry coordinates map to frame coordinates by ``local + offset``, or for a
+    spinning body by ``pose(t) @ local + offset`` at frame time t.  ``window`` limits the
+    placement to frame times [t0, t1] (the inertial segments of an accelerated body).
+    """
 
     index: int
     velocity: Velocity
     boost: Boost
     names: list[str] = field(default_factory=list)
-    vertices: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    triangles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.int64))
-    tri_material: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
-    tri_object_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
-    corner_normals: np.ndarray | None = None
-    corner_uvs: np.ndarray | None = None
-    lo: np.ndarray | None = None  # float64 bounds of the geometry
-    hi: np.ndarray | None = None
-    anchor: np.ndarray | None = None  # embree coordinates are relative to this point
-    embree: object = None
+    geometry: Geometry | None = None
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    window: tuple[float, float] | None = None
+    clock_offset: float = 0.0  # the body's clock = frame time + clock_offset (+ Geometry.tri_clock)
+    spin: np.ndarray | None = None  # angular velocity (rad per unit c*t) about ``offset``
+    tolerance: float = 1e-3  # spinning bodies: how far a hit may be from its consistent pose (scene units)
 
     @property
     def has_geometry(self) -> bool:
-        return self.embree is not None
+        return self.geometry is not None
+
+    def pose(self, tau):
+        """Rotations (n, 3, 3) of a spinning body at frame times tau: its Blender pose at clock 0."""
+        return motion.rotation_matrix(np.outer(np.asarray(tau) + self.clock_offset, self.spin))
+
+    def to_local(self, x, d, tau=None):
+        """Frame coordinates (points, directions; at frame times tau if spinning) -> local geometry."""
+        if self.spin is None:
+            return x - self.offset, d
+        pose = self.pose(tau)
+        return np.einsum("nji,nj->ni", pose, x - self.offset), np.einsum("nji,nj->ni", pose, d)
+
+    def to_frame(self, x, d, tau=None):
+        """Local geometry coordinates (points, directions) -> frame coordinates."""
+        if self.spin is None:
+            return x + self.offset, d
+        pose = self.pose(tau)
+        return np.einsum("nij,nj->ni", pose, x) + self.offset, np.einsum("nij,nj->ni", pose, d)
+
+    def surface_velocity(self, x):
+        """Velocity (units of c) of body points at frame positions x: omega x r for a spinning body."""
+        if self.spin is None:
+            return np.zeros_like(x)
+        return np.cross(self.spin, x - self.offset)
 
 
 class FrameSet:
@@ -106,16 +170,24 @@ class FrameSet:
         return cached
 
 
-def build_frames(scene: Scene, should_stop=lambda: False) -> FrameSet:
+@dataclass
+class MotionSettings:
+    """How closely accelerated and rotating bodies follow their true motion."""
+
+    tolerance: float = 1e-3  # scene units: largest displacement of any body point from its true motion
+
+
+def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: MotionSettings | None = None) -> FrameSet:
     """Group the scene by velocity and build one embreex scene per moving or static frame.
 
-    Raises ValueError (naming the object) for invalid velocities.
+    Raises ValueError (naming the object) for invalid velocities or motions.
     """
+    motion_settings = motion_settings or MotionSettings()
     frames: list[RestFrame] = []
     by_key: dict[tuple, RestFrame] = {}
     warnings: list[str] = []
 
-    def frame_for(velocity: Velocity, name: str) -> RestFrame:
+    def shared_frame(velocity: Velocity, name: str) -> RestFrame:
         boost = Boost.from_velocity(velocity.beta, velocity.lorentz_factor, name=name)
         key = REST.key if boost.is_identity else velocity.key
         frame = by_key.get(key)
@@ -126,27 +198,41 @@ def build_frames(scene: Scene, should_stop=lambda: False) -> FrameSet:
         frame.names.append(name)
         return frame
 
-    world = frame_for(REST, "world").index
-    camera = frame_for(scene.camera.velocity, scene.camera.name).index
-    light_frames = [frame_for(light.velocity, light.name).index for light in scene.lights]
+    world = shared_frame(REST, "world").index
+    camera = shared_frame(scene.camera.velocity, scene.camera.name).index
+    light_frames = [shared_frame(light.velocity, light.name).index for light in scene.lights]
 
-    parts: dict[int, list] = {}
+    inertial: dict[int, list] = {}
+    special: dict[int, tuple] = {}  # id(trajectory) or mesh id -> (kind, meshes)
     for mesh in scene.meshes:
         if should_stop():
             break
-        frame = frame_for(mesh.velocity, mesh.name)
-        part = _mesh_part(mesh, frame.boost, warnings)
-        if part is not None:
-            parts.setdefault(frame.index, []).append(part)
+        if mesh.trajectory is not None:
+            special.setdefault(id(mesh.trajectory), ("animated", []))[1].append(mesh)
+        elif mesh.angular_velocity is not None and np.any(mesh.angular_velocity):
+            special[id(mesh)] = ("rotating", [mesh])
+        else:
+            frame = shared_frame(mesh.velocity, mesh.name)
+            part = _mesh_part(mesh, frame.boost, warnings)
+            if part is not None:
+                inertial.setdefault(frame.index, []).append(part)
 
-    for index, frame_parts in parts.items():
+    for index, parts in inertial.items():
         if should_stop():
             break
-        _fill_geometry(frames[index], frame_parts)
+        frames[index].geometry = _geometry(parts)
+    for kind, meshes in special.values():
+        if should_stop():
+            break
+        if kind == "animated":
+            _add_segments(frames, meshes, scene, motion_settings, warnings)
+        else:
+            _add_rotation(frames, meshes[0], scene, motion_settings, warnings)
     return FrameSet(frames, world, camera, light_frames, warnings)
 
 
-def _mesh_part(mesh, boost: Boost, warnings: list[str]):
+def _mesh_part(mesh, boost: Boost, warnings: list[str], relative_to=None):
+    """Valid triangles of a mesh, placed in its shared frame (or relative to a pivot)."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
     triangles = np.asarray(mesh.triangles, dtype=np.int64).reshape(-1, 3)
     if len(triangles) == 0:
@@ -164,38 +250,46 @@ def _mesh_part(mesh, boost: Boost, warnings: list[str]):
         if mesh.material_indices is None
         else np.asarray(mesh.material_indices, dtype=np.int32)
     )
+    if relative_to is None:
+        placed = vertices + shift_into_frame(boost, mesh.pivot)
+        clock = -clock_shift(boost, mesh.pivot)
+    else:
+        placed = vertices - np.asarray(relative_to, dtype=np.float64)
+        clock = 0.0
     return {
-        "vertices": vertices + shift_into_frame(boost, mesh.pivot),
+        "vertices": placed,
         "triangles": triangles[keep],
         "material": materials[keep],
         "object_index": np.full(len(keep), mesh.object_index, dtype=np.int32),
+        "clock": np.full(len(keep), clock),
         "normals": None if mesh.corner_normals is None else np.asarray(mesh.corner_normals, np.float64)[keep],
         "uvs": None if mesh.corner_uvs is None else np.asarray(mesh.corner_uvs, np.float64)[keep],
     }
 
 
-def _fill_geometry(frame: RestFrame, parts: list[dict]) -> None:
+def _geometry(parts: list[dict]) -> Geometry:
     offsets = np.cumsum([0] + [len(p["vertices"]) for p in parts[:-1]])
-    frame.vertices = np.concatenate([p["vertices"] for p in parts])
-    frame.triangles = np.concatenate([p["triangles"] + o for p, o in zip(parts, offsets)])
-    frame.tri_material = np.concatenate([p["material"] for p in parts])
-    frame.tri_object_index = np.concatenate([p["object_index"] for p in parts])
+    vertices = np.concatenate([p["vertices"] for p in parts])
+    triangles = np.concatenate([p["triangles"] + o for p, o in zip(parts, offsets)])
+    normals = uvs = None
     if any(p["normals"] is not None for p in parts):
-        frame.corner_normals = np.concatenate([_flat_or(p, "normals", _flat_normals) for p in parts])
+        normals = np.concatenate([p["normals"] if p["normals"] is not None else _flat_normals(p) for p in parts])
     if any(p["uvs"] is not None for p in parts):
-        frame.corner_uvs = np.concatenate([_flat_or(p, "uvs", lambda q: np.zeros((len(q["triangles"]), 3, 2))) for p in parts])
-    used = frame.vertices[np.unique(frame.triangles)]
-    frame.lo, frame.hi = used.min(axis=0), used.max(axis=0)
-    frame.anchor = 0.5 * (frame.lo + frame.hi)
+        uvs = np.concatenate([p["uvs"] if p["uvs"] is not None else np.zeros((len(p["triangles"]), 3, 2)) for p in parts])
+    used = vertices[np.unique(triangles)]
+    lo, hi = used.min(axis=0), used.max(axis=0)
+    anchor = 0.5 * (lo + hi)
     scene = rtcore_scene.EmbreeScene()
-    TriangleMesh(scene, (frame.vertices - frame.anchor).astype(np.float32), frame.triangles.astype(np.int32))
+    TriangleMesh(scene, (vertices - anchor).astype(np.float32), triangles.astype(np.int32))
     # commit now (embreex commits lazily on the first query, which is not thread-safe)
     scene.run(np.zeros((1, 3), np.float32), np.array([[1, 0, 0]], np.float32))
-    frame.embree = scene
-
-
-def _flat_or(part: dict, key: str, fallback):
-    return part[key] if part[key] is not None else fallback(part)
+    return Geometry(
+        vertices=vertices, triangles=triangles,
+        tri_material=np.concatenate([p["material"] for p in parts]),
+        tri_object_index=np.concatenate([p["object_index"] for p in parts]),
+        tri_clock=np.concatenate([p["clock"] for p in parts]),
+        corner_normals=normals, corner_uvs=uvs, lo=lo, hi=hi, anchor=anchor, embree=scene,
+    )
 
 
 def _flat_normals(part: dict) -> np.ndarray:
@@ -203,3 +297,52 @@ def _flat_normals(part: dict) -> np.ndarray:
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
     return np.repeat(n[:, None, :], 3, axis=1)
+
+
+def _add_segments(frames, meshes, scene: Scene, settings: MotionSettings, warnings) -> None:
+    """An animated assembly: one frame per inertial segment of its pivot's world line."""
+    trajectory = meshes[0].trajectory
+    pivot = np.asarray(meshes[0].pivot, dtype=np.float64)
+    parts = [p for p in (_mesh_part(m, Boost.identity(), warnings, relative_to=pivot) for m in meshes) if p is not None]
+    if not parts:
+        return
+    geometry = _geometry(parts)
+    trajectory.body_radius = max(trajectory.body_radius, geometry.radius)
+    warnings.extend(trajectory.warnings)
+    segments = motion.segment_world_line(trajectory, trajectory.tau[0], trajectory.tau[-1], settings.tolerance)
+    name = meshes[0].name
+    # before the first and after the last segment the motion continues inertially
+    for i, seg in enumerate(segments):
+        boost = Boost.from_velocity(tuple(seg.beta), name=name)
+        t_mid, x_mid = boost.events(np.array(seg.mid), seg.position)
+        t_mid = float(t_mid)
+        start = -np.inf if i == 0 else t_mid + (seg.start - seg.mid) / boost.gamma
+        end = np.inf if i == len(segments) - 1 else t_mid + (seg.end - seg.mid) / boost.gamma
+        proper_mid = float(trajectory.proper_time(np.array([seg.mid]))[0])
+        frame = RestFrame(index=len(frames), velocity=Velocity(tuple(seg.beta)), boost=boost, names=[name],
+                          geometry=geometry, offset=x_mid, window=(start, end), clock_offset=proper_mid - t_mid)
+        frames.append(frame)
+
+
+def _add_rotation(frames, mesh, scene: Scene, settings: MotionSettings, warnings) -> None:
+    """A body spinning at constant angular velocity about its pivot, in its (inertial) axis frame.
+
+    It shows its Blender pose at its own clock's zero; the tracer poses it per ray.
+    """
+    boost = Boost.from_velocity(mesh.velocity.beta, mesh.velocity.lorentz_factor, name=mesh.name)
+    pivot = np.asarray(mesh.pivot, dtype=np.float64)
+    part = _mesh_part(mesh, boost, warnings, relative_to=pivot)
+    if part is None:
+        return
+    geometry = _geometry([part])
+    omega = np.asarray(mesh.angular_velocity, dtype=np.float64) / scene.light_speed  # rad per unit c*t
+    if not np.all(np.isfinite(omega)):
+        raise ValueError(f"{mesh.name}: the angular velocity is not a finite number")
+    rim = float(np.linalg.norm(omega)) * geometry.radius
+    if not rim < 1.0:
+        raise ValueError(f"{mesh.name}: spinning this fast its rim would move at {rim:.6g} c; "
+                         "slow the spin or raise the scene's speed of light")
+    t0 = clock_shift(boost, pivot)
+    frames.append(RestFrame(index=len(frames), velocity=mesh.velocity, boost=boost, names=[mesh.name],
+                            geometry=geometry, offset=pivot + shift_into_frame(boost, pivot),
+                            clock_offset=-t0, spin=omega, tolerance=settings.tolerance))

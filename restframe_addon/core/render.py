@@ -22,14 +22,14 @@ import numpy as np
 
 from . import sampling
 from .camera import primary_rays
-from .frames import FrameSet, build_frames, shift_into_frame
+from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
 from .colour import RGBColour, SpectralColour
 from .scene import RenderSettings, Scene
 from .shading import MaterialTable, Shader, prepare_lights
 from .tracer import trace_nearest
 
-PASSES = {"Doppler": 1, "Emission Time": 1}  # RESTframe's own passes (Depth, Normal, IndexOB are Blender's)
-ALL_PASSES = {"Combined": 4, "Doppler": 1, "Emission Time": 1, "Depth": 1, "Normal": 3, "IndexOB": 1}
+PASSES = {"Doppler": 1, "Emission Time": 1, "Object Time": 1}  # RESTframe's own (Depth, Normal, IndexOB are Blender's)
+ALL_PASSES = {"Combined": 4, **PASSES, "Depth": 1, "Normal": 3, "IndexOB": 1}
 DOPPLER_MODES = ("OFF", "FACTOR", "SPECTRAL")
 _MAX_VALUES = 3 << 16  # ray colour values per batch: bounds memory whatever the tile size, samples and wavelengths
 _EXPOSURE_PREVIEW = 48  # pixels on the longer side of the exposure-normalisation preview
@@ -56,7 +56,7 @@ class Renderer:
         self.scene = scene
         self.settings = settings
         try:
-            self.frames: FrameSet = build_frames(scene, should_stop)
+            self.frames: FrameSet = build_frames(scene, should_stop, MotionSettings(settings.motion_tolerance))
             lights = prepare_lights(scene, self.frames)
         except ValueError as error:
             raise RenderError(str(error)) from error
@@ -117,7 +117,7 @@ class Renderer:
             xs, ys, _ = self._pixel_grid(rect)
             tau, x, d, s_lo, s_hi = self._camera_rays(xs + 0.5, ys + 0.5)
             hits = trace_nearest(self.frames, self.frames.camera, tau, x, d, s_lo, s_hi)
-            doppler = 1.0 / hits.w[hits.frame >= 0]
+            doppler = self._hit_doppler(hits, tau, x, d)[hits.frame >= 0]
             if len(doppler):
                 lo, hi = min(lo, doppler.min()), max(hi, doppler.max())
         return (lo, hi) if lo <= hi else (0.0, 1.0)
@@ -180,7 +180,7 @@ class Renderer:
         if self.settings.doppler_mode == "FACTOR":
             hits = trace_nearest(self.frames, camera, tau, x, d, s_lo, s_hi)
             hit = hits.frame >= 0
-            rgb = np.repeat(self._doppler_grey(1.0 / hits.w)[:, None], 3, axis=1)
+            rgb = np.repeat(self._doppler_grey(self._hit_doppler(hits, tau, x, d))[:, None], 3, axis=1)
         else:
             lam = self.colour.camera_wavelengths(pixel, sample)
             values, hits = self.shader.radiance(camera, tau, x, d, s_lo, s_hi, 0, pixel, sample, lam)
@@ -191,6 +191,21 @@ class Renderer:
         elif self.settings.doppler_mode == "FACTOR":
             rgb[~hit] = self.scene.world_color
         return rgb, hit
+
+    def _hit_doppler(self, hits, tau, x, d):
+        """Doppler factor of camera-ray hits (the frame's, times a spinning surface's own)."""
+        doppler = 1.0 / hits.w
+        for k in np.unique(hits.frame[hits.frame >= 0]):
+            frame = self.frames.frames[int(k)]
+            if frame.spin is None:
+                continue
+            sel = np.flatnonzero(hits.frame == k)
+            fmap = self.frames.map(self.frames.camera, int(k))
+            tau_k, _ = fmap.events(tau[sel], x[sel])
+            d_k, _ = fmap.rays(d[sel])
+            doppler[sel] *= self.shader.surface_doppler(int(k), hits.prim[sel], hits.u[sel], hits.v[sel],
+                                                        tau_k - hits.s_frame[sel], d_k)
+        return doppler
 
     def _doppler_grey(self, doppler):
         lo, hi = self.doppler_range
@@ -212,18 +227,26 @@ class Renderer:
         normal = np.zeros((n, 3))
         index = np.zeros(n)
         hit = hits.frame >= 0
-        doppler[hit] = 1.0 / hits.w[hit]
+        object_time = np.zeros(n)
         depth[hit] = hits.s[hit]
         # world time of the hit event: back along the ray in the camera frame, then into S
         world_tau, _ = self.frames.map(camera, self.frames.world).events(tau[hit] - hits.s[hit], x[hit] + hits.s[hit, None] * d[hit])
         emission_time[hit] = world_tau / self.scene.light_speed
         for k in np.unique(hits.frame[hit]):
             sel = np.flatnonzero(hits.frame == k)
-            d_k, _ = self.frames.map(camera, int(k)).rays(d[sel])
-            _, _, ns, _, _ = self.shader.surface_info(int(k), hits.prim[sel], hits.u[sel], hits.v[sel], d_k)
+            frame = self.frames.frames[int(k)]
+            fmap = self.frames.map(camera, int(k))
+            tau_k, _ = fmap.events(tau[sel], x[sel])
+            d_k, w = fmap.rays(d[sel])
+            tau_hit = tau_k - hits.s_frame[sel]
+            prim, u, v = hits.prim[sel], hits.u[sel], hits.v[sel]
+            doppler[sel] = self.shader.surface_doppler(int(k), prim, u, v, tau_hit, d_k) / w
+            _, _, ns, _, _ = self.shader.surface_info(int(k), prim, u, v, d_k, tau_hit)
             normal[sel] = ns
-            index[sel] = self.frames.frames[int(k)].tri_object_index[hits.prim[sel]]
-        return {"Doppler": doppler, "Emission Time": emission_time, "Depth": depth, "Normal": normal, "IndexOB": index}
+            index[sel] = frame.geometry.tri_object_index[prim]
+            object_time[sel] = (tau_hit + frame.clock_offset + frame.geometry.tri_clock[prim]) / self.scene.light_speed
+        return {"Doppler": doppler, "Emission Time": emission_time, "Object Time": object_time, "Depth": depth,
+                "Normal": normal, "IndexOB": index}
 
 
 def _validate(scene: Scene, settings: RenderSettings) -> None:

@@ -9,8 +9,12 @@ own rest frame* (see ``shared/physics.md``: the artist models rest shapes).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .motion import Trajectory
 
 
 @dataclass(frozen=True)
@@ -70,6 +74,8 @@ class Mesh:
     corner_normals: np.ndarray | None = None  # (M, 3, 3) smooth-shading normals; None = flat
     corner_uvs: np.ndarray | None = None  # (M, 3, 2)
     object_index: int = 0  # Blender's pass_index, for the IndexOB pass
+    trajectory: "Trajectory | None" = None  # animated pivot world line (replaces velocity); see core.motion
+    angular_velocity: tuple[float, float, float] | None = None  # rad/s about the pivot, world axes, in the velocity frame
 
 
 @dataclass
@@ -158,6 +164,7 @@ class RenderSettings:
     doppler_mode: str = "OFF"  # OFF (geometry only), FACTOR (D as grey), SPECTRAL (colour shift)
     searchlight: bool = True  # apply the D^4 intensity transforms (headlamp effect)
     spectral_samples: int = 32  # SPECTRAL: wavelengths per camera ray over 360-830 nm
+    motion_tolerance: float = 1e-3  # scene units: how far accelerated/rotating bodies may stray from their true motion
     normalize_exposure: bool = False  # scale the image to the mean brightness it would have without Doppler intensity changes
     film_transparent: bool = False
     tile_size: int = 64

@@ -128,10 +128,11 @@ class Shader:
         self.colour = colour
         self.max_bounces = max_bounces
         self.searchlight = searchlight
-        self.epsilon = {
-            k: 1e-5 * float(np.max(frames.frames[k].hi - frames.frames[k].lo)) + 1e-9 * float(np.max(np.abs(frames.frames[k].anchor)))
-            for k in frames.geometry
-        }
+        self.epsilon = {}
+        for k in frames.geometry:
+            frame = frames.frames[k]
+            reach = float(np.max(np.abs(frame.geometry.anchor))) + float(np.max(np.abs(frame.offset)))
+            self.epsilon[k] = 1e-5 * frame.geometry.extent + 1e-9 * reach
 
     # ------------------------------------------------------------------ helpers
     def _power(self, doppler, exponent: int):
@@ -161,32 +162,44 @@ class Shader:
             fmap = self.frames.map(src, int(k))
             tau_k, _ = fmap.events(tau0[sel], x0[sel])
             d_k, w = fmap.rays(d[sel])
-            doppler = 1.0 / w
-            local = self._shade_surface(int(k), tau_k - hits.s_frame[sel], d_k, hits.prim[sel], hits.u[sel],
+            tau_hit = tau_k - hits.s_frame[sel]
+            doppler = self.surface_doppler(int(k), hits.prim[sel], hits.u[sel], hits.v[sel], tau_hit, d_k) / w
+            local = self._shade_surface(int(k), tau_hit, d_k, hits.prim[sel], hits.u[sel],
                                         hits.v[sel], depth, pixel[sel], sample[sel],
                                         self.colour.shift(_rows(lam, sel), doppler))
             values[sel] = local * self._power(doppler, 4)[:, None]
         return values, hits
 
-    def surface_info(self, k: int, prim, u, v, d_k):
+    def surface_doppler(self, k: int, prim, u, v, tau_hit, d_k):
+        """Doppler factor of the surface's own motion in frame k (1 but for spinning bodies:
+        their points move with omega x r), for light leaving along backward directions d_k."""
+        frame = self.frames.frames[k]
+        if frame.spin is None:
+            return np.ones(len(prim))
+        position, _, _ = hit_geometry(frame, prim, u, v, tau_hit)
+        velocity = frame.surface_velocity(position)
+        speed2 = np.einsum("ij,ij->i", velocity, velocity)
+        return np.sqrt(1.0 - speed2) / (1.0 + np.einsum("ij,ij->i", velocity, d_k))
+
+    def surface_info(self, k: int, prim, u, v, d_k, tau_hit=None):
         """Position, facing geometric and shading normals, and material index at hits of frame k."""
         frame = self.frames.frames[k]
-        position, ng, ns = hit_geometry(frame, prim, u, v)
+        position, ng, ns = hit_geometry(frame, prim, u, v, tau_hit)
         back = np.einsum("ij,ij->i", ng, d_k) > 0.0
         ng = np.where(back[:, None], -ng, ng)
         ns = np.where(back[:, None], -ns, ns)
         # a shading normal turned away from the viewer falls back to the geometric one
         away = np.einsum("ij,ij->i", ns, d_k) >= 0.0
         ns = np.where(away[:, None], ng, ns)
-        material = self.materials.clamp(frame.tri_material[prim])
+        material = self.materials.clamp(frame.geometry.tri_material[prim])
         return position, ng, ns, material, back
 
     def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample, lam):
         frame = self.frames.frames[k]
-        position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k)
+        position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau)
         uv = None
-        if frame.corner_uvs is not None:
-            cuv = frame.corner_uvs[prim]
+        if frame.geometry.corner_uvs is not None:
+            cuv = frame.geometry.corner_uvs[prim]
             uu, vv = u[:, None], v[:, None]
             uv = (1.0 - uu - vv) * cuv[:, 0] + uu * cuv[:, 1] + vv * cuv[:, 2]
         base = self.colour.base_color(mat, uv, lam)

@@ -22,6 +22,7 @@ import numpy as np
 from .frames import FrameSet, RestFrame
 
 _PAD = 1e-4  # bounds padding, relative to the frame's extent: float32 geometry may sit just outside
+_SPIN_ITERATIONS = 16  # the hit-time iteration of spinning bodies converges geometrically (rim speed < c)
 
 
 @dataclass
@@ -37,13 +38,13 @@ class Hits:
     v: np.ndarray
 
 
-def _clip_to_bounds(frame: RestFrame, origin, d, t_lo, t_hi):
-    """Slab test against the frame's bounds: the parameter range each ray spends inside them."""
-    pad = _PAD * float(np.max(frame.hi - frame.lo)) + 1e-9 * float(np.max(np.abs(frame.anchor)))
+def _clip_to_bounds(geometry, origin, d, t_lo, t_hi):
+    """Slab test against the geometry's bounds (local coordinates): the parameter range inside them."""
+    pad = _PAD * geometry.extent + 1e-9 * float(np.max(np.abs(geometry.anchor)))
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = 1.0 / d
-        t_a = (frame.lo - pad - origin) * inv
-        t_b = (frame.hi + pad - origin) * inv
+        t_a = (geometry.lo - pad - origin) * inv
+        t_b = (geometry.hi + pad - origin) * inv
     # fmin/fmax ignore the NaN of 0 * inf (a ray in the plane of a slab face)
     enter = np.fmax.reduce(np.fmin(t_a, t_b), axis=1)
     leave = np.fmin.reduce(np.fmax(t_a, t_b), axis=1)
@@ -52,28 +53,101 @@ def _clip_to_bounds(frame: RestFrame, origin, d, t_lo, t_hi):
     return enter, leave
 
 
-def _query(frame: RestFrame, origin, d, t_lo, t_hi, occlusion: bool):
-    """Intersect rays (frame coordinates, float64) with the frame's triangles.
+def _query(frame: RestFrame, tau, origin, d, t_lo, t_hi, occlusion: bool):
+    """Intersect rays (frame coordinates, float64, origin events at frame times tau) with the
+    frame's triangles.
 
     Returns (index into the inputs, t, prim, u, v) of hits, or for occlusion the
     indices of blocked rays.
     """
-    enter, leave = _clip_to_bounds(frame, origin, d, t_lo, t_hi)
+    if frame.spin is not None:
+        return _spin_query(frame, tau, origin, d, t_lo, t_hi, occlusion)
+    origin, d = frame.to_local(origin, d)
+    return _local_query(frame.geometry, origin, d, t_lo, t_hi, occlusion)
+
+
+def _local_query(geometry, origin, d, t_lo, t_hi, occlusion: bool):
+    enter, leave = _clip_to_bounds(geometry, origin, d, t_lo, t_hi)
     idx = np.flatnonzero(enter <= leave)
     if len(idx) == 0:
         return (idx,) if occlusion else (idx, None, None, None, None)
     start = enter[idx]
-    start_point = origin[idx] + start[:, None] * d[idx] - frame.anchor
+    start_point = origin[idx] + start[:, None] * d[idx] - geometry.anchor
     length = (leave[idx] - start).astype(np.float32)
     o32 = np.ascontiguousarray(start_point, dtype=np.float32)
     d32 = np.ascontiguousarray(d[idx], dtype=np.float32)
     if occlusion:
-        blocked = frame.embree.run(o32, d32, dists=length, query="OCCLUDED") >= 0
+        blocked = geometry.embree.run(o32, d32, dists=length, query="OCCLUDED") >= 0
         return (idx[blocked],)
-    out = frame.embree.run(o32, d32, dists=length, output=1)
+    out = geometry.embree.run(o32, d32, dists=length, output=1)
     hit = out["primID"] >= 0
     t = start[hit] + out["tfar"][hit].astype(np.float64)
     return idx[hit], t, out["primID"][hit], out["u"][hit], out["v"][hit]
+
+
+def _spin_query(frame: RestFrame, tau, origin, d, t_lo, t_hi, occlusion: bool):
+    """A spinning body meets each ray in the pose of the ray's own hit time.
+
+    Fixed-point iteration: pose the body at the current guess of the hit time,
+    intersect, take the hit's time as the next guess.  A change dt of the guess
+    moves body points by at most |omega| r dt < dt (rim speed below c), so the
+    hit time contracts onto the consistent one; the iteration stops once the hit
+    moves by less than the frame's motion tolerance.
+    """
+    geometry = frame.geometry
+    rim = float(np.linalg.norm(frame.spin)) * geometry.radius
+    tolerance = frame.tolerance
+    # first guess: where the ray passes the pivot most closely
+    guess = np.clip(-np.einsum("ij,ij->i", origin - frame.offset, d), t_lo, t_hi)
+    found = np.zeros(len(d), dtype=bool)
+    result_t = np.zeros(len(d))
+    prim = np.zeros(len(d), dtype=np.int32)
+    u = np.zeros(len(d))
+    v = np.zeros(len(d))
+    todo = np.arange(len(d))
+    for _ in range(_SPIN_ITERATIONS):
+        if len(todo) == 0:
+            break
+        o_l, d_l = frame.to_local(origin[todo], d[todo], tau[todo] - guess[todo])
+        idx, t, p, uu, vv = _local_query(geometry, o_l, d_l, t_lo[todo], t_hi[todo], occlusion=False)
+        hit = todo[idx]
+        # a ray that misses the body in the pose of its last hit time had no consistent hit
+        found[np.setdiff1d(todo, hit)] = False
+        moved = np.abs(t - guess[hit]) * rim
+        found[hit], result_t[hit], prim[hit], u[hit], v[hit] = True, t, p, uu, vv
+        guess[hit] = t
+        todo = hit[moved > tolerance]
+    idx = np.flatnonzero(found)
+    if occlusion:
+        return (idx,)
+    return idx, result_t[idx], prim[idx], u[idx], v[idx]
+
+
+def _ray_range(frame: RestFrame, tau, s_lo, s_hi):
+    """Clip path lengths in the frame to its time window: a hit at s has frame time tau - s."""
+    if frame.window is None:
+        return s_lo, s_hi
+    t0, t1 = frame.window
+    return np.maximum(s_lo, tau - t1), np.minimum(s_hi, tau - t0)
+
+
+def _window_reachable(frame: RestFrame, tau, x) -> bool:
+    """Can light from the frame's body, inside its time window, reach the single event (tau, x)?"""
+    if frame.window is None:
+        return True
+    geometry = frame.geometry
+    centre, _ = frame.to_frame(geometry.anchor[None], geometry.anchor[None])
+    radius = 0.5 * float(np.linalg.norm(geometry.hi - geometry.lo)) * (1 + _PAD) + 1e-9
+    distance = float(np.linalg.norm(x - centre[0]))
+    t0, t1 = frame.window
+    return distance - radius <= tau - t0 and tau - t1 <= distance + radius
+
+
+def _shared_event(tau0, x0):
+    """The common origin event of a ray bundle, or None (camera rays of a perspective camera share one)."""
+    if len(tau0) and np.all(tau0 == tau0[0]) and np.all(x0 == x0[0]):
+        return float(tau0[0]), x0[0]
+    return None
 
 
 def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> Hits:
@@ -94,12 +168,18 @@ def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> Hits:
         u=np.zeros(n),
         v=np.zeros(n),
     )
+    shared = _shared_event(tau0, x0)
     for k in frames.geometry:
         frame = frames.frames[k]
         fmap = frames.map(src, k)
-        _, origin = fmap.events(tau0, x0)
+        if frame.window is not None and shared is not None:
+            tau_e, x_e = fmap.events(np.array(shared[0]), shared[1])
+            if not _window_reachable(frame, float(tau_e), x_e):
+                continue
+        tau_k, origin = fmap.events(tau0, x0)
         dk, w = fmap.rays(d)
-        idx, t, prim, u, v = _query(frame, origin, dk, s_lo * w, best * w, occlusion=False)
+        lo, hi = _ray_range(frame, tau_k, s_lo * w, best * w)
+        idx, t, prim, u, v = _query(frame, tau_k, origin, dk, lo, hi, occlusion=False)
         if len(idx) == 0:
             continue
         s = t / w[idx]
@@ -127,25 +207,32 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
         if len(todo) == 0:
             break
         fmap = frames.map(src, k)
-        _, origin = fmap.events(tau0[todo], x0[todo])
+        frame = frames.frames[k]
+        tau_k, origin = fmap.events(tau0[todo], x0[todo])
         dk, w = fmap.rays(d[todo])
-        (idx,) = _query(frames.frames[k], origin, dk, s_lo[todo] * w, s_hi[todo] * w, occlusion=True)
+        lo, hi = _ray_range(frame, tau_k, s_lo[todo] * w, s_hi[todo] * w)
+        (idx,) = _query(frame, tau_k, origin, dk, lo, hi, occlusion=True)
         blocked[todo[idx]] = True
     return blocked
 
 
-def hit_geometry(frame: RestFrame, prim, u, v):
-    """Float64 position, unit geometric normal and unit shading normal at hits of one frame."""
-    tri = frame.vertices[frame.triangles[prim]]  # (n, 3, 3)
+def hit_geometry(frame: RestFrame, prim, u, v, tau=None):
+    """Float64 position, unit geometric normal and unit shading normal at hits of one frame
+    (frame coordinates; ``tau``, the hits' frame times, poses a spinning body)."""
+    geometry = frame.geometry
+    tri = geometry.vertices[geometry.triangles[prim]]  # (n, 3, 3)
     u = u[:, None]
     v = v[:, None]
     position = tri[:, 0] + u * (tri[:, 1] - tri[:, 0]) + v * (tri[:, 2] - tri[:, 0])
     ng = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     ng /= np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
-    if frame.corner_normals is None:
+    if geometry.corner_normals is None:
         ns = ng
     else:
-        cn = frame.corner_normals[prim]
+        cn = geometry.corner_normals[prim]
         ns = (1.0 - u - v) * cn[:, 0] + u * cn[:, 1] + v * cn[:, 2]
         ns /= np.maximum(np.linalg.norm(ns, axis=1, keepdims=True), 1e-300)
+    position, ng = frame.to_frame(position, ng, tau)
+    if frame.spin is not None:
+        _, ns = frame.to_frame(position, ns, tau)
     return position, ng, ns
