@@ -15,7 +15,7 @@ import traceback
 import bpy
 
 from . import export
-from .core.render import Renderer, RenderError, render_tiles
+from .core.render import PASSES, Renderer, RenderError, render_tiles
 
 # Blender 5.0 renamed its object index pass ("IndexOB" before).
 OBJECT_INDEX_PASS = "Object Index" if bpy.app.version >= (5, 0, 0) else "IndexOB"
@@ -33,8 +33,9 @@ def list_render_passes(scene, view_layer):
         yield ("Normal", "XYZ", 'VECTOR')
     if view_layer.use_pass_object_index:
         yield (OBJECT_INDEX_PASS, "X", 'VALUE')
-    yield ("Doppler", "X", 'VALUE')
-    yield ("Emission Time", "X", 'VALUE')
+    # RESTframe's own passes (Doppler, Emission Time, ...), always rendered
+    for name, channels in PASSES.items():
+        yield (name, "X", 'VALUE') if channels == 1 else (name, "XYZW"[:channels], 'VECTOR')
 
 
 class RestframeRenderEngine(bpy.types.RenderEngine):

@@ -149,7 +149,7 @@ class RESTFRAME_VIEWLAYER_PT_passes(RestframeButtonsPanel, Panel):
         col.prop(view_layer, "use_pass_normal")
         col.prop(view_layer, "use_pass_object_index")
         col = layout.column(align=True)
-        col.label(text="Doppler and Emission Time passes are always rendered", icon='INFO')
+        col.label(text="Doppler, Emission Time and Object Time are always rendered", icon='INFO')
 
 
 # --------------------------------------------------------------------------- object

@@ -117,12 +117,12 @@ def test_pass_names_follow_the_view_layer(scene, tmp_path):
     add_plane(scene)
     layer = scene.view_layers[0]
     layer.use_pass_z = layer.use_pass_normal = layer.use_pass_object_index = False
-    assert set(render_exr(scene, tmp_path / "a.exr")) == {"Combined", "Doppler", "Emission Time"}
+    assert set(render_exr(scene, tmp_path / "a.exr")) == {"Combined", "Doppler", "Emission Time", "Object Time"}
     layer.use_pass_z = layer.use_pass_normal = layer.use_pass_object_index = True
     assert set(render_exr(scene, tmp_path / "b.exr")) == {
-        "Combined", "Depth", "Normal", OBJECT_INDEX_PASS, "Doppler", "Emission Time"}
+        "Combined", "Depth", "Normal", OBJECT_INDEX_PASS, "Doppler", "Emission Time", "Object Time"}
     assert [p[0] for p in engine.list_render_passes(scene, layer)] == [
-        "Combined", "Depth", "Normal", OBJECT_INDEX_PASS, "Doppler", "Emission Time"]
+        "Combined", "Depth", "Normal", OBJECT_INDEX_PASS, "Doppler", "Emission Time", "Object Time"]
 
 
 def test_blender_panels_show_for_restframe():

@@ -26,7 +26,7 @@ def test_doppler_on_axis_of_approaching_plane(scene, tmp_path):
     layer.use_pass_z = layer.use_pass_normal = layer.use_pass_object_index = True
     passes = render_exr(scene, tmp_path / "axis.exr")
 
-    assert {"Combined", "Depth", "Normal", OBJECT_INDEX_PASS, "Doppler", "Emission Time"} <= set(passes)
+    assert {"Combined", "Depth", "Normal", OBJECT_INDEX_PASS, "Doppler", "Emission Time", "Object Time"} <= set(passes)
     assert passes["Doppler"].shape == (15, 21, 1)
     assert passes["Doppler"][AXIS][0] == pytest.approx(gamma(0.9) * 1.9, abs=1e-6)
     assert 4.358898943540674 == pytest.approx(gamma(0.9) * 1.9, rel=1e-15)
@@ -34,6 +34,8 @@ def test_doppler_on_axis_of_approaching_plane(scene, tmp_path):
     # path length s = 100, emitted 100 / c = 10 s before the reference time.
     assert passes["Depth"][AXIS][0] == pytest.approx(100.0, rel=1e-6)
     assert passes["Emission Time"][AXIS][0] == pytest.approx(-10.0, rel=1e-6)
+    # the plane's own clock at that event (proper time since it passed its origin event): -100 / gamma
+    assert passes["Object Time"][AXIS][0] == pytest.approx(-100.0 / gamma(0.9) / 10.0, rel=1e-6)
     assert passes["Normal"][AXIS] == pytest.approx([0.0, 0.0, 1.0], abs=1e-6)
     assert passes[OBJECT_INDEX_PASS][AXIS][0] == 7
     assert passes["Combined"].shape == (15, 21, 4)
