@@ -5,17 +5,18 @@ setting, and reports run time and the relative RMS error (RMSE over pixels and R
 channels of the Combined pass, divided by the reference's mean) of each setting.
 
 A new knob is one more :class:`KnobStudy` in :func:`studies` (the motion-sampling
-knobs of the accelerated-motion work go there once the core has them).
+knobs, e.g. ``motion_tolerance``, are studies like the others).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
-from bench_common import Goal, Section, ball_scene, look_at_camera, quad, rel_rmse, settings, timed, uv_sphere
+from bench_common import Goal, Section, ball_scene, box, look_at_camera, quad, rel_rmse, settings, timed, uv_sphere
 from restframe_addon.core.render import render_image
 from restframe_addon.core.scene import Light, Material, Mesh, Scene, Velocity
 
@@ -77,6 +78,32 @@ def mirror_glass_scene():
     return Scene(camera=camera, meshes=meshes, materials=materials, lights=lights, world_color=(0.0, 0.0, 0.0))
 
 
+def motion_scene(accelerated=True, spinning=False):
+    """A ball on a hyperbolic world line (proper acceleration 0.5, 0.95c at the ends) passing the camera,
+    and/or a cube spinning with its corners at 0.7c, over a floor, one point light."""
+    from restframe_addon.core.motion import Trajectory
+
+    alpha = 2.0
+    tau = np.linspace(-6.0, 6.0, 25)  # animation samples; the speed reaches 0.95c at the ends
+    x = -alpha + np.sqrt(alpha**2 + tau**2) - 2.0
+    path = np.column_stack([x, np.full_like(tau, 1.0), np.zeros_like(tau)])
+    v, t = uv_sphere((0.0, 0.0, 0.0), 0.8, 48, 24)
+    bv, bt = box((0.0, 0.0, 0.0), (1.2, 1.2, 1.2))
+    fv, ft = quad((0.0, 0.0, -1.0), (20.0, 20.0))
+    meshes = [Mesh("floor", fv, ft, material_indices=np.full(len(ft), 2))]
+    if accelerated:
+        meshes.append(Mesh("rocket", v, t, pivot=(0.0, 0.0, 0.0), material_indices=np.zeros(len(t), int),
+                           trajectory=Trajectory(tau, path, name="rocket", body_radius=0.8)))
+    if spinning:
+        meshes.append(Mesh("top", bv + (2.5, -1.0, 0.0), bt, pivot=(2.5, -1.0, 0.0), angular_velocity=(0.0, 0.0, 0.8),
+                           material_indices=np.ones(len(bt), int)))
+    materials = [Material("rocket", base_color=(0.8, 0.4, 0.1)), Material("top", base_color=(0.2, 0.4, 0.8)),
+                 Material("floor", base_color=(0.6, 0.6, 0.6))]
+    camera = look_at_camera((0.0, -7.0, 1.5), (0.5, 0.0, 0.0), aspect=4 / 3, fov_half_tan=0.6)
+    return Scene(camera=camera, meshes=meshes, materials=materials,
+                 lights=[Light("lamp", "POINT", (1.0, -4.0, 5.0), power=2000.0)], tau_obs=4.0, light_speed=1.0)
+
+
 def studies(smoke: bool) -> list[KnobStudy]:
     res = (24, 18) if smoke else (160, 120)
     out = [
@@ -94,18 +121,34 @@ def studies(smoke: bool) -> list[KnobStudy]:
                   dict(resolution=(24, 24) if smoke else (128, 128)),
                   [0, 2] if smoke else [0, 1, 2, 3, 4, 6, 8, 12], 6 if smoke else 32,
                   "A mirror ball and a glass ball (moving at 0.5c) in a box with two facing mirror walls."),
+        KnobStudy("motion", "motion_tolerance", "Motion tolerance: accelerated ball", motion_scene,
+                  dict(resolution=(16, 12) if smoke else (64, 48)),
+                  [3e-1] if smoke else [3e-1, 1e-1, 3e-2, 1e-2], 1e-1 if smoke else 3e-3,
+                  "A ball (radius 0.8) on a hyperbolic world line (25 animation samples, proper acceleration 0.5, "
+                  "up to 0.95c) passing the camera over a floor, a point light: the tolerance (scene units) bounds "
+                  "how far the inertial segments stray from the true Born-rigid motion (default 1e-3; smaller "
+                  "settings than 3e-3 take minutes here, see the motion note below)."),
+        KnobStudy("spin", "motion_tolerance", "Motion tolerance: spinning cube", lambda: motion_scene(False, True),
+                  dict(resolution=(16, 12) if smoke else (64, 48)),
+                  [1e-1] if smoke else [3e-1, 1e-1, 3e-2, 1e-2, 3e-3, 1e-3, 1e-4], 1e-2 if smoke else 1e-6,
+                  "A 1.2-unit cube spinning at 0.8 rad per c-unit (corners at 0.68c) over a floor, a point light: "
+                  "the tolerance ends the per-ray pose iteration (default 1e-3)."),
     ]
-    # Motion-sampling knobs of the accelerated-motion work: add their KnobStudy here when the
-    # core's RenderSettings has them; nothing is reported for them until then.
+    # A new quality knob is one more KnobStudy here.
     return out
 
 
 def run_study(study: KnobStudy, ctx) -> dict:
     scene = study.scene()
-    ref_time, ref = timed(lambda: render_image(scene, settings(**study.base, **{study.knob: study.reference})))
-    ref = ref["Combined"]
     rows = []
     failures = []
+    try:
+        ref_time, ref = timed(lambda: render_image(scene, settings(**study.base, **{study.knob: study.reference})))
+    except Exception as error:
+        failures.append((study.reference, f"{type(error).__name__}: {error}"))
+        ctx.log(f"  {study.key} reference: FAILED {failures[-1][1]}")
+        return {"rows": rows, "reference_time": math.nan, "failures": failures}
+    ref = ref["Combined"]
     for value in study.values:
         try:
             seconds, passes = timed(lambda: render_image(scene, settings(**study.base, **{study.knob: value})))
@@ -128,7 +171,7 @@ def run(ctx) -> Section:
     import matplotlib.pyplot as plt
 
     all_studies = studies(ctx.smoke)
-    fig, axes = plt.subplots(1, len(all_studies), figsize=(4.2 * len(all_studies), 3.4))
+    fig, axes = plt.subplots(1, len(all_studies), figsize=(3.6 * len(all_studies), 3.3))
     for ax, study in zip(np.atleast_1d(axes), all_studies):
         ctx.log(f" knob {study.key}")
         result = run_study(study, ctx)
@@ -136,14 +179,16 @@ def run(ctx) -> Section:
         sec.add(f"### {study.title} (`{study.knob}`)")
         sec.add("")
         sec.add(study.what + f" Resolution {study.base['resolution'][0]}x{study.base['resolution'][1]}; "
-                f"reference `{study.knob}={study.reference}` ({result['reference_time']:.2f} s).")
+                f"reference `{study.knob}={study.reference:g}` ({result['reference_time']:.2f} s).")
         sec.add("")
-        t1 = rows[0][1]
+        if not rows:
+            sec.add("No setting rendered:")
+        t1 = rows[0][1] if rows else math.nan
         sec.table([f"`{study.knob}`", "time (s)", "time / first", "relative RMSE"],
                   [[v, s, s / t1, e] for v, s, e in rows])
         for v, message in result["failures"]:
-            sec.add(f"- `{study.knob}={v}` **fails**: `{message}`")
-            sec.goals.append(Goal(f"`{study.knob}={v}` renders", "no error", message, False))
+            sec.add(f"- `{study.knob}={v:g}` **fails**: `{message}`")
+            sec.goals.append(Goal(f"{study.title}: `{study.knob}={v:g}` renders", "no error", f"`{message[:90]}`", False))
         if result["failures"]:
             sec.add("")
         for v, s, e in rows:
@@ -164,6 +209,4 @@ def run(ctx) -> Section:
     plt.close(fig)
     sec.add(f"![error against run time]({ctx.plot_prefix}/{name})")
     sec.add("")
-    sec.add("Motion-sampling knobs (accelerated motion): the core has no such knob yet, so there is no curve; "
-            "`tests/bench/bench_knobs.py` takes one more `KnobStudy` when it has.")
     return sec

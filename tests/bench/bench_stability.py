@@ -136,13 +136,13 @@ def compose_errors(smoke):
                 if bu == bv and direction is AXIS:  # the frame moves with the body: exactly 0
                     zero = float(np.linalg.norm(got))
                     if zero >= worst_zero:
-                        worst_zero, where_zero = zero, f"u = v = {bu:g}"
+                        worst_zero, where_zero = zero, f"u = v = {label('b', bu)[2:]}"
                     continue
                 ev = float(max(abs(mp.mpf(float(a)) - c) for a, c in zip(got, ref)) / norm)
                 g_ref = 1 / mp.sqrt(1 - norm * norm) if norm < 1 else mp.inf
                 eg = float(abs(mp.mpf(gamma) - g_ref) / g_ref)
                 if ev > worst_v:
-                    worst_v, where = ev, f"u={bu:g}, v={bv:g}"
+                    worst_v, where = ev, f"u={label('b', bu)[2:]}, v={label('b', bv)[2:]}"
                 worst_g = max(worst_g, eg)
     return worst_v, worst_g, worst_zero, where, where_zero, len(bs) ** 2 * 3
 
