@@ -105,11 +105,11 @@ def motion_scene(accelerated=True, spinning=False):
 
 
 def studies(smoke: bool) -> list[KnobStudy]:
-    res = (24, 18) if smoke else (160, 120)
+    res = (24, 18) if smoke else (128, 96)
     out = [
         KnobStudy("samples", "samples", "Samples per pixel",
                   lambda: ball_scene(beta=0.6, soft=0.6, tau=0.0),
-                  dict(resolution=res), [1, 4] if smoke else [1, 2, 4, 8, 16, 32, 64], 16 if smoke else 512,
+                  dict(resolution=res), [1, 4] if smoke else [1, 2, 4, 8, 16, 32, 64], 16 if smoke else 256,
                   "A ball moving at 0.6c over a floor, lit by a soft (radius 0.6) point light: samples "
                   "anti-alias edges and sample the soft shadow."),
         KnobStudy("spectral", "spectral_samples", "Spectral samples (SPECTRAL Doppler mode)", spectral_scene,
@@ -171,8 +171,14 @@ def run(ctx) -> Section:
     import matplotlib.pyplot as plt
 
     all_studies = studies(ctx.smoke)
-    fig, axes = plt.subplots(1, len(all_studies), figsize=(3.6 * len(all_studies), 3.3))
-    for ax, study in zip(np.atleast_1d(axes), all_studies):
+    from matplotlib.ticker import NullFormatter
+
+    cols = 3
+    rows_n = -(-len(all_studies) // cols)
+    fig, axes = plt.subplots(rows_n, cols, figsize=(4.0 * cols, 3.2 * rows_n), squeeze=False)
+    for ax in axes.ravel()[len(all_studies):]:
+        ax.set_visible(False)
+    for ax, study in zip(axes.ravel(), all_studies):
         ctx.log(f" knob {study.key}")
         result = run_study(study, ctx)
         rows = result["rows"]
@@ -198,7 +204,9 @@ def run(ctx) -> Section:
         errors = np.array([max(r[2], 1e-12) for r in rows])
         ax.loglog(times, errors, "o-")
         for v, s, e in zip([r[0] for r in rows], times, errors):
-            ax.annotate(str(v), (s, e), textcoords="offset points", xytext=(4, 4), fontsize=7)
+            ax.annotate(f"{v:g}", (s, e), textcoords="offset points", xytext=(4, 4), fontsize=7)
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.yaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("render time (s, 1 thread)")
         ax.set_ylabel("relative RMSE")
         ax.set_title(study.title, fontsize=9)

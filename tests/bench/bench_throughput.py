@@ -183,6 +183,25 @@ def raw_thread_study(repeats, res):
     return r["1"]["min"], r["2"]["min"]
 
 
+# --------------------------------------------------------------------------- where the time goes
+def hotspots(func, top=8):
+    """cProfile of one call: rows (function, own time share, cumulative share), by own time."""
+    import cProfile
+    import pstats
+
+    profile = cProfile.Profile()
+    profile.enable()
+    func()
+    profile.disable()
+    stats = pstats.Stats(profile).stats
+    total = sum(v[2] for v in stats.values())
+    rows = []
+    for (path, line, name), (_, _, own, cum, _) in sorted(stats.items(), key=lambda kv: -kv[1][2])[:top]:
+        where = f"{Path(path).parent.name}/{Path(path).name}:{line}" if path.startswith("/") else path
+        rows.append([f"`{name}` ({where})", own / total, cum / total])
+    return rows
+
+
 # --------------------------------------------------------------------------- export (bpy, subprocess)
 def export_study(subdivisions):
     worker = Path(__file__).with_name("bench_export_worker.py")
@@ -230,6 +249,21 @@ def run(ctx) -> Section:
                "raw / render", "hits pipeline / raw"], rows)
     sec.goals.append(Goal("primary rays: pipeline / raw embreex", ">= 0.8", f"{worst:.2f} (worst case)", worst >= 0.8,
                           "see hotspots"))
+    scene0 = cases[0][1]
+    renderer0 = Renderer(scene0, settings(res))
+    rects0 = tiles(res)
+    sec.add(f"Where the time goes (cProfile, {cases[0][0]}, {res[0]}x{res[1]}): own time of the top functions as a "
+            "share of the whole call (cumulative share in the last column). embreex's Cython `run` is not seen by "
+            "the profiler: embree's own work is counted in the own time of its caller, `_local_query`.")
+    sec.add("")
+    sec.add("Primary visibility (pipeline):")
+    sec.add("")
+    sec.table(["function", "own time", "cumulative"],
+              [[r[0], f"{100 * r[1]:.0f}%", f"{100 * r[2]:.0f}%"] for r in hotspots(lambda: pipeline_primary(renderer0, rects0))])
+    sec.add("render_image (threads=1):")
+    sec.add("")
+    sec.table(["function", "own time", "cumulative"],
+              [[r[0], f"{100 * r[1]:.0f}%", f"{100 * r[2]:.0f}%"] for r in hotspots(lambda: render_image(scene0, settings(res)))])
 
     # 11 x 11 bars
     res_bars = ctx.pick((256, 192), (32, 24))
