@@ -16,6 +16,7 @@ frame whose pose the tracer sets per ray.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -147,17 +148,62 @@ class RestFrame:
         return np.cross(self.spin, x - self.offset)
 
 
+@dataclass
+class SegmentGroup:
+    """The inertial segments (frames) of one animated body, for culling them all at once."""
+
+    trajectory: "motion.Trajectory"
+    frames: np.ndarray  # frame indices, in world-time order
+    start: np.ndarray  # pivot world-time window of each segment (-inf / inf at the ends)
+    end: np.ndarray
+    reach: float  # how far (in c*t) a body event can be from the pivot's light-cone crossing
+
+    def __post_init__(self):
+        finite = lambda t: np.clip(t, self.trajectory.tau[0], self.trajectory.tau[-1])
+        self.start_pos = self.trajectory.state(finite(self.start))[0]
+        self.end_pos = self.trajectory.state(finite(self.end))[0]
+
+    def visible_from(self, tau, x, spread: float) -> np.ndarray:
+        """Segments whose body can lie on the past light cone of events within ``spread`` of (tau, x).
+
+        ``f(s) = s + |x - X(s)| - tau`` rises with the pivot's world time s; body events sit
+        within ``reach`` of the pivot's, so a segment matters only if [f(start), f(end)]
+        meets [-(reach + spread), reach + spread].
+        """
+        margin = self.reach + spread
+        f_start = np.where(np.isfinite(self.start), self.start + np.linalg.norm(x - self.start_pos, axis=1) - tau, -np.inf)
+        f_end = np.where(np.isfinite(self.end), self.end + np.linalg.norm(x - self.end_pos, axis=1) - tau, np.inf)
+        return self.frames[(f_start <= margin) & (f_end >= -margin)]
+
+
 class FrameSet:
     """All frames of a scene: geometry frames, light frames, the camera's and S."""
 
-    def __init__(self, frames: list[RestFrame], world: int, camera: int, light_frames: list[int], warnings: list[str]):
+    def __init__(self, frames: list[RestFrame], world: int, camera: int, light_frames: list[int], warnings: list[str],
+                 groups: list[SegmentGroup] = ()):
         self.frames = frames
         self.world = world
         self.camera = camera
         self.light_frames = light_frames
         self.warnings = warnings
+        self.groups = list(groups)
         self.geometry = [f.index for f in frames if f.has_geometry]
+        grouped = {int(i) for g in self.groups for i in g.frames}
+        self.ungrouped = [k for k in self.geometry if k not in grouped]
         self._maps: dict[tuple[int, int], FrameMap] = {}
+
+    def candidates(self, src: int, tau0, x0) -> list[int]:
+        """Geometry frames that rays from these events (frame src) may hit: all but the segments
+        of animated bodies whose light cannot reach the events."""
+        if not self.groups:
+            return self.geometry
+        tau_w, x_w = self.map(src, self.world).events(tau0, x0)
+        tau_c, x_c = float(np.mean(tau_w)), np.mean(x_w, axis=0)
+        spread = float(np.max(np.abs(tau_w - tau_c))) + float(np.max(np.linalg.norm(x_w - x_c, axis=1)))
+        chosen = list(self.ungrouped)
+        for group in self.groups:
+            chosen.extend(int(k) for k in group.visible_from(tau_c, x_c, spread))
+        return chosen
 
     def map(self, a: int, b: int) -> FrameMap:
         """The map from frame a's coordinates to frame b's (cached)."""
@@ -203,6 +249,7 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
     light_frames = [shared_frame(light.velocity, light.name).index for light in scene.lights]
 
     inertial: dict[int, list] = {}
+    groups: list[SegmentGroup] = []
     special: dict[int, tuple] = {}  # id(trajectory) or mesh id -> (kind, meshes)
     for mesh in scene.meshes:
         if should_stop():
@@ -225,10 +272,10 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
         if should_stop():
             break
         if kind == "animated":
-            _add_segments(frames, meshes, scene, motion_settings, warnings)
+            _add_segments(frames, meshes, scene, motion_settings, warnings, groups)
         else:
             _add_rotation(frames, meshes[0], scene, motion_settings, warnings)
-    return FrameSet(frames, world, camera, light_frames, warnings)
+    return FrameSet(frames, world, camera, light_frames, warnings, groups)
 
 
 def _mesh_part(mesh, boost: Boost, warnings: list[str], relative_to=None):
@@ -299,7 +346,7 @@ def _flat_normals(part: dict) -> np.ndarray:
     return np.repeat(n[:, None, :], 3, axis=1)
 
 
-def _add_segments(frames, meshes, scene: Scene, settings: MotionSettings, warnings) -> None:
+def _add_segments(frames, meshes, scene: Scene, settings: MotionSettings, warnings, groups) -> None:
     """An animated assembly: one frame per inertial segment of its pivot's world line."""
     trajectory = meshes[0].trajectory
     pivot = np.asarray(meshes[0].pivot, dtype=np.float64)
@@ -311,17 +358,26 @@ def _add_segments(frames, meshes, scene: Scene, settings: MotionSettings, warnin
     warnings.extend(trajectory.warnings)
     segments = motion.segment_world_line(trajectory, trajectory.tau[0], trajectory.tau[-1], settings.tolerance)
     name = meshes[0].name
+    mids = np.array([seg.mid for seg in segments])
+    proper = trajectory.proper_time(mids)
+    first = len(frames)
+    starts, ends = [], []
     # before the first and after the last segment the motion continues inertially
     for i, seg in enumerate(segments):
         boost = Boost.from_velocity(tuple(seg.beta), name=name)
         t_mid, x_mid = boost.events(np.array(seg.mid), seg.position)
         t_mid = float(t_mid)
-        start = -np.inf if i == 0 else t_mid + (seg.start - seg.mid) / boost.gamma
-        end = np.inf if i == len(segments) - 1 else t_mid + (seg.end - seg.mid) / boost.gamma
-        proper_mid = float(trajectory.proper_time(np.array([seg.mid]))[0])
-        frame = RestFrame(index=len(frames), velocity=Velocity(tuple(seg.beta)), boost=boost, names=[name],
-                          geometry=geometry, offset=x_mid, window=(start, end), clock_offset=proper_mid - t_mid)
-        frames.append(frame)
+        start = -np.inf if i == 0 else seg.start
+        end = np.inf if i == len(segments) - 1 else seg.end
+        window = (t_mid + (start - seg.mid) / boost.gamma, t_mid + (end - seg.mid) / boost.gamma)
+        frames.append(RestFrame(index=len(frames), velocity=Velocity(tuple(seg.beta)), boost=boost, names=[name],
+                                geometry=geometry, offset=x_mid, window=window, clock_offset=float(proper[i]) - t_mid))
+        starts.append(start)
+        ends.append(end)
+    speed = np.linalg.norm(trajectory.beta, axis=1).max()
+    gamma_max = 1.0 / math.sqrt((1.0 - speed) * (1.0 + speed))
+    groups.append(SegmentGroup(trajectory, np.arange(first, len(frames)), np.array(starts), np.array(ends),
+                               reach=(gamma_max + 1.0) * trajectory.body_radius + settings.tolerance))
 
 
 def _add_rotation(frames, mesh, scene: Scene, settings: MotionSettings, warnings) -> None:

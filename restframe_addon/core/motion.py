@@ -3,11 +3,10 @@
 An animated body's pivot follows the world line ``X(tau)`` in S, given as samples
 of its animation.  Between samples the pivot moves inertially; at every sample
 where the velocity changes, the corner is rounded into constant acceleration
-over a world-time half-width ``h >= |r_max| |delta beta| / 2``, i.e. over a
-proper time of at least ``|r_max| |delta beta| / gamma`` (shared/physics.md: a
-sudden turn is smoothed so the Born-rigid body never tears).  Where neighbouring
-samples leave no room for that, the turn is as smooth as the samples allow and
-a warning names the frame.
+over a proper time of at least ``r_max |delta(gamma beta)|`` (>= ``r_max |delta
+beta|``, shared/physics.md: a sudden turn is smoothed so the Born-rigid body never
+tears).  Where neighbouring samples leave no room for that, the turn is as
+smooth as the samples allow and a warning names the frame.
 
 For tracing, the world line is cut into *inertial segments*: on each, the body
 is replaced by the same body moving with the segment's mid velocity, i.e. a
@@ -78,18 +77,27 @@ class Trajectory:
 
     # ------------------------------------------------------------------ corners
     def _round_corners(self, frames):
+        """Half-widths (world time) of the rounded corners at the interior samples.
+
+        A turn changing the 4-velocity's spatial part u = gamma beta by du, spread over a
+        proper time of at least R |du|, keeps the proper acceleration a <= 1/R, so every
+        point of a body of radius R keeps 1 + a.r' > 0 (no Born-rigid tearing); this is at
+        least the R |d beta| of shared/physics.md.  World time runs gamma times faster.
+        """
         lengths = np.diff(self.tau)
-        jump = np.linalg.norm(np.diff(self.beta, axis=0), axis=1)  # at interior knots 1..N-2
-        wanted = 0.5 * self.body_radius * jump
+        u = self.beta / np.sqrt(1.0 - np.einsum("ij,ij->i", self.beta, self.beta))[:, None]
+        gamma = np.sqrt(1.0 + np.einsum("ij,ij->i", u, u))
+        jump = np.linalg.norm(np.diff(u, axis=0), axis=1)
+        wanted = 0.5 * np.maximum(gamma[:-1], gamma[1:]) * self.body_radius * jump
         room = 0.5 * np.minimum(lengths[:-1], lengths[1:])
         self.half = np.minimum(wanted, room)
         short = np.flatnonzero(wanted > room * (1 + 1e-9))
         if len(short):
             i = short[np.argmax((wanted - room)[short])]
             self.warnings.append(
-                f"{self.name}: the turn at frame {frames[i + 1]:g} is sharper than a rigid body allows; it is "
-                f"smoothed over {2 * room[i]:.3g} units of c*t instead of {2 * wanted[i]:.3g}, so the body may "
-                f"tear by up to {self.body_radius * jump[i] - 2 * room[i]:.3g} units")
+                f"{self.name}: the turn at frame {frames[i + 1]:g} is too sharp for a rigid body of radius "
+                f"{self.body_radius:.3g}: it is smoothed over {2 * room[i]:.3g} units of c*t instead of "
+                f"{2 * wanted[i]:.3g}, so points far from the pivot may be placed inconsistently")
 
     def _locate(self, tau):
         """Interval index (clamped to the end pieces) of each time."""
@@ -120,28 +128,26 @@ class Trajectory:
 
     def _proper_time_at_knots(self):
         """Pivot proper time (c*tau units) at each sample, zero at world time tau = 0."""
-        out = np.zeros(len(self.tau))
-        for i in range(len(self.tau) - 1):
-            out[i + 1] = out[i] + self._proper_between(self.tau[i], self.tau[i + 1])
-        return out - self.proper_time_from(out, np.array([0.0]))[0]
+        out = np.concatenate([[0.0], np.cumsum(self._proper_between(self.tau[:-1], self.tau[1:]))])
+        return out - self._proper_from(out, np.array([0.0]))[0]
 
     def _proper_between(self, a, b):
+        """Proper time elapsed between world times a and b (arrays), 8-point Gauss-Legendre."""
         nodes, weights = np.polynomial.legendre.leggauss(8)
-        tau = 0.5 * (b - a) * nodes + 0.5 * (a + b)
-        _, beta = self.state(tau)
-        return 0.5 * (b - a) * float(weights @ np.sqrt(np.maximum(1.0 - np.einsum("ij,ij->i", beta, beta), 0.0)))
+        a, b = np.atleast_1d(a), np.atleast_1d(b)
+        tau = (0.5 * (b - a))[:, None] * nodes + (0.5 * (a + b))[:, None]
+        _, beta = self.state(tau.ravel())
+        rate = np.sqrt(np.maximum(1.0 - np.einsum("ij,ij->i", beta, beta), 0.0)).reshape(tau.shape)
+        return 0.5 * (b - a) * (rate @ weights)
 
-    def proper_time_from(self, knots, tau):
+    def _proper_from(self, knots, tau):
         tau = np.atleast_1d(np.asarray(tau, dtype=np.float64))
-        out = np.empty(len(tau))
-        for n, t in enumerate(tau):
-            i = int(self._locate(np.array([t]))[0])
-            out[n] = knots[i] + (self._proper_between(self.tau[i], t) if t >= self.tau[i] else -self._proper_between(t, self.tau[i]))
-        return out
+        i = self._locate(tau)
+        return knots[i] + self._proper_between(self.tau[i], tau)
 
     def proper_time(self, tau):
         """The pivot's own clock (c*tau units) at world times tau: 0 at tau = 0."""
-        return self.proper_time_from(self._proper, tau)
+        return self._proper_from(self._proper, tau)
 
     # ------------------------------------------------------------------ light cone
     def light_cone_crossing(self, event_tau, event_x, iterations: int = 200):
@@ -179,27 +185,34 @@ class Segment:
     error: float
 
 
-def _gamma(beta):
-    return 1.0 / np.sqrt(np.maximum(1.0 - np.einsum("...i,...i->...", beta, beta), 1e-300))
-
-
 def segment_error(trajectory: Trajectory, start: float, end: float, radius: float):
     """(mid position, mid velocity, bound) of replacing the world line on [start, end] by the
-    inertial motion through its mid event: the pivot's deviation plus the change of the
-    Born-rigid placement of body points at distance ``radius`` (boost matrix change)."""
+    inertial motion through its mid event.
+
+    On the slice through the mid event every Born-rigid body point has the pivot's velocity,
+    so body world lines leave their inertial replacements only at second order, like the
+    pivot's, amplified by 1 / (1 - R a) where a is the proper acceleration (the front and back
+    of an accelerating rigid body accelerate differently).  The pivot's deviation is measured
+    at every sample and corner edge in the segment, where the piecewise motion bends.
+    """
     mid = 0.5 * (start + end)
     knots = np.flatnonzero((trajectory.tau > start) & (trajectory.tau < end))
     corner = knots[(knots >= 1) & (knots <= len(trajectory.tau) - 2)]
     half = trajectory.half[corner - 1]
-    probe = np.concatenate([np.linspace(start, end, 9), trajectory.tau[knots],
+    probe = np.concatenate([np.linspace(start, end, 5), trajectory.tau[knots],
                             trajectory.tau[corner] - half, trajectory.tau[corner] + half])
-    probe = np.clip(probe, start, end)
+    probe = np.sort(np.clip(probe, start, end))
     (x_mid,), (b_mid,) = trajectory.state(np.array([mid]))
     pos, beta = trajectory.state(probe)
-    pivot = np.linalg.norm(pos - x_mid - b_mid * (probe - mid)[:, None], axis=1)
-    g, g_mid = _gamma(beta), float(_gamma(b_mid))
-    body = radius * (np.abs(g - g_mid) + np.linalg.norm(g[:, None] * beta - g_mid * b_mid, axis=1))
-    return x_mid, b_mid, float(np.max(pivot + body))
+    pivot = float(np.max(np.linalg.norm(pos - x_mid - b_mid * (probe - mid)[:, None], axis=1)))
+    if pivot == 0.0:
+        return x_mid, b_mid, 0.0
+    gamma = 1.0 / np.sqrt(np.maximum(1.0 - np.einsum("ij,ij->i", beta, beta), 1e-300))
+    u = gamma[:, None] * beta
+    dt_proper = np.diff(probe) / np.maximum(gamma[1:], gamma[:-1])
+    accel = np.linalg.norm(np.diff(u, axis=0), axis=1) / np.maximum(dt_proper, 1e-300)
+    stiffness = radius * float(np.max(accel[dt_proper > 0], initial=0.0))
+    return x_mid, b_mid, pivot / max(1.0 - stiffness, 1e-3)
 
 
 def segment_world_line(trajectory: Trajectory, start: float, end: float, tolerance: float) -> list[Segment]:
@@ -216,21 +229,7 @@ def segment_world_line(trajectory: Trajectory, start: float, end: float, toleran
         split(m, b, depth + 1)
 
     split(float(start), float(end), 0)
-    return _merge_equal(out)
-
-
-def _merge_equal(segments: list[Segment]) -> list[Segment]:
-    """Neighbouring segments of one straight piece (same velocity and line) become one."""
-    merged = [segments[0]]
-    for seg in segments[1:]:
-        last = merged[-1]
-        same_line = np.array_equal(seg.beta, last.beta) and np.allclose(
-            seg.position, last.position + last.beta * (seg.mid - last.mid), rtol=0, atol=1e-12 * (1 + np.abs(seg.position).max()))
-        if same_line and seg.error == 0.0 and last.error == 0.0:
-            merged[-1] = Segment(last.start, seg.end, last.mid, last.position, last.beta, 0.0)
-        else:
-            merged.append(seg)
-    return merged
+    return out
 
 
 def rotation_matrix(axis_angle):

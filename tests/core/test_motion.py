@@ -1,0 +1,286 @@
+"""Motion beyond constant velocity: moving observer, animated (accelerated) world lines, rotation."""
+
+import math
+
+import mpmath as mp
+import numpy as np
+import pytest
+from scipy import ndimage
+from shapes import box, look_at_camera, quad, uv_sphere
+
+from restframe_addon.core.camera import primary_rays
+from restframe_addon.core.frames import FrameMap
+from restframe_addon.core.lorentz import Boost
+from restframe_addon.core.motion import Trajectory, segment_world_line
+from restframe_addon.core.render import RenderError, render_image
+from restframe_addon.core.scene import Mesh, RenderSettings, Scene, Velocity
+
+
+def gamma_of(beta):
+    return 1.0 / math.sqrt((1.0 - beta) * (1.0 + beta))
+
+
+def settings(res=(33, 33), **kw):
+    return RenderSettings(resolution=res, threads=kw.pop("threads", 1), **kw)
+
+
+# ---------------------------------------------------------------- moving observer
+
+def test_wigner_rotation_of_the_frame_chain_is_43_degrees():
+    """Camera at 0.9c along -x and an object at 0.9c along +y (both in S): the map between their
+    frames is a boost times a rotation of 42.9 degrees (Thomas-Wigner), which the chain keeps."""
+    chain = FrameMap([Boost.from_velocity((-0.9, 0, 0)).inverse(), Boost.from_velocity((0, 0.9, 0))])
+    columns = []
+    for e in np.eye(4):
+        tau, x = chain.events(np.array(e[0]), e[1:])
+        columns.append(np.concatenate([[tau], x]))
+    lorentz = np.stack(columns, axis=1)
+    # the object frame's velocity seen from the camera frame: the pure-boost part
+    u = np.linalg.solve(lorentz, [1.0, 0, 0, 0])
+    pure = Boost.from_velocity(u[1:] / u[0]).matrix()
+    rotation = lorentz @ np.linalg.inv(pure)
+    assert np.allclose(rotation[0], [1, 0, 0, 0], atol=1e-12) and np.allclose(rotation[:, 0], [1, 0, 0, 0], atol=1e-12)
+    angle = math.degrees(math.acos((np.trace(rotation[1:, 1:]) - 1) / 2))
+    g1 = g2 = gamma_of(0.9)
+    g = g1 * g2
+    expected = math.degrees(math.acos((1 + g + g1 + g2) ** 2 / ((1 + g) * (1 + g1) * (1 + g2)) - 1))
+    assert angle == pytest.approx(expected, abs=1e-9)
+    assert angle == pytest.approx(42.9, abs=0.05)
+
+
+def outline_angles(mask, camera, res):
+    """Angles from the camera axis of the hit/miss boundary (pixel-pair midpoints), camera frame."""
+    pts = []
+    for axis in (0, 1):
+        a = mask[:-1, :] if axis == 0 else mask[:, :-1]
+        b = mask[1:, :] if axis == 0 else mask[:, 1:]
+        ys, xs = np.nonzero(a != b)
+        pts.append(np.column_stack([xs + 0.5, ys + 1.0]) if axis == 0 else np.column_stack([xs + 1.0, ys + 0.5]))
+    p = np.concatenate(pts)
+    _, d, _, _, _ = primary_rays(camera, p[:, 0], p[:, 1], res)
+    forward = -camera.matrix[:3, 2]
+    return np.arccos(np.clip(d @ forward, -1, 1))
+
+
+@pytest.mark.parametrize("beta", [0.0, 0.5, 0.9, -0.6])
+def test_camera_flying_toward_a_sphere_sees_it_shrink_by_aberration(beta):
+    """tan(theta'/2) = sqrt((1 - b)/(1 + b)) tan(theta/2), theta = asin(R/L) at the observation event."""
+    res = (301, 301)
+    distance, radius = 6.0, 1.0
+    camera = look_at_camera((0, -distance, 0), (0, 0, 0), fov_half_tan=0.3, velocity=Velocity((0, beta, 0)))
+    ball = uv_sphere((0, 0, 0), radius, 256, 128)
+    passes = render_image(Scene(camera=camera, meshes=[Mesh("ball", *ball)], tau_obs=0.0),
+                          settings(res, film_transparent=True, threads=0))
+    angles = outline_angles(passes["Combined"][..., 3] > 0.5, camera, res)
+    theta = math.asin(radius / distance)
+    expected = 2 * math.atan(math.sqrt((1 - beta) / (1 + beta)) * math.tan(theta / 2))
+    pixel = 2 * 0.3 / res[0]
+    assert abs(angles.mean() - expected) < 0.3 * pixel
+    assert np.max(np.abs(angles - expected)) < 0.8 * pixel
+
+
+# ---------------------------------------------------------------- animated world lines
+
+def straight(beta, pivot, tau=np.linspace(-60, 60, 11), name="ball"):
+    return Trajectory(tau, np.asarray(pivot) + np.outer(tau, beta), name=name)
+
+
+def test_constant_velocity_entered_as_animation_renders_the_same():
+    beta, pivot = np.array([0.5, -0.6, 0.1]), np.array([0.5, 2.0, 0.3])
+    v, t = uv_sphere(pivot, 1.0, 32, 16)
+    camera = look_at_camera((0, -8, 1), (0, 0, 0))
+    const = Scene(camera=camera, meshes=[Mesh("ball", v, t, velocity=Velocity(tuple(beta)), pivot=tuple(pivot))], tau_obs=3.0)
+    anim = Scene(camera=camera, meshes=[Mesh("ball", v, t, pivot=tuple(pivot), trajectory=straight(beta, pivot))], tau_obs=3.0)
+    a = render_image(const, settings((40, 40)))
+    b = render_image(anim, settings((40, 40)))
+    for name in ("Combined", "Doppler", "Depth", "Emission Time", "Object Time"):
+        assert np.allclose(a[name], b[name], rtol=1e-5, atol=1e-5), name
+    assert a["Combined"][..., 3].sum() > 0
+
+
+def hyperbola(alpha, x0, tau):
+    """Uniform proper acceleration 1/alpha along x through (0, x0)."""
+    x = x0 - alpha + np.sqrt(alpha**2 + tau**2)
+    return np.column_stack([x, np.zeros_like(tau), np.zeros_like(tau)])
+
+
+def analytic_crossing(alpha, x0, tau_o, x_o, y_o):
+    """World time of the hyperbola's event on the past light cone of (tau_o, (x_o, y_o, 0)), mpmath."""
+    alpha, x0, tau_o, x_o, y_o = (mp.mpf(v) for v in (alpha, x0, tau_o, x_o, y_o))
+    xs = x_o - x0 + alpha
+    k = xs**2 + alpha**2 + y_o**2 - tau_o**2
+    a, b, c = 4 * xs**2 - 4 * tau_o**2, -4 * k * tau_o, 4 * xs**2 * alpha**2 - k**2
+    roots = [(-b + sgn * mp.sqrt(b * b - 4 * a * c)) / (2 * a) for sgn in (1, -1)]
+
+    def residual(r):  # squaring admitted a spurious root: keep the one on the cone
+        return abs((tau_o - r) ** 2 - (xs - mp.sqrt(alpha**2 + r**2)) ** 2 - y_o**2)
+
+    return min((r for r in roots if r < tau_o), key=residual)
+
+
+def test_hyperbolic_world_line_matches_its_analytic_light_cone_crossing():
+    alpha, x0 = 2.0, 0.0  # proper acceleration 0.5; speed 0.995 at tau = +-20
+    tau = np.linspace(-20, 20, 8001)
+    traj = Trajectory(tau, hyperbola(alpha, x0, tau), name="rocket")
+    events = [(5.0, 2.5, -4.0), (12.0, -2.0, -6.0), (0.0, 1.0, -1.0), (25.0, 30.0, -5.0)]
+    got = traj.light_cone_crossing(np.array([e[0] for e in events]), np.array([[e[1], e[2], 0.0] for e in events]))
+    for g, e in zip(got, events):
+        expected = analytic_crossing(alpha, x0, *e)
+        # the sampled world line deviates from the hyperbola by ~ a dtau^2 / 8 per knot
+        assert abs(mp.mpf(float(g)) - expected) < 1e-5 * (1 + abs(expected)), (e, g, expected)
+
+
+def test_accelerated_sphere_is_seen_where_its_light_left_it():
+    """A small sphere on the hyperbola, seen from a static camera: its image centre points at the
+    analytic retarded position and its pass values give that emission time."""
+    alpha, x0 = 2.0, 0.0
+    tau = np.linspace(-20, 20, 4001)
+    radius = 0.05
+    v, t = uv_sphere((0, 0, 0), radius, 32, 16)
+    cam_pos = np.array([1.0, -6.0, 0.0])
+    tau_obs = 8.0
+    tau_e = float(analytic_crossing(alpha, x0, tau_obs, cam_pos[0], cam_pos[1]))
+    seen_at = hyperbola(alpha, x0, np.array([tau_e]))[0]
+    camera = look_at_camera(cam_pos, seen_at, fov_half_tan=0.03)
+    traj = Trajectory(tau, hyperbola(alpha, x0, tau), name="rocket")
+    scene = Scene(camera=camera, meshes=[Mesh("rocket", v, t, pivot=(0, 0, 0), trajectory=traj)], tau_obs=tau_obs,
+                  light_speed=1.0)
+    res = (61, 61)
+    passes = render_image(scene, settings(res, film_transparent=True, motion_tolerance=1e-4))
+    mask = passes["Combined"][..., 3] > 0.5
+    assert mask.sum() > 20
+    ys, xs = np.nonzero(mask)
+    # the image is centred on the retarded position (to a pixel: the view is aimed there)
+    assert abs(xs.mean() - 30) < 1.5 and abs(ys.mean() - 30) < 1.5
+    times = passes["Emission Time"][..., 0][mask]
+    assert np.all(np.abs(times - tau_e) < 2 * radius)
+
+
+def test_sudden_turn_at_0_99c_gives_no_nan_and_no_tear():
+    """A right-angle turn at 0.99c: the corner is rounded over a proper time >= R |d(gamma beta)| so
+    the body stays in one piece, every inertial segment is within the tolerance, and the image is
+    finite and whole."""
+    tau = np.array([-400.0, 0.0, 400.0])
+    pos = np.array([[-396.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 396.0, 0.0]])
+    v, t = uv_sphere((0, 0, 0), 1.0, 48, 24)
+    traj = Trajectory(tau, pos, name="comet", body_radius=1.0)
+    assert traj.warnings == []
+    segments = segment_world_line(traj, tau[0], tau[-1], 1e-3)
+    assert max(s.error for s in segments) <= 1e-3
+    # continuity: neighbouring segments place the pivot within the tolerance at their common time
+    for a, b in zip(segments[:-1], segments[1:]):
+        pa = a.position + a.beta * (a.end - a.mid)
+        pb = b.position + b.beta * (b.start - b.mid)
+        assert np.linalg.norm(pa - pb) <= 2e-3
+    assert 2 * traj.half[0] / gamma_of(0.99) >= 1.0 * np.linalg.norm(np.diff(traj.beta, axis=0)) * gamma_of(0.99) - 1e-9
+    for tau_obs in (-30.0, 0.0, 20.0, 60.0):
+        camera = look_at_camera((-5, 8, 0), traj.state(np.array([tau_obs - 9.0]))[0][0], fov_half_tan=0.6)
+        scene = Scene(camera=camera, meshes=[Mesh("comet", v, t, pivot=(0, 0, 0), trajectory=traj)], tau_obs=tau_obs)
+        passes = render_image(scene, settings((48, 48), film_transparent=True))
+        for name, data in passes.items():
+            assert np.all(np.isfinite(data)), name
+        mask = passes["Combined"][..., 3] > 0
+        if mask.any():
+            _, pieces = ndimage.label(mask)
+            assert pieces == 1, tau_obs
+
+
+def test_turn_too_sharp_for_the_samples_warns():
+    tau = np.array([-1.0, 0.0, 1.0])
+    pos = np.array([[-0.9, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.9, 0.0]])
+    traj = Trajectory(tau, pos, name="comet", frames=np.array([10.0, 11.0, 12.0]), body_radius=5.0)
+    assert traj.warnings and "frame 11" in traj.warnings[0] and "comet" in traj.warnings[0]
+
+
+def test_faster_than_light_animation_is_refused_naming_object_and_frames():
+    tau = np.array([0.0, 1.0, 2.0, 3.0])
+    pos = np.array([[0, 0, 0], [0.5, 0, 0], [1.7, 0, 0], [2.0, 0, 0]], float)
+    with pytest.raises(ValueError, match=r"Probe.*frames 5-6"):
+        Trajectory(tau, pos, name="Probe", frames=np.array([4.0, 5.0, 6.0, 7.0]))
+    v, t = box()
+    good = Trajectory(tau, pos * 0.1, name="Probe")
+    good.position[2] = [1.7, 0, 0]
+    with pytest.raises(ValueError, match="Probe"):
+        Trajectory(good.tau, good.position, name="Probe")
+
+
+def test_over_c_animation_is_a_render_error():
+    v, t = box()
+    bad = type("T", (), {})  # a trajectory built inside the renderer would raise the same way
+    with pytest.raises(RenderError, match="Probe"):
+        scene = Scene(camera=look_at_camera((0, -5, 0), (0, 0, 0)),
+                      meshes=[Mesh("Probe", v, t, velocity=Velocity((0.0, 0.0, 1.0)))])
+        render_image(scene, settings((8, 8)))
+
+
+# ---------------------------------------------------------------- optical clocks
+
+@pytest.mark.parametrize("animated", [False, True])
+def test_clock_approaching_at_0_6c_is_seen_running_at_d_equal_2(animated):
+    """The Object Time pass shows the body's own clock at the seen event: approaching head-on at
+    0.6c it advances 2 s per second of observation (D = 2)."""
+    beta = np.array([0.0, -0.6, 0.0])
+    pivot = np.array([0.0, 30.0, 0.0])
+    wall = quad(pivot, (50, 50), normal_axis=1)
+    mesh = Mesh("clock", *wall, pivot=tuple(pivot),
+                trajectory=straight(beta, pivot, np.linspace(-200, 200, 5)) if animated else None,
+                velocity=Velocity(tuple(beta)))
+    camera = look_at_camera((0, 0, 0), (0, 1, 0), fov_half_tan=0.01)
+    c = 10.0
+    seen = []
+    for t_obs in (1.0, 1.5):
+        scene = Scene(camera=camera, meshes=[mesh], tau_obs=c * t_obs, light_speed=c)
+        seen.append(render_image(scene, settings((3, 3)))["Object Time"][1, 1, 0])
+    assert (seen[1] - seen[0]) / 0.5 == pytest.approx(2.0, rel=1e-5)
+
+
+# ---------------------------------------------------------------- rotation
+
+def spinning_scene(omega_z, res_fov=0.4, shape="box", light_speed=1.0, tau=0.0):
+    v, t = box((0, 0, 0), (1.0, 1.0, 1.0)) if shape == "box" else uv_sphere((0, 0, 0), 1.0, 64, 32)
+    mesh = Mesh("top", v, t, pivot=(0, 0, 0), angular_velocity=(0.0, 0.0, omega_z), object_index=3)
+    camera = look_at_camera((0, -5, 0.6), (0, 0, 0), fov_half_tan=res_fov)
+    return Scene(camera=camera, meshes=[mesh], tau_obs=tau, light_speed=light_speed)
+
+
+def test_rim_at_or_beyond_c_is_refused():
+    with pytest.raises(RenderError, match="top"):
+        render_image(spinning_scene(1.2), settings((8, 8)))  # corner at 0.87 from the axis: 1.04 c
+
+
+@pytest.mark.parametrize("omega", [0.3, 1.0])
+def test_every_hit_lies_on_the_body_in_the_pose_of_its_own_time(omega):
+    """Spinning fast (corners up to 0.87 c), each hit point, turned back by the pose of its own
+    emission time, lies on the unit cube's surface (the fixed-point iteration converged)."""
+    scene = spinning_scene(omega, tau=2.0)
+    res = (41, 41)
+    passes = render_image(scene, settings(res, motion_tolerance=1e-6))
+    mask = passes["Depth"][..., 0] < 1e9
+    assert mask.sum() > 100
+    ys, xs = np.nonzero(mask)
+    _, d, _, _, _ = primary_rays(scene.camera, xs + 0.5, ys + 0.5, res)
+    depth = passes["Depth"][..., 0][mask].astype(np.float64)
+    # depth is float32 in the pass: recompute from emission time (s = tau_obs - tau_e for a static camera)
+    s = scene.tau_obs - passes["Emission Time"][..., 0][mask].astype(np.float64) * scene.light_speed
+    assert np.allclose(s, depth, rtol=1e-5)
+    points = scene.camera.matrix[:3, 3] + depth[:, None] * d
+    angle = omega * (scene.tau_obs - depth)  # pose angle at each hit's time (clock zero at tau = 0)
+    c, s_ = np.cos(-angle), np.sin(-angle)
+    local = np.column_stack([c * points[:, 0] - s_ * points[:, 1], s_ * points[:, 0] + c * points[:, 1], points[:, 2]])
+    assert np.allclose(np.max(np.abs(local), axis=1), 0.5, atol=2e-4)
+
+
+def test_spinning_surface_doppler_is_its_local_speed():
+    """A sphere spinning about z, camera at rest: D = sqrt(1 - v^2) / (1 + v.d) with v = omega x r."""
+    omega = 0.6
+    scene = spinning_scene(omega, shape="sphere", res_fov=0.3)
+    res = (31, 31)
+    passes = render_image(scene, settings(res, motion_tolerance=1e-8))
+    mask = passes["Depth"][..., 0] < 1e9
+    ys, xs = np.nonzero(mask)
+    _, d, _, _, _ = primary_rays(scene.camera, xs + 0.5, ys + 0.5, res)
+    points = scene.camera.matrix[:3, 3] + passes["Depth"][..., 0][mask][:, None].astype(np.float64) * d
+    velocity = np.cross([0.0, 0.0, omega], points)
+    expected = np.sqrt(1 - np.einsum("ij,ij->i", velocity, velocity)) / (1 + np.einsum("ij,ij->i", velocity, d))
+    assert np.allclose(passes["Doppler"][..., 0][mask], expected, rtol=2e-4)
+    assert expected.max() > 1.3 and expected.min() < 0.7  # both limbs, blue and red
