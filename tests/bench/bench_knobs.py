@@ -99,7 +99,10 @@ def motion_scene(accelerated=True, spinning=False):
                            material_indices=np.ones(len(bt), int)))
     materials = [Material("rocket", base_color=(0.8, 0.4, 0.1)), Material("top", base_color=(0.2, 0.4, 0.8)),
                  Material("floor", base_color=(0.6, 0.6, 0.6))]
-    camera = look_at_camera((0.0, -7.0, 1.5), (0.5, 0.0, 0.0), aspect=4 / 3, fov_half_tan=0.6)
+    if accelerated:
+        camera = look_at_camera((0.0, -6.0, 1.5), (-1.0, 1.0, 0.0), aspect=4 / 3, fov_half_tan=0.3)
+    else:
+        camera = look_at_camera((0.0, -7.0, 1.5), (0.5, 0.0, 0.0), aspect=4 / 3, fov_half_tan=0.6)
     return Scene(camera=camera, meshes=meshes, materials=materials,
                  lights=[Light("lamp", "POINT", (1.0, -4.0, 5.0), power=2000.0)], tau_obs=4.0, light_speed=1.0)
 

@@ -353,14 +353,16 @@ def run(ctx) -> Section:
     e = export_study(sub)
     sec.add(f"A grid primitive with {sub} subdivisions ({e['triangles']:,} triangles, moving at 0.5c), a camera "
             "and a point light built with bpy in a fresh subprocess; `restframe_addon.export.export_scene` on the "
-            "evaluated depsgraph, then `Renderer(...)` (frames + embree BVH), then a 64x48 render_image. Peak "
-            "memory: Python/numpy allocations by tracemalloc during each step, and the process's peak RSS.")
+            "evaluated depsgraph, then `Renderer(...)` (frames + embree BVH), then a 64x48 render_image, one thread. "
+            "Times are untraced; the steps are then repeated under tracemalloc for the peak of Python/numpy "
+            "allocations (tracemalloc itself slows them 7-20x, so it is never timed); peak RSS = the worker's "
+            "VmHWM (embree's BVH is not seen by tracemalloc but is in the RSS).")
     sec.add("")
-    sec.table(["step", "time (s)", "tracemalloc peak (MB)", "peak RSS after (MB)"],
+    sec.table(["step", "time (s)", "tracemalloc peak (MB)", "peak RSS after the timed step (MB)"],
               [["scene built with bpy", e["build_s"], "-", e["rss_built_mb"]],
                ["export_scene", e["export_s"], e["export_peak_mb"], e["rss_export_mb"]],
                ["Renderer (frames, BVH)", e["prepare_s"], e["prepare_peak_mb"], e["rss_prepare_mb"]],
-               ["render_image 64x48", e["render_s"], "-", e["rss_render_mb"]]])
+               ["render_image 64x48 (its own preparation included)", e["render_s"], "-", e["rss_render_mb"]]])
     for k in ("export_s", "prepare_s", "export_peak_mb", "prepare_peak_mb", "rss_render_mb"):
         sec.number(f"export_{k}", e[k])
     sec.goals.append(Goal("export of 1M triangles", "measure",
