@@ -180,7 +180,15 @@ def compose_velocities(u, v):
     one_minus_uv = boost.one_minus_b + boost.b * body.one_minus_b + boost.b * body.b * (1.0 - nn)
     gamma = boost.gamma * body.gamma * one_minus_uv
     _, x = boost.events(np.array(body.gamma), body.gamma * body.b * body.n)
-    return x / gamma, gamma
+    # the direction from the boosted 4-velocity; near c its length cancels, so there the speed
+    # comes from gamma (which has no cancellation)
+    norm = float(np.linalg.norm(x))
+    if norm == 0.0:
+        return np.zeros(3), gamma
+    speed = norm / gamma
+    if speed > 0.5:
+        speed = math.sqrt((gamma - 1.0) * (gamma + 1.0)) / gamma
+    return x / norm * speed, gamma
 
 
 def speed_report(beta, lorentz_factor: float = 0.0) -> tuple[float, float, float]:

@@ -32,15 +32,26 @@ def uniform(pixel: np.ndarray, sample: np.ndarray, dimension: int) -> np.ndarray
 def stratified_offsets(pixel: np.ndarray, sample: np.ndarray, count: int):
     """Jittered sub-pixel positions in [0, 1)^2: sample k of ``count`` lands in its own stratum.
 
-    The strata form a ceil(sqrt(count)) grid; a single sample is the pixel centre.
+    The strata form a ceil(sqrt(count)) grid visited in a per-pixel order
+    ``(k * step + start) mod cells`` (step coprime to the cell count, near the golden
+    ratio for spread), so a partial grid (non-square count) is spread over the pixel and
+    each sample costs O(1).  A single sample is the pixel centre.
     """
     if count == 1:
         half = np.full(len(pixel), 0.5)
         return half, half
     side = int(np.ceil(np.sqrt(count)))
-    # permute strata per pixel so partial grids (non-square counts) stay unbiased
-    order = np.argsort(uniform(np.repeat(pixel[:, None], side * side, 1), np.arange(side * side)[None, :], 0), axis=1)
-    stratum = order[np.arange(len(pixel)), sample % (side * side)]
+    cells = side * side
+    step = _coprime_step(cells)
+    start = (uniform(pixel, np.zeros_like(sample), 0) * cells).astype(np.int64)
+    stratum = (sample.astype(np.int64) * step + start) % cells
     jx = uniform(pixel, sample, 1)
     jy = uniform(pixel, sample, 2)
     return (stratum % side + jx) / side, (stratum // side + jy) / side
+
+
+def _coprime_step(cells: int) -> int:
+    step = max(int(round(cells * 0.6180339887)), 1)
+    while np.gcd(step, cells) != 1:
+        step += 1
+    return step

@@ -152,7 +152,10 @@ class Quadrature:
             jac = np.einsum("kl,ml,lj->mkj", to_rgb, slope, self.basis)  # (m, 3, 3)
             jtj = np.einsum("mki,mkj->mij", jac, jac)
             jtr = np.einsum("mki,mk->mi", jac, residual[active])
-            diag = np.einsum("mii->mi", jtj)[:, :, None] * np.eye(3) + 1e-12 * np.eye(3)
+            # Levenberg-Marquardt; the ridge keeps saturated sigmoids (zero slope) and very few
+            # wavelengths (rank-deficient Jacobians) solvable
+            scale = np.einsum("mii->m", jtj)[:, None, None] + 1e-30
+            diag = np.einsum("mii->mi", jtj)[:, :, None] * np.eye(3) + 1e-9 * scale * np.eye(3)
             step = np.linalg.solve(jtj + damping[active, None, None] * diag, -jtr[..., None])[..., 0]
             trial = ca + step
             trial_res = self.reflectance_rgb(trial) - rgb[active]
@@ -160,8 +163,8 @@ class Quadrature:
             better = trial_cost < cost[active]
             idx = active[better]
             c[idx], residual[idx], cost[idx] = trial[better], trial_res[better], trial_cost[better]
-            damping[idx] *= 0.3
-            damping[active[~better]] *= 10.0
+            damping[idx] = np.maximum(damping[idx] * 0.3, 1e-12)
+            damping[active[~better]] = np.minimum(damping[active[~better]] * 10.0, 1e12)  # unreachable targets
         return c
 
     def fit_emission(self, rgb):

@@ -115,6 +115,8 @@ def _spin_query(frame: RestFrame, tau, origin, d, t_lo, t_hi, occlusion: bool):
         idx, t, p, uu, vv = _local_query(geometry, o_l, d_l, t_lo[todo], t_hi[todo], occlusion=False)
         hit = todo[idx]
         found[np.setdiff1d(todo, hit)] = False
+        if len(hit) == 0:
+            break
         found[hit], result_t[hit], prim[hit], u[hit], v[hit] = True, t, p, uu, vv
         f = t - guess[hit]
         done = np.abs(f) * rim <= frame.tolerance

@@ -270,6 +270,15 @@ def test_every_hit_lies_on_the_body_in_the_pose_of_its_own_time(omega):
     assert np.allclose(np.max(np.abs(local), axis=1), 0.5, atol=2e-4)
 
 
+def test_spinning_body_with_loose_tolerance_and_rays_that_miss_it():
+    """Rays that miss the spinning body (or whose pose iteration ends at once) leave it unhit."""
+    scene = spinning_scene(0.8, res_fov=2.0)
+    passes = render_image(scene, settings((24, 24), motion_tolerance=0.3))
+    hit = passes["Depth"][..., 0] < 1e9
+    assert 0 < hit.sum() < hit.size
+    assert np.all(passes["IndexOB"][..., 0][hit] == 3)
+
+
 def test_spinning_surface_doppler_is_its_local_speed():
     """A sphere spinning about z, camera at rest: D = sqrt(1 - v^2) / (1 + v.d) with v = omega x r."""
     omega = 0.6

@@ -226,6 +226,19 @@ def rich_scene(beta=0.0):
                          Light("warm", "AREA", (-2, -2, 3), power=300.0, temperature=6504.0)])
 
 
+@pytest.mark.parametrize("k", [3, 4, 6])
+def test_very_few_wavelengths_still_fit_and_render(k):
+    """Rank-deficient uplift fits (few wavelengths) stay solvable: exact at rest, finite when moving."""
+    q = spectral.quadrature(k)
+    rgb = np.random.default_rng(9).uniform(0, 1, (50, 3))
+    assert np.all(np.isfinite(q.reflectance_rgb(q.fit_reflectance(rgb))))
+    for beta in (0.0, 0.5):
+        passes = render_image(*emitter_scene(beta, k))
+        assert np.all(np.isfinite(passes["Combined"]))
+    rest = render_image(*emitter_scene(0.0, k))["Combined"][1, 1, :3]
+    assert rest == pytest.approx([1.0, 1.0, 1.0], rel=1e-6)
+
+
 def test_nothing_moving_spectral_equals_rgb():
     """With nothing moving, Spectral colour reproduces the RGB render (1e-3 asked; exact here)."""
     rgb = render_image(rich_scene(), RenderSettings(resolution=(40, 30), samples=2, threads=1))["Combined"]
