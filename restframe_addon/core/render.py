@@ -154,7 +154,9 @@ class Renderer:
         h, w = y1 - y0, x1 - x0
         xs, ys, pixel = self._pixel_grid(rect)
         n = len(pixel)
-        passes = self._centre_passes(xs, ys, pixel)
+        centre = self._camera_rays(xs + 0.5, ys + 0.5)
+        centre_hits = trace_nearest(self.frames, self.frames.camera, *centre)
+        passes = self._centre_passes(centre, centre_hits)
         samples = max(int(self.settings.samples), 1)
         rgb = np.zeros((n, 3))
         coverage = np.zeros(n)
@@ -163,8 +165,12 @@ class Renderer:
             count = min(per_batch, samples - first)
             pix = np.repeat(pixel, count)
             smp = np.tile(np.arange(first, first + count), n)
-            ox, oy = sampling.stratified_offsets(pix, smp, samples)
-            color, hit = self._sample(np.repeat(xs, count) + ox, np.repeat(ys, count) + oy, pix, smp)
+            if samples == 1:  # the one sample is the pixel-centre ray, already traced
+                color, hit = self._sample(centre, pix, smp, centre_hits)
+            else:
+                ox, oy = sampling.stratified_offsets(pix, smp, samples)
+                rays = self._camera_rays(np.repeat(xs, count) + ox, np.repeat(ys, count) + oy)
+                color, hit = self._sample(rays, pix, smp)
             rgb += color.reshape(n, count, 3).sum(axis=1)
             coverage += hit.reshape(n, count).sum(axis=1)
         rgb *= self.exposure / samples
@@ -173,17 +179,18 @@ class Renderer:
         passes["Combined"] = np.concatenate([rgb, alpha[:, None]], axis=1)
         return Tile(x0, y0, x1, y1, {k: v.reshape(h, w, -1).astype(np.float32) for k, v in passes.items()})
 
-    def _sample(self, px, py, pixel, sample):
-        """Colour of camera samples and whether they hit anything."""
-        tau, x, d, s_lo, s_hi = self._camera_rays(px, py)
+    def _sample(self, rays, pixel, sample, hits=None):
+        """Colour of camera samples and whether they hit anything (``hits``: already traced)."""
+        tau, x, d, s_lo, s_hi = rays
         camera = self.frames.camera
         if self.settings.doppler_mode == "FACTOR":
-            hits = trace_nearest(self.frames, camera, tau, x, d, s_lo, s_hi)
+            if hits is None:
+                hits = trace_nearest(self.frames, camera, tau, x, d, s_lo, s_hi)
             hit = hits.frame >= 0
             rgb = np.repeat(self._doppler_grey(self._hit_doppler(hits, tau, x, d))[:, None], 3, axis=1)
         else:
             lam = self.colour.camera_wavelengths(pixel, sample)
-            values, hits = self.shader.radiance(camera, tau, x, d, s_lo, s_hi, 0, pixel, sample, lam)
+            values, hits = self.shader.radiance(camera, tau, x, d, s_lo, s_hi, 0, pixel, sample, lam, hits)
             rgb = self.colour.to_rgb(values, lam)
             hit = hits.frame >= 0
         if self.settings.film_transparent:
@@ -215,11 +222,10 @@ class Renderer:
             t = np.minimum(np.floor(t * levels), levels - 1) / (levels - 1)
         return t
 
-    def _centre_passes(self, xs, ys, pixel):
+    def _centre_passes(self, rays, hits):
         """Passes of the pixel-centre ray: exact, quotable values (no sample averaging)."""
-        tau, x, d, s_lo, s_hi = self._camera_rays(xs + 0.5, ys + 0.5)
+        tau, x, d, _, _ = rays
         camera = self.frames.camera
-        hits = trace_nearest(self.frames, camera, tau, x, d, s_lo, s_hi)
         n = len(d)
         doppler = np.zeros(n)
         emission_time = np.zeros(n)

@@ -142,14 +142,15 @@ class Shader:
         return doppler ** (exponent + self.colour.extra_power)
 
     # ------------------------------------------------------------------ rays
-    def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, depth: int, pixel, sample, lam):
+    def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, depth: int, pixel, sample, lam, hits=None):
         """Radiance arriving at events (tau0, x0) of frame src from backward directions d,
-        at the wavelengths ``lam`` of frame src (None in RGB mode).
+        at the wavelengths ``lam`` of frame src (None in RGB mode); ``hits`` if already traced.
 
         Returns (values (n, C), hits) -- the hits of this ray bundle, for the passes.
         """
         n = len(d)
-        hits = trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi)
+        if hits is None:
+            hits = trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi)
         values = np.empty((n, self.colour.channels))
         miss = np.flatnonzero(hits.frame < 0)
         if len(miss):
