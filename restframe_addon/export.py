@@ -15,6 +15,7 @@ from typing import Callable
 import bpy
 import numpy as np
 
+from .core.motion import Trajectory
 from .core.scene import Camera, Light, Material, Mesh, RenderSettings, Scene, Velocity
 from .properties import speed_of
 
@@ -57,8 +58,12 @@ def object_velocity(obj) -> Velocity:
 
 
 def _same_velocity(a, b) -> bool:
+    """Same motion settings: such a parent and child move (and spin) as one rigid assembly."""
     ra, rb = a.restframe, b.restframe
-    return tuple(ra.velocity) == tuple(rb.velocity) and ra.lorentz_factor == rb.lorentz_factor
+    if ra.motion != rb.motion or tuple(ra.angular_velocity) != tuple(rb.angular_velocity):
+        return False
+    return ra.motion == 'ANIMATION' or (
+        tuple(ra.velocity) == tuple(rb.velocity) and ra.lorentz_factor == rb.lorentz_factor)
 
 
 def assembly_root(obj):
@@ -67,6 +72,17 @@ def assembly_root(obj):
     while root.parent is not None and _same_velocity(root.parent, root):
         root = root.parent
     return root
+
+
+def _fcurves(action, slot):
+    """The F-curves of an action (for its slot, with layered actions in 4.4+)."""
+    if action is None:
+        return ()
+    if hasattr(action, "layers") and not getattr(action, "is_action_legacy", False):
+        from bpy_extras.anim_utils import action_get_channelbag_for_slot
+        bag = action_get_channelbag_for_slot(action, slot) if slot is not None else None
+        return bag.fcurves if bag is not None else ()
+    return action.fcurves
 
 
 def _action_paths(animation_data) -> set[str]:
@@ -79,15 +95,7 @@ def _action_paths(animation_data) -> set[str]:
         if not track.mute:
             actions += [(strip.action, getattr(strip, "action_slot", None)) for strip in track.strips]
     for action, slot in actions:
-        if action is None:
-            continue
-        if hasattr(action, "layers"):  # layered actions (4.4+): curves live in channel bags
-            from bpy_extras.anim_utils import action_get_channelbag_for_slot
-            bag = action_get_channelbag_for_slot(action, slot) if slot is not None else None
-            fcurves = bag.fcurves if bag is not None else ()
-        else:
-            fcurves = action.fcurves
-        paths.update(fc.data_path for fc in fcurves)
+        paths.update(fc.data_path for fc in _fcurves(action, slot))
     return paths
 
 
@@ -99,10 +107,112 @@ def has_animated_location(obj) -> bool:
     """
     node = obj
     while node is not None:
-        if {"location", "delta_location"} & _action_paths(node.animation_data):
+        if {"location", "delta_location"} & _action_paths(node.original.animation_data):
             return True
         node = node.parent if node.parent is not None and _same_velocity(node.parent, node) else None
     return False
+
+
+# --------------------------------------------------------------------------- animated motion
+SUBFRAMES = 8  # world-line samples per frame of animation
+MAX_SAMPLES = 20000  # per object: beyond this the samples thin out (long light-travel times)
+
+
+def _location_curves(obj) -> tuple[dict, list[str]]:
+    """{(data_path, index): F-curve} of the object's own location keys, and what is ignored.
+
+    Motion = Animation reads the active action's ``location`` and ``delta_location``
+    curves; NLA strips, drivers and constraints on the location are not evaluated.
+    """
+    anim = obj.original.animation_data
+    curves: dict = {}
+    ignored: list[str] = []
+    if anim is None:
+        return curves, ignored
+    for fc in _fcurves(anim.action, getattr(anim, "action_slot", None)):
+        if fc.data_path in {"location", "delta_location"} and not fc.mute:
+            curves[(fc.data_path, fc.array_index)] = fc
+    if any(d.data_path in {"location", "delta_location"} for d in anim.drivers):
+        ignored.append("drivers")
+    if any(not track.mute and track.strips for track in anim.nla_tracks):
+        ignored.append("NLA strips")
+    return curves, ignored
+
+
+def _local_locations(obj, curves: dict, frames: np.ndarray) -> np.ndarray:
+    """location + delta_location (the local matrix's translation) at each frame, (N, 3)."""
+    out = np.empty((len(frames), 3))
+    base = obj.original
+    for i in range(3):
+        total = np.zeros(len(frames))
+        for path in ("location", "delta_location"):
+            fc = curves.get((path, i))
+            if fc is None:
+                total += float(getattr(base, path)[i])
+            else:
+                evaluate = fc.evaluate
+                total += np.fromiter((evaluate(f) for f in frames), dtype=np.float64, count=len(frames))
+        out[:, i] = total
+    return out
+
+
+def object_trajectory(root, scene, camera_position, *, should_stop=lambda: False, warn=print) -> Trajectory:
+    """The assembly pivot's world line from its location keys (Motion = Animation).
+
+    Samples ``SUBFRAMES`` per frame from before the scene's start frame (early enough
+    for light from any sampled position to reach the camera) up to just past the
+    rendered frame; the F-curves are evaluated directly, so the scene's current frame
+    never changes.  Supported: the object's own location/delta location keys; a parent
+    is taken as static at its pose of the rendered frame.  Raises ExportError (naming
+    the object and frames) when the motion reaches c, ExportCancelled on Esc.
+    """
+    rf = scene.restframe
+    c = rf.light_speed
+    fps = scene.render.fps / scene.render.fps_base
+    curves, ignored = _location_curves(root)
+    if not curves:
+        warn(f"{root.name}: Motion is Animation but its location has no keyframes: it stays at rest")
+    if ignored:
+        warn(f"{root.name}: Motion = Animation uses the location keys only ({' and '.join(ignored)} ignored)")
+    parent_matrix = np.eye(4)
+    if root.parent is not None:
+        parent_matrix = _matrix(root.parent.matrix_world) @ _matrix(root.matrix_parent_inverse)
+        if has_animated_location(root.parent):
+            warn(f"{root.name}: its parent '{root.parent.name}' is animated; Motion = Animation takes "
+                 "the parent as static (pose of the rendered frame)")
+
+    def world(frames):
+        local = _local_locations(root, curves, frames)
+        return local @ parent_matrix[:3, :3].T + parent_matrix[:3, 3]
+
+    current = scene.frame_current + scene.frame_subframe
+    first = min(float(scene.frame_start), current)
+    end = current + 1.0
+    # how far back light can come from: the farthest sampled position, plus the body's size
+    coarse = np.linspace(first, end, int(min(end - first, 2000)) + 2)
+    size = float(max(root.dimensions)) if hasattr(root, "dimensions") else 0.0
+    reach = float(np.linalg.norm(world(coarse) - np.asarray(camera_position), axis=1).max()) + size
+    start = first - math.ceil(2.0 * reach / c * fps) - 1.0
+    if not math.isfinite(start):
+        raise ExportError(f"{root.name}: the animated location is not a finite number")
+    count = int(min((end - start) * SUBFRAMES, MAX_SAMPLES)) + 1
+    frames = np.linspace(start, end, count)
+    if should_stop():
+        raise ExportCancelled()
+    position = world(frames)
+    if should_stop():
+        raise ExportCancelled()
+    tau = c * (frames - rf.reference_frame) / fps
+    evaluated = np.asarray(root.matrix_world.translation)
+    here = world(np.array([current]))[0]
+    if np.linalg.norm(here - evaluated) > max(1e-6 * (1.0 + np.linalg.norm(evaluated)), rf.motion_tolerance):
+        warn(f"{root.name}: its location at this frame differs from the keyframed one by "
+             f"{np.linalg.norm(here - evaluated):.3g} (constraints, drivers or parents?); "
+             "Motion = Animation follows the keys")
+    try:
+        return Trajectory(tau=tau, position=position, name=root.name, frames=frames)
+    except ValueError as error:
+        raise ExportError(str(error)) from error
 
 
 # --------------------------------------------------------------------------- materials
@@ -436,6 +546,7 @@ def render_settings(scene, resolution=None) -> RenderSettings:
         threads=render.threads if render.threads_mode == 'FIXED' else 0,
         doppler_range=None if rf.doppler_range_auto else tuple(rf.doppler_range),
         doppler_levels=rf.doppler_levels,
+        motion_tolerance=rf.motion_tolerance,
     )
 
 
@@ -449,7 +560,8 @@ def _instance_source(inst):
     the instance's origin.
     """
     parent = inst.parent
-    if inst.is_instance and parent is not None and parent.restframe.is_moving:
+    if inst.is_instance and parent is not None and (parent.restframe.is_moving or parent.restframe.is_animated
+                                                    or any(parent.restframe.angular_velocity)):
         return parent, tuple(assembly_root(parent).matrix_world.translation)
     obj = inst.object
     if inst.is_instance:
@@ -485,7 +597,9 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
     meshes: list[Mesh] = []
     lights: list[Light] = []
     cache: dict[tuple, _MeshData | None] = {}
+    trajectories: dict[int, Trajectory] = {}  # assembly root -> its world line, shared by its meshes
     jumping: set[str] = set()
+    camera_position = tuple(camera_object.matrix_world.translation)
 
     for inst in depsgraph.object_instances:
         if should_stop():
@@ -494,14 +608,32 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
         if obj.type not in {'MESH', 'LIGHT'} or not inst.show_self:
             continue
         source, pivot = _instance_source(inst)
-        velocity = object_velocity(source)
-        if not velocity.is_zero and has_animated_location(source):
+        animated = source.restframe.is_animated
+        # an animated body's velocity comes from its world line (lights keep theirs)
+        velocity = Velocity() if animated and obj.type == 'MESH' else object_velocity(source)
+        spin = tuple(float(w) for w in source.restframe.angular_velocity)
+        if not animated and not velocity.is_zero and has_animated_location(source):
             jumping.add(source.name)
         matrix = _matrix(inst.matrix_world)
         name = f"{inst.parent.name}/{obj.name}" if inst.is_instance and inst.parent is not None else obj.name
         if obj.type == 'LIGHT':
+            if animated or any(spin):
+                warn_once(f"{source.name}: lights move only at a constant velocity "
+                          "(Motion = Animation and Angular Velocity are ignored)")
             lights.append(_light(obj, matrix, velocity, pivot))
             continue
+        trajectory = None
+        if animated:
+            if any(spin):
+                warn_once(f"{source.name}: Angular Velocity is ignored with Motion = Animation")
+            root = assembly_root(source)
+            key = root.original.as_pointer()
+            if key not in trajectories:
+                trajectories[key] = object_trajectory(root, scene, camera_position,
+                                                      should_stop=should_stop, warn=warn_once)
+            trajectory = trajectories[key]
+        elif any(spin) and not all(math.isfinite(w) for w in spin):
+            raise ExportError(f"{source.name}: the angular velocity {spin} is not a finite number")
         mesh = obj.data
         key = (mesh.as_pointer(), tuple(slot.material.as_pointer() if slot.material else 0
                                         for slot in obj.material_slots))
@@ -521,11 +653,13 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
             corner_normals=normals,
             corner_uvs=data.uvs,
             object_index=int(obj.pass_index),
+            trajectory=trajectory,
+            angular_velocity=spin if any(spin) and trajectory is None else None,
         ))
 
     for name in sorted(jumping):
         warn_once(f"{name}: has a velocity and a keyframed location, so it jumps between frames "
-                  "(animate either the velocity or the location)")
+                  "(set its Motion to Animation to follow the keyframed path)")
     out = Scene(
         camera=camera,
         meshes=meshes,

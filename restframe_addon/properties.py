@@ -28,6 +28,13 @@ DOPPLER_MODES = (
      "scaled by D (blue shift when approaching, red shift when receding)", 2),
 )
 
+MOTION_MODES = (
+    ('CONSTANT', "Constant Velocity", "Move at the constant Velocity (or Lorentz Factor) below; "
+     "the location is where the object is at the reference frame", 0),
+    ('ANIMATION', "Animation", "Follow the object's keyframed location as its world line (accelerated "
+     "motion): the object's own location keys, evaluated over the light-travel time; parents stay static", 1),
+)
+
 
 def speed_of(beta, lorentz_factor: float) -> tuple[float, float, float]:
     """Speed as (beta, gamma, rapidity) from the two user inputs.
@@ -74,6 +81,23 @@ class RestframeObjectSettings(PropertyGroup):
         precision=6,
     )
 
+    motion: EnumProperty(
+        name="Motion",
+        description="Where the object's world line comes from: a constant velocity, or its animated location",
+        items=MOTION_MODES,
+        default='CONSTANT',
+    )
+    angular_velocity: FloatVectorProperty(
+        name="Angular Velocity",
+        description="Constant spin in radians per second about the object's origin (its pivot), along "
+        "the world axes, in the frame of its velocity. The rim must stay slower than light",
+        subtype='XYZ',
+        size=3,
+        default=(0.0, 0.0, 0.0),
+        step=10,
+        precision=4,
+    )
+
     def _speed(self):
         return speed_of(self.velocity, self.lorentz_factor)
 
@@ -99,6 +123,11 @@ class RestframeObjectSettings(PropertyGroup):
     @property
     def is_moving(self) -> bool:
         return any(self.velocity) or self.lorentz_factor > 1.0
+
+    @property
+    def is_animated(self) -> bool:
+        """The world line comes from the animated location (Motion = Animation)."""
+        return self.motion == 'ANIMATION'
 
     @classmethod
     def register(cls):
@@ -128,6 +157,17 @@ class RestframeSceneSettings(PropertyGroup):
         description="The frame at which every moving object (its assembly pivot) sits where it "
         "was placed; at other frames it has moved by velocity x elapsed time",
         default=1,
+    )
+    motion_tolerance: FloatProperty(
+        name="Motion Tolerance",
+        description="How far (scene units) accelerated or spinning bodies may stray from their true "
+        "motion: smaller is more exact and slower (more inertial segments)",
+        default=1e-3,
+        min=1e-9,
+        soft_min=1e-6,
+        soft_max=1.0,
+        precision=6,
+        subtype='DISTANCE',
     )
     show_velocity: BoolProperty(
         name="Velocity Arrows",

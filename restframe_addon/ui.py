@@ -59,6 +59,7 @@ class RESTFRAME_RENDER_PT_relativity(RestframeButtonsPanel, Panel):
         col = layout.column()
         col.prop(rf, "light_speed")
         col.prop(rf, "reference_frame")
+        col.prop(rf, "motion_tolerance")
         col.prop(rf, "show_velocity")
         col = layout.column(align=True)
         seconds = export.observation_time(scene)
@@ -167,6 +168,17 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
         obj = context.object
         rf = obj.restframe
         col = layout.column()
+        if obj.type not in {'LIGHT', 'CAMERA'}:  # lights and cameras move at constant velocity only
+            col.prop(rf, "motion")
+            if rf.is_animated:
+                box = layout.box()
+                box.label(text="World line: the keyframed location (own keys, parents static)", icon='ANIM')
+                if not export.has_animated_location(obj):
+                    box.label(text="The location has no keyframes: the object stays at rest", icon='INFO')
+                if any(rf.angular_velocity):
+                    box.label(text="Angular Velocity is ignored with Motion = Animation", icon='ERROR')
+                return
+            col.prop(rf, "angular_velocity")
         col.prop(rf, "velocity", text="Velocity (c)")
         col.prop(rf, "lorentz_factor")
 
@@ -195,7 +207,7 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
             warn = layout.column(align=True)
             warn.alert = True
             warn.label(text="Location is keyframed: the object will jump between frames", icon='ERROR')
-            warn.label(text="Animate the velocity or the location, not both")
+            warn.label(text="Set Motion to Animation to follow the keyframed path")
 
 
 # --------------------------------------------------------------------------- light

@@ -80,7 +80,7 @@ def test_passes_panel(scene):
 def test_object_panel_shows_speed_and_warns_about_keyframed_location(scene):
     obj = add_plane(scene, velocity=(0.6, 0.0, 0.0))
     record = draw(ui.RESTFRAME_OBJECT_PT_motion, context_for(scene, obj))
-    assert record["props"] == ["velocity", "lorentz_factor"]
+    assert record["props"] == ["motion", "angular_velocity", "velocity", "lorentz_factor"]
     assert "Speed \u03b2 = 0.600000024 c" in record["labels"]  # the float32 value the user typed
     assert "Lorentz factor \u03b3 = 1.25000003" in record["labels"]
     assert "errors" not in record
@@ -88,6 +88,13 @@ def test_object_panel_shows_speed_and_warns_about_keyframed_location(scene):
     obj.keyframe_insert("location", frame=1)
     record = draw(ui.RESTFRAME_OBJECT_PT_motion, context_for(scene, obj))
     assert any("keyframed" in text for text in record["errors"])
+    assert "Set Motion to Animation to follow the keyframed path" in record["labels"]
+
+    obj.restframe.motion = 'ANIMATION'  # the keyframed path is the world line: no warning, no velocity
+    record = draw(ui.RESTFRAME_OBJECT_PT_motion, context_for(scene, obj))
+    assert record["props"] == ["motion"] and "errors" not in record
+    assert any("keyframed location" in text for text in record["labels"])
+    obj.restframe.motion = 'CONSTANT'
 
     obj.restframe.velocity = (1.0, 0.0, 0.0)
     obj.restframe.lorentz_factor = 1e7

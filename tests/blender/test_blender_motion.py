@@ -1,0 +1,152 @@
+"""Motion beyond constant velocity, Blender side: Motion = Animation, angular velocity, Object Time."""
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from blender_helpers import add_camera, add_plane, add_sun, render_exr
+from restframe_addon import export
+
+FPS = 24
+
+
+def evaluated(scene):
+    return bpy.context.evaluated_depsgraph_get()
+
+
+def export_now(scene, **kwargs):
+    warnings = []
+    kwargs.setdefault("warn", warnings.append)
+    out, settings = export.export_scene(evaluated(scene), **kwargs)
+    return out, settings, warnings
+
+
+def key_linear_path(obj, start, beta, c, frames=(1, 25)):
+    """Keys on the location for a straight path at beta (units of c), linear and extrapolated."""
+    for frame in frames:
+        t = (frame - frames[0]) / FPS
+        obj.location = tuple(np.asarray(start) + np.asarray(beta) * c * t)
+        obj.keyframe_insert("location", frame=frame)
+    action = obj.animation_data.action
+    fcurves = export._fcurves(action, getattr(obj.animation_data, "action_slot", None))
+    for fc in fcurves:
+        fc.extrapolation = 'LINEAR'
+        for point in fc.keyframe_points:
+            point.interpolation = 'LINEAR'
+
+
+def test_keyframed_linear_motion_renders_like_the_constant_velocity(scene, tmp_path):
+    scene.render.fps, scene.render.fps_base = FPS, 1.0
+    scene.restframe.reference_frame = 1
+    add_camera(scene, location=(0.0, 0.0, 12.0))
+    add_sun(scene)
+    beta, start = (0.6, 0.2, 0.0), (-1.0, 0.5, 0.0)
+    plane = add_plane(scene, "Runner", size=3.0, location=start)
+    key_linear_path(plane, start, beta, scene.restframe.light_speed)
+    plane.restframe.motion = 'ANIMATION'
+    scene.frame_set(30)  # 1.2 s: about the light travel time from the plane to the camera
+    animated = render_exr(scene, tmp_path / "animated.exr")
+    assert scene.frame_current == 30
+
+    plane.animation_data_clear()
+    plane.location = start
+    plane.restframe.motion = 'CONSTANT'
+    plane.restframe.velocity = beta
+    constant = render_exr(scene, tmp_path / "constant.exr")
+
+    hit = constant["Doppler"][..., 0] > 0
+    assert 20 < hit.sum() < hit.size  # the plane and the background are both in view
+    np.testing.assert_array_equal(animated["Doppler"][..., 0] > 0, hit)
+    np.testing.assert_allclose(animated["Doppler"], constant["Doppler"], atol=1e-5, rtol=0)
+    np.testing.assert_allclose(animated["Emission Time"], constant["Emission Time"], atol=1e-5)
+    assert constant["Doppler"][hit].std() > 1e-3  # D varies over the plane: a real comparison
+
+
+def test_trajectory_samples_cover_the_light_travel_time_without_changing_the_frame(scene):
+    scene.render.fps, scene.render.fps_base = FPS, 1.0
+    scene.frame_start = 1
+    add_camera(scene, location=(0.0, 0.0, 12.0))
+    plane = add_plane(scene, "Runner", location=(0, 0, 0))
+    key_linear_path(plane, (0, 0, 0), (0.5, 0, 0), scene.restframe.light_speed)
+    plane.restframe.motion = 'ANIMATION'
+    scene.frame_set(7)
+    out, settings, warnings = export_now(scene)
+    assert scene.frame_current == 7 and warnings == []
+    (mesh,) = out.meshes
+    traj = mesh.trajectory
+    assert traj is not None and traj.name == "Runner"
+    assert mesh.velocity.is_zero
+    np.testing.assert_allclose(mesh.pivot, plane.matrix_world.translation, atol=1e-12)
+    # light from 12 units away takes 1.2 s = 28.8 frames: the samples start earlier than that
+    assert traj.frames[0] <= 1 - 28.8 and traj.frames[-1] >= 7
+    assert np.all(np.diff(traj.frames) <= 1.0 / export.SUBFRAMES + 1e-9)
+    t = (traj.frames - scene.restframe.reference_frame) / FPS
+    np.testing.assert_allclose(traj.tau, 10.0 * t)
+    np.testing.assert_allclose(traj.position[:, 0], 0.5 * 10.0 * t, atol=1e-4)  # extrapolated linearly
+    assert settings.motion_tolerance == pytest.approx(1e-3)
+
+
+def test_parent_is_static_and_composed(scene):
+    add_camera(scene, location=(0.0, 0.0, 12.0))
+    parent = bpy.data.objects.new("Rig", None)
+    scene.collection.objects.link(parent)
+    parent.location = (0.0, 3.0, 0.0)
+    parent.rotation_euler = (0.0, 0.0, math.pi / 2)
+    plane = add_plane(scene, "Child", location=(0, 0, 0))
+    plane.parent = parent
+    key_linear_path(plane, (0, 0, 0), (0.5, 0, 0), scene.restframe.light_speed)
+    plane.restframe.motion = 'ANIMATION'
+    scene.frame_set(13)  # half a second after frame 1: local x = 2.5, rotated onto world +y
+    out, _, warnings = export_now(scene)
+    traj = out.meshes[0].trajectory
+    state = traj.position[np.argmin(abs(traj.frames - 13))]
+    np.testing.assert_allclose(state, (0.0, 5.5, 0.0), atol=1e-5)
+    assert warnings == []
+
+
+def test_faster_than_light_animation_is_refused_naming_object_and_frames(scene):
+    add_camera(scene, location=(0.0, 0.0, 12.0))
+    plane = add_plane(scene, "Rocket")
+    plane.keyframe_insert("location", frame=1)
+    plane.location = (2.0 * 10.0 * 0.5, 0.0, 0.0)  # 10 units in 12 frames (0.5 s) at c = 10: 2c
+    plane.keyframe_insert("location", frame=13)
+    plane.restframe.motion = 'ANIMATION'
+    scene.frame_set(20)
+    with pytest.raises(export.ExportError, match=r"Rocket: .*not below the speed of light.*between frames"):
+        export_now(scene)
+    with pytest.raises(RuntimeError, match=r"Rocket: .*between frames"):
+        bpy.ops.render.render()
+
+
+def test_angular_velocity_is_exported_and_renders(scene, tmp_path):
+    add_camera(scene, location=(0.0, 0.0, 12.0))
+    add_sun(scene)
+    spinner = add_plane(scene, "Spinner", location=(0.5, 0, 0))
+    spinner.restframe.angular_velocity = (0.0, 0.0, 2.0)
+    out, _, warnings = export_now(scene)
+    (mesh,) = out.meshes
+    assert mesh.angular_velocity == pytest.approx((0.0, 0.0, 2.0))
+    assert mesh.pivot == pytest.approx((0.5, 0.0, 0.0))
+    passes = render_exr(scene, tmp_path / "spin.exr")
+    assert (passes["Doppler"] > 0).sum() > 20
+    # too fast: the rim (about 2.1 units from the pivot) would outrun light at c = 10
+    spinner.restframe.angular_velocity = (0.0, 0.0, 6.0)
+    with pytest.raises(RuntimeError, match="Spinner: spinning this fast"):
+        bpy.ops.render.render()
+
+
+def test_object_time_pass_in_multilayer_exr(scene, tmp_path):
+    scene.render.fps, scene.render.fps_base = FPS, 1.0
+    add_camera(scene, location=(0.0, 0.0, 10.0))
+    add_sun(scene)
+    add_plane(scene, "Still", size=6.0)
+    scene.frame_set(25)
+    passes = render_exr(scene, tmp_path / "clock.exr")
+    assert "Object Time" in passes
+    hit = passes["Doppler"][..., 0] > 0
+    assert hit.sum() > 20
+    # a clock at rest in the world frame shows the world time of emission: 1 s minus the light travel
+    np.testing.assert_allclose(passes["Object Time"][hit], passes["Emission Time"][hit], atol=1e-5)
+    assert np.all(passes["Object Time"][hit] < 1.0) and np.all(passes["Object Time"][hit] > 1.0 - 1.2 / 10 * 10)
