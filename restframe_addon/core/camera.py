@@ -71,26 +71,24 @@ def primary_rays(camera: Camera, px, py, resolution):
     matrix = np.asarray(camera.matrix, dtype=np.float64)
     rotation, position = matrix[:3, :3], matrix[:3, 3]
     n = len(u)
-    valid = np.ones(n, dtype=bool)
     if camera.kind == "PERSP":
         local = _camera_local(camera, u, v)
-        length = np.linalg.norm(local, axis=1)
-        d_local = local / length[:, None]
-        cos_axis = -d_local[:, 2]
-        s_lo, s_hi = camera.clip_start / cos_axis, camera.clip_end / cos_axis
-        offsets = np.zeros((n, 3))
-    elif camera.kind == "ORTHO":
+        length = np.sqrt(np.einsum("ij,ij->i", local, local))
+        directions = (local @ rotation.T) / length[:, None]  # the rotation keeps lengths
+        cos_axis = -local[:, 2] / length
+        origins = np.broadcast_to(position, (n, 3))
+        return origins, directions, camera.clip_start / cos_axis, camera.clip_end / cos_axis, np.ones(n, dtype=bool)
+    if camera.kind == "ORTHO":
         local = _camera_local(camera, u, v)
         offsets = np.column_stack([local[:, 0], local[:, 1], np.zeros(n)])
-        d_local = np.tile([0.0, 0.0, -1.0], (n, 1))
-        s_lo, s_hi = np.full(n, camera.clip_start), np.full(n, camera.clip_end)
+        directions = np.broadcast_to(-rotation[:, 2] / np.linalg.norm(rotation[:, 2]), (n, 3))
+        origins = position + offsets @ rotation.T
+        valid = np.ones(n, dtype=bool)
     elif camera.kind == "PANO":
         d_local, valid = _panorama_local(camera, u, v, width / height)
-        offsets = np.zeros((n, 3))
-        s_lo, s_hi = np.full(n, camera.clip_start), np.full(n, camera.clip_end)
+        directions = d_local @ rotation.T
+        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+        origins = np.broadcast_to(position, (n, 3))
     else:
         raise ValueError(f"{camera.name}: camera type {camera.kind} is not supported by RESTframe")
-    directions = d_local @ rotation.T
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    origins = position + offsets @ rotation.T
-    return origins, directions, s_lo, s_hi, valid
+    return origins, directions, np.full(n, camera.clip_start), np.full(n, camera.clip_end), valid

@@ -15,6 +15,7 @@ bounds never reach embree.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,17 +40,20 @@ class Hits:
 
 
 def _clip_to_bounds(geometry, origin, d, t_lo, t_hi):
-    """Slab test against the geometry's bounds (local coordinates): the parameter range inside them."""
+    """Slab test against the geometry's bounds (local coordinates): the parameter range inside them.
+
+    Written per axis: numpy's reductions over a length-3 axis cost more than the arithmetic.
+    """
     pad = _PAD * geometry.extent + 1e-9 * float(np.max(np.abs(geometry.anchor)))
+    enter, leave = t_lo, t_hi
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / d
-        t_a = (geometry.lo - pad - origin) * inv
-        t_b = (geometry.hi + pad - origin) * inv
-    # fmin/fmax ignore the NaN of 0 * inf (a ray in the plane of a slab face)
-    enter = np.fmax.reduce(np.fmin(t_a, t_b), axis=1)
-    leave = np.fmin.reduce(np.fmax(t_a, t_b), axis=1)
-    enter = np.fmax(enter, t_lo)
-    leave = np.fmin(leave, t_hi)
+        for axis in range(3):
+            inv = 1.0 / d[:, axis]
+            t_a = (geometry.lo[axis] - pad - origin[:, axis]) * inv
+            t_b = (geometry.hi[axis] + pad - origin[:, axis]) * inv
+            # fmin/fmax ignore the NaN of 0 * inf (a ray in the plane of a slab face)
+            enter = np.fmax(enter, np.fmin(t_a, t_b))
+            leave = np.fmin(leave, np.fmax(t_a, t_b))
     return enter, leave
 
 
@@ -158,27 +162,84 @@ def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> Hits:
         u=np.zeros(n),
         v=np.zeros(n),
     )
+    shared = _shared_origin(tau0, x0)
     for k in frames.candidates(src, tau0, x0):
         frame = frames.frames[k]
         fmap = frames.map(src, k)
-        tau_k, origin = fmap.events(tau0, x0)
-        dk, w = fmap.rays(d)
-        lo, hi = _ray_range(frame, tau_k, s_lo * w, best * w)
+        rays = _toward(frames, src, k, shared, d) if shared is not None else None
+        if rays is None:
+            rays = np.arange(n)
+        elif len(rays) == 0:
+            continue
+        if shared is not None:
+            tau_k, origin = fmap.events(np.array(shared[0]), shared[1])
+            tau_k, origin = np.full(len(rays), tau_k), np.broadcast_to(origin, (len(rays), 3))
+        else:
+            tau_k, origin = fmap.events(tau0[rays], x0[rays])
+        dk, w = fmap.rays(d[rays])
+        lo, hi = _ray_range(frame, tau_k, s_lo[rays] * w, best[rays] * w)
         idx, t, prim, u, v = _query(frame, tau_k, origin, dk, lo, hi, occlusion=False)
         if len(idx) == 0:
             continue
         s = t / w[idx]
-        nearer = s < best[idx]  # ties keep the earlier frame
-        idx, s, t = idx[nearer], s[nearer], t[nearer]
+        nearer = s < best[rays[idx]]  # ties keep the earlier frame
+        sub, s, t = idx[nearer], s[nearer], t[nearer]
+        idx = rays[sub]
         best[idx] = s
         hits.frame[idx] = k
         hits.s[idx] = s
         hits.s_frame[idx] = t
-        hits.w[idx] = w[idx]
+        hits.w[idx] = w[sub]
         hits.prim[idx] = prim[nearer]
         hits.u[idx] = u[nearer]
         hits.v[idx] = v[nearer]
     return hits
+
+
+def _shared_origin(tau0, x0):
+    """(tau, x) when every ray starts at the same event (a perspective camera's rays), else None."""
+    if len(tau0) == 0 or not (np.all(tau0 == tau0[0]) and np.all(x0 == x0[0])):
+        return None
+    return float(tau0[0]), np.array(x0[0])
+
+
+_CONE_SAMPLES = 16
+
+
+def _toward(frames: FrameSet, src: int, k: int, origin_event, d):
+    """Indices of rays from one event that point into the cone the frame's bounding sphere
+    subtends there, or None when the event is inside it (no culling possible).
+
+    The cone is built in frame k and mapped to frame src by aberration, which maps circles
+    on the sky to circles: its image is found from ``_CONE_SAMPLES`` rim directions around
+    the mapped axis, widened by a margin for the sampling.
+    """
+    frame = frames.frames[k]
+    fmap = frames.map(src, k)
+    geometry = frame.geometry
+    _, x_k = fmap.events(np.array(origin_event[0]), origin_event[1])
+    if frame.spin is not None:  # any pose: the sphere about the pivot
+        centre, radius = frame.offset, geometry.radius
+    else:
+        centre, radius = geometry.anchor + frame.offset, 0.5 * float(np.linalg.norm(geometry.hi - geometry.lo))
+    radius = radius * (1.0 + 2 * _PAD) + 1e-9 * (1.0 + float(np.max(np.abs(centre))))
+    offset = centre - x_k
+    distance = float(np.linalg.norm(offset))
+    if distance <= radius * 1.01:
+        return None
+    axis = offset / distance
+    half = math.asin(radius / distance)
+    t1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    t1 /= np.linalg.norm(t1)
+    t2 = np.cross(axis, t1)
+    phi = np.linspace(0.0, 2 * np.pi, _CONE_SAMPLES, endpoint=False)
+    rim = math.cos(half) * axis + math.sin(half) * (np.outer(np.cos(phi), t1) + np.outer(np.sin(phi), t2))
+    back = frames.map(k, src)
+    src_dirs, _ = back.rays(np.vstack([axis, rim]))
+    centre_dir = src_dirs[0]
+    spread = float(np.max(np.arccos(np.clip(src_dirs[1:] @ centre_dir, -1.0, 1.0))))
+    spread = min(spread * 1.05 + 1e-9, math.pi)
+    return np.flatnonzero(d @ centre_dir >= math.cos(spread))
 
 
 def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
