@@ -1,12 +1,19 @@
 """Headless rendering with Blender as a Python module (``pip install bpy``).
 
     python -m restframe_addon render FILE.blend -o OUT.png [--frame N | --frames A-B]
+    python -m restframe_addon render FILE.blend -o OUT_####.exr --frames A-B --scheduler tcp://HOST:8786
+    python -m restframe_addon render FILE.blend -o OUT.exr --frame N --regions 16 --workers 2
 
 The .blend is opened read-only in spirit: settings are changed in memory for the
 render (engine, output format) and the file is never saved.  Each frame depends
 only on its own time, so frame ranges can be split across machines freely.
 The output format follows OUT's extension (``.exr`` = multilayer EXR with every
 pass); with no extension the scene's own output settings are used.
+
+With --scheduler (a Dask scheduler), --workers (a Dask LocalCluster of that many
+processes on this machine) or --regions (a still split into render-border regions),
+frames and regions are rendered by Dask workers (restframe_addon/distributed.py); a
+rerun then skips frames already on disk unless --overwrite is given.
 """
 
 from __future__ import annotations
@@ -120,6 +127,118 @@ def render_frame(scene, frame: int, path: str) -> None:
             os.remove(partial)
 
 
+def parse_region(spec: str) -> tuple[int, int, int, int]:
+    """'X0,Y0,X1,Y1' -> pixel rectangle (origin bottom left, X1/Y1 exclusive)."""
+    match = re.fullmatch(r"\s*(\d+)\s*,\s*(\d+)\s*,\s*(\d+)\s*,\s*(\d+)\s*", spec)
+    if not match:
+        raise CommandError(f"bad region {spec!r}: use X0,Y0,X1,Y1 in pixels (X1 and Y1 exclusive)")
+    x0, y0, x1, y1 = map(int, match.groups())
+    return x0, y0, x1, y1
+
+
+def set_region(scene, region: tuple[int, int, int, int]) -> None:
+    """Render only this pixel rectangle (Blender's render border, cropped to it)."""
+    from .export import full_resolution
+
+    width, height = full_resolution(scene)
+    x0, y0, x1, y1 = region
+    if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
+        raise CommandError(f"the region {region} is empty or outside the {width}x{height} image")
+    render = scene.render
+    render.use_border = True
+    render.use_crop_to_border = True
+
+    # fractions a quarter pixel past each edge: truncation (Blender's and the exporter's)
+    # gives back the edge exactly despite the single-precision border properties
+    def edge(pixels, size):
+        return 1.0 if pixels >= size else (pixels + 0.25) / size
+
+    render.border_min_x, render.border_max_x = edge(x0, width), edge(x1, width)
+    render.border_min_y, render.border_max_y = edge(y0, height), edge(y1, height)
+
+
+def region_dependent_settings(scene) -> list[str]:
+    """Settings measured on the rendered region, not the whole image (regions would show seams)."""
+    rf = scene.restframe
+    found = []
+    if rf.normalize_exposure and rf.doppler_mode != 'FACTOR':
+        found.append("Normalize Exposure (measured on the rendered region)")
+    if rf.doppler_mode == 'FACTOR' and rf.doppler_range_auto:
+        found.append("the Factor display's Auto Range (measured on the rendered region)")
+    return found
+
+
+def blend_assets(blend: str) -> tuple[list[str], list[str]]:
+    """Files the open .blend reads (unpacked images): (paths relative to the .blend's folder,
+    absolute paths elsewhere)."""
+    import bpy
+
+    folder = os.path.dirname(os.path.abspath(blend))
+    relative, absolute = [], []
+    for image in bpy.data.images:
+        if image.packed_file is not None or image.source not in {'FILE', 'SEQUENCE', 'MOVIE', 'TILED'}:
+            continue
+        if not image.filepath:
+            continue
+        path = os.path.normpath(bpy.path.abspath(image.filepath, library=image.library))
+        inside = os.path.relpath(path, folder)
+        if image.filepath.startswith("//") and not inside.startswith(os.pardir) and os.path.isfile(path):
+            relative.append(inside)
+        else:
+            absolute.append(path)
+    return sorted(set(relative)), sorted(set(absolute))
+
+
+def distributed_command(args, scene, out: str, ext: str, frames: list[int]) -> int:
+    from . import distributed
+    from .export import full_resolution
+
+    if args.region is not None:
+        raise CommandError("--region renders one region in this process: it does not combine with the Dask options")
+    regions = args.regions or 1
+    if regions > 1:
+        found = region_dependent_settings(scene)
+        if found:
+            raise CommandError(f"cannot split this scene into regions without seams: {'; '.join(found)}; "
+                               "render it whole (--regions 1) or turn that setting off")
+    relative, absolute = blend_assets(args.blend)
+    job = distributed.Job(
+        blend=os.path.abspath(args.blend), scene=scene.name, output_ext=ext,
+        frames={frame: output_path(out, frame, len(frames) > 1) for frame in frames},
+        samples=args.samples, percentage=args.percentage, resolution=full_resolution(scene),
+        regions=regions, assets=relative, missing_assets=absolute)
+
+    def write_image(rgba, path):
+        """An assembled still in a non-EXR format, through Blender's colour management."""
+        import bpy
+
+        height, width = rgba.shape[:2]
+        image = bpy.data.images.new("RESTframe regions", width, height, alpha=True, float_buffer=True)
+        try:
+            image.pixels.foreach_set(rgba.ravel())
+            directory = os.path.dirname(os.path.abspath(path))
+            os.makedirs(directory, exist_ok=True)
+            stem, suffix = os.path.splitext(os.path.basename(path))
+            partial = os.path.join(directory, f".{stem}.partial-{os.getpid()}{suffix}")
+            try:
+                image.save_render(filepath=partial, scene=scene)
+                os.replace(partial, path)
+            finally:
+                if os.path.exists(partial):
+                    os.remove(partial)
+        finally:
+            bpy.data.images.remove(image)
+
+    try:
+        failed = distributed.run_job(job, scheduler=args.scheduler, workers=args.workers, retries=args.retries,
+                                     overwrite=args.overwrite, write_image=write_image)
+    except distributed.DistributedError as error:
+        raise CommandError(str(error)) from None
+    if failed:
+        raise CommandError(f"{failed} frame(s) failed (see above); rerun to render only the missing ones")
+    return 0
+
+
 def render_command(args) -> int:
     import bpy
 
@@ -127,6 +246,7 @@ def render_command(args) -> int:
 
     if args.frame is not None and args.frames is not None:
         raise CommandError("give either --frame or --frames, not both")
+    use_dask = args.scheduler is not None or args.workers is not None or (args.regions or 1) > 1
     if not hasattr(bpy.types.Scene, "restframe"):
         restframe_addon.register()
     scene = open_blend(args.blend, args.scene)
@@ -140,6 +260,10 @@ def render_command(args) -> int:
         frames = parse_frames(args.frames)
     else:
         frames = [args.frame if args.frame is not None else scene.frame_current]
+    if use_dask:
+        return distributed_command(args, scene, out, ext, frames)
+    if args.region is not None:
+        set_region(scene, parse_region(args.region))
     for frame in frames:
         started = time.monotonic()
         path = output_path(out, frame, len(frames) > 1)
@@ -163,6 +287,23 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--scene", help="scene name (default: the file's active scene)")
     render.add_argument("--samples", type=int, help="override the scene's RESTframe samples")
     render.add_argument("--percentage", type=int, help="override the resolution percentage")
+    render.add_argument("--region", metavar="X0,Y0,X1,Y1",
+                        help="render only this pixel rectangle (origin bottom left, X1/Y1 exclusive) as a "
+                        "cropped image: Blender's render border")
+    dask = render.add_argument_group("Dask (render on a cluster; needs dask[distributed])")
+    dask.add_argument("--scheduler", metavar="ADDRESS",
+                      help="Dask scheduler to send frames to, e.g. tcp://farm:8786")
+    dask.add_argument("--workers", type=int, metavar="N",
+                      help="without --scheduler: start a Dask LocalCluster of N worker processes here "
+                      "(default with --regions: one per CPU)")
+    dask.add_argument("--regions", type=int, metavar="N",
+                      help="split each frame into N regions rendered by different workers and assembled "
+                      "into one image identical to a whole render")
+    dask.add_argument("--retries", type=int, default=2, metavar="N",
+                      help="times Dask retries a task whose render crashed (default 2; a killed worker's "
+                      "task is always rescheduled)")
+    dask.add_argument("--overwrite", action="store_true",
+                      help="render frames whose output already exists (default: skip them)")
     return parser
 
 

@@ -1,0 +1,500 @@
+"""Render frames and still regions on a Dask cluster (``dask.distributed``).
+
+    python -m restframe_addon render FILE.blend -o out/f_####.exr --frames 1-250 --scheduler tcp://host:8786
+    python -m restframe_addon render FILE.blend -o still.exr --frame 1 --regions 16 --workers 2
+
+Every frame depends only on its own time and every pixel only on (pixel, sample), so a
+task is one frame, or one region (Blender's render border, cropped) of one frame.  Dask
+does the scheduling, retries and fault handling; this module only describes the tasks,
+ships the .blend when workers cannot see it, writes finished frames atomically on the
+client and assembles regions into the image a single process would have written.
+
+Workers render through a child ``python -m restframe_addon render`` process: Blender as
+a Python module must run on its process's main thread (bpy crashes when it renders from
+a Dask worker thread), and a child also keeps each frame's Blender state fresh.  The
+child uses the worker's own interpreter and ``sys.path``, so a worker must be able to
+``import bpy`` and ``import restframe_addon``; the client checks that on every worker
+before sending work and reports the ones that cannot.
+
+Dask is imported lazily: the extension itself never needs it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+
+# Settings whose value the core measures on the rendered region rather than on the whole
+# image: split into regions, such a still would show seams.
+REGION_DEPENDENT = (
+    ("normalize_exposure", "Normalize Exposure measures the exposure on the rendered region"),
+    ("factor_auto_range", "the Factor display's Auto Range is measured on the rendered region"),
+)
+
+
+class DistributedError(Exception):
+    """A problem with the cluster, the workers or a task, reported without a traceback."""
+
+
+class TaskCrashed(Exception):
+    """A render child died without a RESTframe error (signal, crash): worth retrying elsewhere."""
+
+
+# --------------------------------------------------------------------------- work description
+@dataclass
+class Job:
+    """One render command: the frames (and regions) to render and where they go."""
+
+    blend: str  # absolute path on the client
+    scene: str
+    output_ext: str  # ".exr", ".png", ... (what the workers write)
+    frames: dict[int, str]  # frame -> output path on the client
+    samples: int | None = None
+    percentage: int | None = None
+    resolution: tuple[int, int] = (0, 0)  # full image size in pixels (after the percentage)
+    regions: int = 1
+    assets: list[str] = field(default_factory=list)  # files the .blend uses, relative to its folder
+    missing_assets: list[str] = field(default_factory=list)  # absolute paths the workers must see
+
+
+def split_regions(width: int, height: int, count: int) -> list[tuple[int, int, int, int]]:
+    """``count`` pixel rectangles (x0, y0, x1, y1; x1/y1 exclusive, origin bottom left) tiling
+    the image in a grid of cells as square as possible."""
+    if count < 1:
+        raise DistributedError(f"--regions must be at least 1 (got {count})")
+    if count > width * height:
+        raise DistributedError(f"cannot split a {width}x{height} image into {count} regions")
+    best = None
+    for cols in range(1, count + 1):
+        if count % cols:
+            continue
+        rows = count // cols
+        if cols > width or rows > height:
+            continue
+        badness = abs(math.log((width / cols) / (height / rows)))
+        if best is None or badness < best[0]:
+            best = (badness, cols, rows)
+    if best is None:  # a prime count too large for one row or column
+        raise DistributedError(f"cannot split a {width}x{height} image into {count} regions "
+                               "(use a count with a factor pair that fits the image)")
+    _, cols, rows = best
+    xs = [round(i * width / cols) for i in range(cols + 1)]
+    ys = [round(j * height / rows) for j in range(rows + 1)]
+    return [(xs[i], ys[j], xs[i + 1], ys[j + 1]) for j in range(rows) for i in range(cols)]
+
+
+def file_digest(path: str) -> str:
+    sha = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            sha.update(block)
+    return sha.hexdigest()
+
+
+def write_atomically(path: str, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file in the same folder and os.replace."""
+    directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
+    stem, ext = os.path.splitext(os.path.basename(path))
+    fd, partial = tempfile.mkstemp(prefix=f".{stem}.partial-", suffix=ext, dir=directory)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(partial, path)
+    finally:
+        if os.path.exists(partial):
+            os.remove(partial)
+
+
+# --------------------------------------------------------------------------- on the workers
+def _child_env() -> dict[str, str]:
+    """The worker's environment with its import path, so the child finds what the worker finds."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(_import_paths(sys.path))
+    return env
+
+
+def _import_paths(paths: list[str]) -> list[str]:
+    """sys.path entries worth handing to a child, less the ones bpy adds inside its own package
+    (its scripts/modules hold a pure-Python ``bpy`` that would shadow the real module).
+    Kept in step with the copy inside :func:`_make_probe`."""
+    keep = []
+    for p in paths:
+        parts = os.path.normpath(p).split(os.sep)
+        if p and os.path.isdir(p) and not ("bpy" in parts[:-1] and "site-packages" in parts):
+            keep.append(p)
+    return list(dict.fromkeys(keep))
+
+
+def _die_with_parent() -> None:  # pragma: no cover - runs in the child before exec
+    """Linux: the render child gets SIGKILL when its worker dies, so a killed worker's frame
+    stops instead of finishing unseen."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except Exception:
+        pass
+
+
+def _local_blend(spec: dict, bundle: dict | None) -> str:
+    """The .blend this worker opens: the client's path when shared, else the shipped copy."""
+    if bundle is None:
+        return spec["blend"]
+    root = os.path.join(tempfile.gettempdir(), f"restframe-dask-{os.getuid() if hasattr(os, 'getuid') else 0}",
+                        spec["digest"])
+    blend = os.path.join(root, "files", os.path.basename(spec["blend"]))
+    if not os.path.isfile(os.path.join(root, ".complete")):
+        staging = tempfile.mkdtemp(prefix=".staging-", dir=_makedirs(os.path.dirname(root)))
+        for relative, data in bundle.items():
+            target = os.path.join(staging, "files", relative)
+            os.makedirs(os.path.dirname(target), exist_ok=True)
+            with open(target, "wb") as fh:
+                fh.write(data)
+        open(os.path.join(staging, ".complete"), "w").close()
+        try:
+            os.rename(staging, root)  # atomic; another task of this machine may have won
+        except OSError:
+            shutil.rmtree(staging, ignore_errors=True)
+    return blend
+
+
+def _makedirs(path: str) -> str:
+    os.makedirs(path, exist_ok=True)
+    return path
+
+
+def render_task(spec: dict, bundle: dict | None = None) -> dict:
+    """Render one frame (or one region of it) in a child process; return the file's bytes.
+
+    Returns ``{"error": message}`` for RESTframe's own errors (bad scene: no use retrying) and
+    raises :class:`TaskCrashed` when the child died otherwise, so Dask retries the task."""
+    import socket
+
+    started = time.monotonic()
+    blend = _local_blend(spec, bundle)
+    workdir = tempfile.mkdtemp(prefix="restframe-task-")
+    try:
+        out = os.path.join(workdir, "result" + spec["ext"])
+        command = [sys.executable, "-m", "restframe_addon", "render", blend, "-o", out,
+                   "--frame", str(spec["frame"]), "--scene", spec["scene"]]
+        if spec.get("samples") is not None:
+            command += ["--samples", str(spec["samples"])]
+        if spec.get("percentage") is not None:
+            command += ["--percentage", str(spec["percentage"])]
+        if spec.get("region") is not None:
+            command += ["--region", ",".join(map(str, spec["region"]))]
+        kwargs = {"preexec_fn": _die_with_parent} if sys.platform.startswith("linux") else {}
+        child = subprocess.run(command, capture_output=True, text=True, env=_child_env(), cwd=workdir, **kwargs)
+        where = f"{socket.gethostname()} (pid {os.getpid()})"
+        if child.returncode != 0 or not os.path.isfile(out):
+            lines = [line for line in child.stderr.strip().splitlines() if line.strip()]
+            message = next((line.split("restframe: error: ", 1)[1] for line in reversed(lines)
+                            if "restframe: error: " in line), None)
+            if child.returncode == 1 and message:
+                return {"error": message, "host": where}
+            raise TaskCrashed(f"the render child on {where} exited with {child.returncode}: "
+                              + " | ".join(lines[-5:]))
+        with open(out, "rb") as fh:
+            data = fh.read()
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)
+    return {"data": data, "host": where, "seconds": time.monotonic() - started}
+
+
+def _make_probe(blend: str, digest: str, size: int, absolute_assets: list[str]):
+    """A probe for ``client.run`` that reports whether a worker can render.
+
+    Built as a closure so cloudpickle ships it by value: it must run on workers that cannot
+    import restframe_addon (that is what it finds out)."""
+
+    def probe():
+        import hashlib as _hashlib
+        import os as _os
+        import subprocess as _subprocess
+        import sys as _sys
+
+        paths = []
+        for p in _sys.path:  # as _import_paths (a closure cannot call into this module)
+            parts = _os.path.normpath(p).split(_os.sep)
+            if p and _os.path.isdir(p) and not ("bpy" in parts[:-1] and "site-packages" in parts):
+                paths.append(p)
+        env = dict(_os.environ, PYTHONPATH=_os.pathsep.join(dict.fromkeys(paths)))
+        code = ("import bpy, restframe_addon, restframe_addon.engine, sys; "
+                "print(bpy.app.version_string); print(restframe_addon.__file__)")
+        try:
+            child = _subprocess.run([_sys.executable, "-c", code], capture_output=True, text=True,
+                                    env=env, timeout=300, cwd=_os.path.expanduser("~"))
+            ok, output = child.returncode == 0, (child.stdout if child.returncode == 0 else child.stderr)
+        except Exception as error:  # the interpreter itself cannot start
+            ok, output = False, f"{type(error).__name__}: {error}"
+        same_blend = False
+        if _os.path.isfile(blend) and _os.path.getsize(blend) == size:
+            sha = _hashlib.sha256()
+            with open(blend, "rb") as fh:
+                for block in iter(lambda: fh.read(1 << 20), b""):
+                    sha.update(block)
+            same_blend = sha.hexdigest() == digest
+        return {"import_ok": ok, "output": output.strip(), "python": _sys.executable,
+                "blend_visible": same_blend,
+                "assets_missing": [p for p in absolute_assets if not _os.path.exists(p)]}
+
+    return probe
+
+
+# --------------------------------------------------------------------------- on the client
+class Progress:
+    """One text bar for the job: tasks done, frames done, rate and ETA."""
+
+    def __init__(self, total_tasks: int, total_frames: int, stream=None, width: int = 30):
+        self.total_tasks, self.total_frames = total_tasks, total_frames
+        self.tasks = self.frames = 0
+        self.stream = stream or sys.stdout
+        self.width = width
+        self.started = time.monotonic()
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+
+    def line(self) -> str:
+        elapsed = time.monotonic() - self.started
+        fraction = self.tasks / self.total_tasks if self.total_tasks else 1.0
+        filled = int(round(fraction * self.width))
+        rate = self.frames / elapsed if elapsed > 0 else 0.0
+        if self.tasks and self.tasks < self.total_tasks:
+            eta = f"ETA {elapsed / self.tasks * (self.total_tasks - self.tasks):.0f} s"
+        else:
+            eta = f"{elapsed:.1f} s" if self.tasks else "ETA --"
+        return (f"restframe: [{'#' * filled}{'.' * (self.width - filled)}] {self.frames}/{self.total_frames} frames"
+                f" ({self.tasks}/{self.total_tasks} tasks), {rate:.2f} frames/s, {eta}")
+
+    def update(self, tasks: int = 0, frames: int = 0) -> None:
+        self.tasks += tasks
+        self.frames += frames
+        if self.tty:
+            self.stream.write("\r" + self.line())
+            if self.tasks >= self.total_tasks:
+                self.stream.write("\n")
+        else:
+            self.stream.write(self.line() + "\n")
+        self.stream.flush()
+
+
+def connect(scheduler: str | None, workers: int | None):
+    """A Dask client: to ``scheduler`` if given, else to a new LocalCluster of worker
+    processes (one thread each: bpy is one per process) on the loopback interface."""
+    try:
+        from dask.distributed import Client, LocalCluster
+    except ImportError:
+        raise DistributedError("the Dask path needs dask.distributed: pip install 'dask[distributed]'") from None
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as error:
+            raise DistributedError(f"cannot reach the Dask scheduler at {scheduler}: {error}") from None
+        return client, None
+    import logging
+
+    count = workers or os.cpu_count() or 1
+    cluster = LocalCluster(n_workers=count, threads_per_worker=1, processes=True, host="127.0.0.1",
+                           dashboard_address=None, silence_logs=logging.ERROR)
+    return Client(cluster), cluster
+
+
+def check_workers(client, job: Job, digest: str, timeout: float = 60.0) -> bool:
+    """Probe every worker; raise a clear error for any that cannot import the add-on (or bpy),
+    or cannot see an absolute texture path.  Returns whether the .blend must be shipped."""
+    try:
+        client.wait_for_workers(1, timeout=timeout)
+    except TimeoutError:
+        raise DistributedError(f"no Dask worker joined the scheduler within {timeout:.0f} s") from None
+    size = os.path.getsize(job.blend)
+    results = client.run(_make_probe(job.blend, digest, size, job.missing_assets))
+    broken = {address: r for address, r in results.items() if not r["import_ok"]}
+    if broken:
+        lines = []
+        for address, r in sorted(broken.items()):
+            last = r["output"].strip().splitlines()[-1] if r["output"].strip() else "no output"
+            lines.append(f"  {address} ({r['python']}): {last}")
+        raise DistributedError(
+            f"{len(broken)} of {len(results)} Dask worker(s) cannot import the RESTframe add-on (and bpy):\n"
+            + "\n".join(lines)
+            + "\n  every worker needs bpy and restframe_addon importable by its Python "
+              "(pip install bpy; put the add-on's parent folder on PYTHONPATH)")
+    unseen = {address: r["assets_missing"] for address, r in results.items() if r["assets_missing"]}
+    if unseen:
+        address, paths = sorted(unseen.items())[0]
+        raise DistributedError(f"worker {address} cannot see files the .blend uses by absolute path: "
+                               f"{', '.join(paths[:5])} (use a shared path, relative paths or pack them)")
+    return not all(r["blend_visible"] for r in results.values())
+
+
+def make_bundle(job: Job) -> dict[str, bytes]:
+    """The .blend and its relative files, keyed by path relative to the .blend's folder."""
+    folder = os.path.dirname(job.blend)
+    bundle = {}
+    for relative in [os.path.basename(job.blend), *job.assets]:
+        with open(os.path.join(folder, relative), "rb") as fh:
+            bundle[relative] = fh.read()
+    return bundle
+
+
+def assemble_exr(pieces: list[tuple[tuple[int, int, int, int], bytes]], resolution: tuple[int, int]):
+    """Cropped multilayer EXRs of regions -> (parts, headers) of the whole image.
+
+    Returns a list of (part name, header, {channel: array}) in the first piece's order, with
+    arrays (H, W) top row first, as OpenEXR stores them."""
+    import numpy as np
+    import OpenEXR
+
+    width, height = resolution
+    parts = None
+    with tempfile.TemporaryDirectory(prefix="restframe-assemble-") as tmp:
+        for index, ((x0, y0, x1, y1), data) in enumerate(pieces):
+            path = os.path.join(tmp, f"{index}.exr")
+            with open(path, "wb") as fh:
+                fh.write(data)
+            with OpenEXR.File(path, separate_channels=True) as exr:
+                if parts is None:
+                    parts = []
+                    for part in exr.parts:
+                        header = {k: v for k, v in part.header.items()
+                                  if k not in ("channels", "chunkCount", "dataWindow", "displayWindow", "name")}
+                        full = {name: np.zeros((height, width), dtype=channel.pixels.dtype)
+                                for name, channel in part.channels.items()}
+                        parts.append((part.name(), header, full))
+                for (name, _, full), part in zip(parts, exr.parts):
+                    if part.name() != name:
+                        raise DistributedError(f"region {index} has part {part.name()!r} where {name!r} was expected")
+                    for channel_name, channel in part.channels.items():
+                        pixels = channel.pixels
+                        if pixels.shape != (y1 - y0, x1 - x0):
+                            raise DistributedError(f"region {(x0, y0, x1, y1)} came back as {pixels.shape[::-1]} pixels")
+                        full[channel_name][height - y1:height - y0, x0:x1] = pixels
+    return parts
+
+
+def write_exr(parts, resolution: tuple[int, int], path: str) -> None:
+    import numpy as np
+    import OpenEXR
+
+    width, height = resolution
+    window = (np.array([0, 0], dtype=np.int32), np.array([width - 1, height - 1], dtype=np.int32))
+    exr_parts = []
+    for name, header, channels in parts:
+        header = dict(header, dataWindow=window, displayWindow=window)
+        exr_parts.append(OpenEXR.Part(header, {k: OpenEXR.Channel(k, v) for k, v in channels.items()}, name))
+    directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
+    fd, partial = tempfile.mkstemp(prefix=".assembled.partial-", suffix=".exr", dir=directory)
+    os.close(fd)
+    try:
+        with OpenEXR.File(exr_parts) as exr:
+            exr.write(partial)
+        os.replace(partial, path)
+    finally:
+        if os.path.exists(partial):
+            os.remove(partial)
+
+
+def combined_rgba(parts, resolution) -> "np.ndarray":
+    """The Combined pass of assembled parts as (H, W, 4) float32, row 0 at the bottom."""
+    import numpy as np
+
+    width, height = resolution
+    for _, _, channels in parts:
+        names = {k.rsplit(".", 1)[-1]: k for k in channels if ".Combined." in k or k.startswith("Combined.")}
+        if {"R", "G", "B"} <= set(names):
+            alpha = channels[names["A"]] if "A" in names else np.ones((height, width), np.float32)
+            rgba = np.stack([channels[names[c]] for c in "RGB"] + [alpha], axis=2)
+            return rgba[::-1].astype(np.float32)
+    raise DistributedError("the assembled regions have no Combined pass")
+
+
+def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, retries: int = 2,
+            overwrite: bool = False, write_image=None, stream=None) -> int:
+    """Render ``job`` on Dask.  ``write_image(rgba, path)`` writes an assembled non-EXR still
+    (Blender's colour management, on the client).  Returns the number of failed frames."""
+    stream = stream or sys.stdout
+    todo = {frame: path for frame, path in job.frames.items() if overwrite or not os.path.exists(path)}
+    skipped = sorted(set(job.frames) - set(todo))
+    if skipped:
+        print(f"restframe: skipping {len(skipped)} frame(s) already on disk "
+              f"({', '.join(map(str, skipped[:10]))}{', ...' if len(skipped) > 10 else ''}); "
+              "--overwrite renders them again", file=stream, flush=True)
+    if not todo:
+        print("restframe: nothing to render", file=stream, flush=True)
+        return 0
+    regions = split_regions(*job.resolution, job.regions) if job.regions > 1 else [None]
+
+    client, cluster = connect(scheduler, workers)
+    try:
+        from dask.distributed import as_completed
+
+        digest = file_digest(job.blend)
+        ship = check_workers(client, job, digest)
+        bundle = client.scatter(make_bundle(job), broadcast=False, hash=False) if ship else None
+        print(f"restframe: {len(todo)} frame(s) x {len(regions)} region(s) on "
+              f"{len(client.scheduler_info()['workers'])} Dask worker(s) at {client.scheduler.address}"
+              + (" (the .blend is shipped to the workers)" if ship else ""), file=stream, flush=True)
+        # regions assemble as EXR (full float) whatever the final format
+        task_ext = ".exr" if job.regions > 1 else job.output_ext
+        futures = {}
+        for frame in sorted(todo):
+            for index, region in enumerate(regions):
+                spec = {"blend": job.blend, "digest": digest, "scene": job.scene, "frame": frame,
+                        "ext": task_ext, "samples": job.samples, "percentage": job.percentage, "region": region}
+                future = client.submit(render_task, spec, bundle, retries=retries, pure=False,
+                                       key=f"restframe-frame{frame}-region{index}-{digest[:8]}-{os.urandom(4).hex()}")
+                futures[future] = (frame, index)
+        progress = Progress(len(futures), len(todo), stream)
+        pieces: dict[int, dict[int, bytes]] = {}
+        failed: dict[int, str] = {}
+        for future in as_completed(futures):
+            frame, index = futures.pop(future)
+            if frame in failed:
+                progress.update(tasks=1)
+                continue
+            try:
+                result = future.result()
+            except Exception as error:
+                result = {"error": f"{type(error).__name__}: {error}"}
+            if "error" in result:
+                failed[frame] = result["error"]
+                print(f"restframe: error: frame {frame}: {result['error']}", file=sys.stderr, flush=True)
+                progress.update(tasks=1)
+                continue
+            done_frame = False
+            if len(regions) == 1:
+                write_atomically(todo[frame], result["data"])
+                done_frame = True
+            else:
+                pieces.setdefault(frame, {})[index] = result["data"]
+                if len(pieces[frame]) == len(regions):
+                    parts = assemble_exr([(regions[i], pieces[frame][i]) for i in range(len(regions))],
+                                         job.resolution)
+                    del pieces[frame]
+                    if job.output_ext == ".exr":
+                        write_exr(parts, job.resolution, todo[frame])
+                    elif write_image is not None:
+                        write_image(combined_rgba(parts, job.resolution), todo[frame])
+                    else:
+                        raise DistributedError(f"no writer for {job.output_ext} images")
+                    done_frame = True
+            progress.update(tasks=1, frames=1 if done_frame else 0)
+            if done_frame:
+                print(f"restframe: frame {frame} -> {todo[frame]} ({result['host']}, {result['seconds']:.2f} s)",
+                      file=stream, flush=True)
+        return len(failed)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
