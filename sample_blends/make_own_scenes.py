@@ -5,7 +5,7 @@
                            the camera: contracted to 0.44 of its width along the motion, yet its
                            outline on the sky stays a circle (Penrose-Terrell)
     terrell_cube.blend     a 2-unit cube crossing the view at 0.9c, seen from 40 units with a narrow
-                           5 degree lens: its trailing face (red) turns toward the camera, as if the
+                           9 degree lens: its trailing face (red) turns toward the camera, as if the
                            cube were rotated by asin(0.9) = 64 degrees (Terrell rotation)
     mirror.blend           a red glowing ball passing a static mirror at 0.8c: the reflection shows
                            the ball where it was when the longer, reflected light path left it
@@ -14,6 +14,8 @@
                            of sight at 0, 0.3c, 0.6c, 0.9c toward and away; SPECTRAL colour with
                            searchlight and exposure normalisation (the README strip, issue 5)
 Imaging time everywhere: the pivot's reference event reaches the camera (samplelib docstring).
+The sphere and the cube are lit by a sun moving with them, and their scenes normalise the exposure
+(seen across the motion D ~ 1/gamma, so the searchlight dims them ~30 times).
 """
 
 import math
@@ -55,7 +57,9 @@ def build_sphere_outline():
     scene = lib.new_scene("Sphere outline", 12.0, resolution=(255, 255), samples=4)
     lib.set_world(scene, (0.01, 0.012, 0.02))
     lib.add_camera(scene, (0.0, 0.0, 12.0), (0.0, 0.0, 0.0), angle_deg=30.0)
-    lib.add_light(scene, "Sun", 'SUN', (0, 0, 20), power=3.0, rotation_deg=(20.0, 0.0, 20.0))
+    scene.restframe.normalize_exposure = True  # seen from the side at 0.9c: D ~ 0.4, D^4 ~ 0.03
+    # the sun rides with the sphere, so the sphere is lit in its own frame as it would be at rest
+    lib.add_light(scene, "Sun", 'SUN', (0, 0, 20), power=3.0, rotation_deg=(20.0, 0.0, 20.0), velocity=(0.9, 0.0, 0.0))
     uv_sphere("Sphere", 1.5, (0.0, 0.0, 0.0), lib.material("Sphere", roughness=0.6, texture=('COLOR_GRID', 256)),
               velocity=(0.9, 0.0, 0.0), pass_index=1)
     lib.save(os.path.join(lib.HERE, "sphere_outline.blend"))
@@ -67,8 +71,9 @@ CUBE_FACES = ["-x trailing", "+x leading", "-y", "+y", "-z", "+z top"]
 def build_terrell_cube():
     scene = lib.new_scene("Terrell cube", 40.0, resolution=(255, 255), samples=4)
     lib.set_world(scene, (0.01, 0.012, 0.02))
-    lib.add_camera(scene, (0.0, 0.0, 40.0), (0.0, 0.0, 0.0), angle_deg=5.0)
-    lib.add_light(scene, "Sun", 'SUN', (0, 0, 50), power=4.0, rotation_deg=(-30.0, -40.0, 0.0))
+    lib.add_camera(scene, (0.0, 0.0, 40.0), (0.0, 0.0, 0.0), angle_deg=9.0)
+    scene.restframe.normalize_exposure = True
+    lib.add_light(scene, "Sun", 'SUN', (0, 0, 50), power=4.0, rotation_deg=(-30.0, -40.0, 0.0), velocity=(0.9, 0.0, 0.0))
     mats = [lib.material("Trailing", (0.8, 0.08, 0.05)), lib.material("Leading", (0.05, 0.15, 0.8)),
             lib.material("Side", (0.8, 0.7, 0.1)), lib.material("Top", roughness=0.6, texture=('UV_GRID', 128))]
     verts, faces = lib.box((0.0, 0.0, -1.0), (2.0, 2.0, 2.0))
@@ -126,7 +131,7 @@ def build_spectral(stem, beta):
     panel = lib.mesh_object(scene, "Panel", [(-h, -h, 0), (h, -h, 0), (h, h, 0), (-h, h, 0)], [(0, 1, 2, 3)],
                             materials=[lib.material("Panel", roughness=0.9, texture=('COLOR_GRID', 256))],
                             velocity=velocity, pass_index=1, uvs=True)
-    lib.add_light(scene, "Lamp", 'POINT', (0.0, 0.0, 3.0), power=250.0, velocity=velocity, parent=panel)
+    lib.add_light(scene, "Lamp", 'POINT', (0.0, 0.0, 3.0), power=600.0, velocity=velocity, parent=panel)
     lib.save(os.path.join(lib.HERE, stem + ".blend"))
 
 

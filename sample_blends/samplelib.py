@@ -215,9 +215,10 @@ def read_exr(path, layer="ViewLayer") -> dict:
     return {name: np.concatenate(parts, axis=2) for name, parts in passes.items()}
 
 
-def render_blend(blend, exr_path, resolution=None, samples=None, **settings):
+def render_blend(blend, exr_path, resolution=None, samples=None, prepare=None, **settings):
     """Open a sample .blend, override resolution / samples / Scene.restframe settings, render
-    its saved frame (the imaging frame) to a multilayer EXR.  Returns (passes, camera info)."""
+    its saved frame (the imaging frame) to a multilayer EXR.  Returns (passes, camera info).
+    ``prepare(scene)`` may change the scene further before the render (e.g. stop an object)."""
     import bpy
 
     ensure_registered()
@@ -229,6 +230,8 @@ def render_blend(blend, exr_path, resolution=None, samples=None, **settings):
         scene.restframe.samples = samples
     for key, value in settings.items():
         setattr(scene.restframe, key, value)
+    if prepare is not None:
+        prepare(scene)
     layer = scene.view_layers[0]
     layer.use_pass_normal = layer.use_pass_object_index = layer.use_pass_z = True
     image = scene.render.image_settings
