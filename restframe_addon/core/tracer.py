@@ -162,8 +162,10 @@ def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> Hits:
         u=np.zeros(n),
         v=np.zeros(n),
     )
-    shared = _shared_origin(tau0, x0)
-    for k in frames.candidates(src, tau0, x0):
+    candidates = frames.candidates(src, tau0, x0)
+    # culling by bounding cones pays off only when several frames share the rays
+    shared = _shared_origin(tau0, x0) if len(candidates) > 1 else None
+    for k in candidates:
         frame = frames.frames[k]
         fmap = frames.map(src, k)
         rays = _toward(frames, src, k, shared, d) if shared is not None else None
@@ -207,39 +209,45 @@ _CONE_SAMPLES = 16
 
 
 def _toward(frames: FrameSet, src: int, k: int, origin_event, d):
-    """Indices of rays from one event that point into the cone the frame's bounding sphere
-    subtends there, or None when the event is inside it (no culling possible).
+    """Indices of rays from one event that point into a cone subtended there by one of the
+    frame's bounding spheres, or None when the event is inside one (no culling possible).
 
-    The cone is built in frame k and mapped to frame src by aberration, which maps circles
+    Each cone is built in frame k and mapped to frame src by aberration, which maps circles
     on the sky to circles: its image is found from ``_CONE_SAMPLES`` rim directions around
     the mapped axis, widened by a margin for the sampling.
     """
     frame = frames.frames[k]
-    fmap = frames.map(src, k)
     geometry = frame.geometry
-    _, x_k = fmap.events(np.array(origin_event[0]), origin_event[1])
+    _, x_k = frames.map(src, k).events(np.array(origin_event[0]), origin_event[1])
     if frame.spin is not None:  # any pose: the sphere about the pivot
-        centre, radius = frame.offset, geometry.radius
+        spheres = np.array([[*frame.offset, geometry.radius]])
     else:
-        centre, radius = geometry.anchor + frame.offset, 0.5 * float(np.linalg.norm(geometry.hi - geometry.lo))
-    radius = radius * (1.0 + 2 * _PAD) + 1e-9 * (1.0 + float(np.max(np.abs(centre))))
-    offset = centre - x_k
-    distance = float(np.linalg.norm(offset))
-    if distance <= radius * 1.01:
+        spheres = geometry.clusters + np.append(frame.offset, 0.0)
+    pad = 2 * _PAD * geometry.extent + 1e-9 * (1.0 + float(np.max(np.abs(spheres[:, :3]))))
+    offset = spheres[:, :3] - x_k
+    distance = np.linalg.norm(offset, axis=1)
+    radius = spheres[:, 3] + pad
+    if np.any(distance <= radius * 1.01):
         return None
-    axis = offset / distance
-    half = math.asin(radius / distance)
-    t1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
-    t1 /= np.linalg.norm(t1)
-    t2 = np.cross(axis, t1)
+    axes = offset / distance[:, None]
+    half = np.arcsin(radius / distance)
+    t1 = np.cross(axes, np.where(np.abs(axes[:, :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(axes, t1)
     phi = np.linspace(0.0, 2 * np.pi, _CONE_SAMPLES, endpoint=False)
-    rim = math.cos(half) * axis + math.sin(half) * (np.outer(np.cos(phi), t1) + np.outer(np.sin(phi), t2))
-    back = frames.map(k, src)
-    src_dirs, _ = back.rays(np.vstack([axis, rim]))
-    centre_dir = src_dirs[0]
-    spread = float(np.max(np.arccos(np.clip(src_dirs[1:] @ centre_dir, -1.0, 1.0))))
-    spread = min(spread * 1.05 + 1e-9, math.pi)
-    return np.flatnonzero(d @ centre_dir >= math.cos(spread))
+    rim = (np.cos(half)[:, None, None] * axes[:, None, :]
+           + np.sin(half)[:, None, None] * (np.cos(phi)[None, :, None] * t1[:, None, :]
+                                            + np.sin(phi)[None, :, None] * t2[:, None, :]))
+    directions = np.concatenate([axes[:, None, :], rim], axis=1).reshape(-1, 3)
+    src_dirs, _ = frames.map(k, src).rays(directions)
+    src_dirs = src_dirs.reshape(len(spheres), _CONE_SAMPLES + 1, 3)
+    centre_dirs = src_dirs[:, 0]
+    spread = np.max(np.arccos(np.clip(np.einsum("kij,kj->ki", src_dirs[:, 1:], centre_dirs), -1.0, 1.0)), axis=1)
+    cos_spread = np.cos(np.minimum(spread * 1.05 + 1e-9, np.pi))
+    inside = np.zeros(len(d), dtype=bool)
+    for axis, limit in zip(centre_dirs, cos_spread):
+        inside |= d @ axis >= limit
+    return np.flatnonzero(inside)
 
 
 def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
