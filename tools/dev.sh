@@ -2,10 +2,17 @@
 # Run Python inside RESTframe's development environment, creating it on first use.
 # The environment lives outside the clone (cached per requirements file), so reruns are quick:
 #   tools/dev.sh -m pytest -q tests
+#   RESTFRAME_BPY=4.2 tools/dev.sh -m pytest -q tests/blender   # the same tests on Blender 4.2 LTS
 #   tools/dev.sh -m restframe_addon render sample_blends/moving_sphere.blend -o out/moving_sphere.png
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 req="$root/tools/requirements-dev.txt"
+# RESTFRAME_BPY=4.2 runs against Blender 4.2 LTS instead (its own cached environment)
+case "${RESTFRAME_BPY:-}" in
+  ""|5.0) ;;
+  4.2) req="$root/tools/requirements-bpy42.txt" ;;
+  *) echo "restframe: RESTFRAME_BPY must be 4.2 or 5.0 (got '$RESTFRAME_BPY')" >&2; exit 2 ;;
+esac
 key=$(sha256sum "$req" | cut -c1-12)
 venv="${RESTFRAME_VENV:-${XDG_CACHE_HOME:-$HOME/.cache}/restframe/venv-$key}"
 if [ ! -f "$venv/.complete" ]; then

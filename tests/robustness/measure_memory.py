@@ -1,0 +1,90 @@
+"""Peak memory of a 4K frame of a 1M-triangle scene at 16 samples (issue 9), through the engine's path.
+
+    tools/dev.sh tests/robustness/measure_memory.py [--tiles N] [--subdivisions 708]
+
+Builds a 1,002,528-triangle grid moving at 0.5c with bpy, exports it (export_scene), prepares it
+(Renderer: rest frames, embree BVH) and streams the 3840x2160 frame's 64x64 tiles at 16 samples,
+one thread, exactly as the render engine does (tiles go to Blender's render result, never into one
+big array).  ``--tiles N`` stops after N tiles (0 = the whole frame): memory per tile is constant, so
+the peak after a few hundred tiles is the peak of the frame; the script prints the RSS after every
+stage and the time per tile so the full-frame time can be extrapolated.  Prints one final line:
+``peak_rss_mb=...``.  Not part of the test run (minutes).  Blender's own render result for the
+frame (added by Blender, not RESTframe) is reported as a computed figure.
+"""
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+
+def rss_mb(field="VmHWM:"):
+    for line in open("/proc/self/status"):
+        if line.startswith(field):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def main():
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--tiles", type=int, default=400, help="tiles to render (0 = all 2040)")
+    parser.add_argument("--subdivisions", type=int, default=708)
+    parser.add_argument("--samples", type=int, default=16)
+    args = parser.parse_args()
+
+    import bpy
+
+    import restframe_addon
+    from restframe_addon import export
+    from restframe_addon.core.render import ALL_PASSES, Renderer, render_tiles
+
+    restframe_addon.register()
+    t0 = time.perf_counter()
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.engine = 'RESTFRAME'
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 3840, 2160, 100
+    scene.restframe.samples = args.samples
+    scene.render.threads_mode, scene.render.threads = 'FIXED', 1
+    bpy.ops.mesh.primitive_grid_add(x_subdivisions=args.subdivisions, y_subdivisions=args.subdivisions, size=10.0)
+    grid = bpy.context.active_object
+    grid.restframe.velocity = (0.5, 0.0, 0.0)
+    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    cam.location, cam.rotation_euler = (0.0, -9.0, 6.0), (0.9, 0.0, 0.0)
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    lamp = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", 'POINT'))
+    lamp.location = (2.0, -2.0, 5.0)
+    scene.collection.objects.link(lamp)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    print(f"scene built: {time.perf_counter() - t0:.1f} s, rss {rss_mb('VmRSS:'):.0f} MB, peak {rss_mb():.0f} MB",
+          flush=True)
+
+    t0 = time.perf_counter()
+    core_scene, settings = export.export_scene(depsgraph, warn=lambda m: print("warning:", m))
+    triangles = sum(len(m.triangles) for m in core_scene.meshes)
+    print(f"export: {triangles} triangles, {time.perf_counter() - t0:.1f} s, peak {rss_mb():.0f} MB", flush=True)
+    t0 = time.perf_counter()
+    renderer = Renderer(core_scene, settings)
+    print(f"prepare (frames, BVH): {time.perf_counter() - t0:.1f} s, peak {rss_mb():.0f} MB", flush=True)
+    total = len(renderer.tiles())
+    limit = args.tiles or total
+    t0 = time.perf_counter()
+    count = 0
+    for tile in render_tiles(core_scene, settings, lambda: count >= limit, renderer):
+        count += 1
+        if count in (1, 10) or count % 100 == 0 or count == limit:
+            print(f"tile {count}/{total}: {time.perf_counter() - t0:.1f} s, rss {rss_mb('VmRSS:'):.0f} MB, "
+                  f"peak {rss_mb():.0f} MB", flush=True)
+    seconds = time.perf_counter() - t0
+    result_mb = 3840 * 2160 * sum(ALL_PASSES.values()) * 4 / 2**20
+    print(f"rendered {count} of {total} tiles at {settings.samples} samples in {seconds:.1f} s "
+          f"({seconds / count:.2f} s per tile, full frame ~{seconds / count * total / 60:.0f} min on one thread)")
+    print(f"Blender's render result for all passes at 4K (float32, allocated by Blender): {result_mb:.0f} MB")
+    print(f"peak_rss_mb={rss_mb():.0f}")
+
+
+if __name__ == "__main__":
+    main()
