@@ -124,6 +124,10 @@ class RestFrame:
     def has_geometry(self) -> bool:
         return self.geometry is not None
 
+    def object_clock(self, tau, prim):
+        """The body's own clock (c*t units, 0 at its origin event) at frame times tau of hits."""
+        return tau + self.clock_offset + self.geometry.tri_clock[prim]
+
     def pose(self, tau):
         """Rotations (n, 3, 3) of a spinning body at frame times tau: its Blender pose at clock 0."""
         return motion.rotation_matrix(np.outer(np.asarray(tau) + self.clock_offset, self.spin))

@@ -61,7 +61,7 @@ class Renderer:
         except ValueError as error:
             raise RenderError(str(error)) from error
         self.warnings = self.frames.warnings
-        self.materials = MaterialTable(scene.materials)
+        self.materials = MaterialTable(scene.materials, scene.light_speed)
         if settings.doppler_mode == "SPECTRAL":
             colour = SpectralColour(self.materials, lights, scene.world_color, settings.spectral_samples)
         else:
@@ -250,7 +250,7 @@ class Renderer:
             _, _, ns, _, _ = self.shader.surface_info(int(k), prim, u, v, d_k, tau_hit)
             normal[sel] = ns
             index[sel] = frame.geometry.tri_object_index[prim]
-            object_time[sel] = (tau_hit + frame.clock_offset + frame.geometry.tri_clock[prim]) / self.scene.light_speed
+            object_time[sel] = frame.object_clock(tau_hit, prim) / self.scene.light_speed
         return {"Doppler": doppler, "Emission Time": emission_time, "Object Time": object_time, "Depth": depth,
                 "Normal": normal, "IndexOB": index}
 

@@ -53,6 +53,9 @@ class Material:
     specular_ior_level: float = 0.5  # Principled "Specular IOR Level": 0.5 = Fresnel of the IOR, 0 = none
     transmission: float = 0.0
     emission: tuple[float, float, float] = (0.0, 0.0, 0.0)  # colour * strength, rest-frame radiance
+    # animated emission: (times in seconds of the body's own clock, multipliers), evaluated at the
+    # clock reading of each seen event (optical clocks); linear between keys, constant beyond
+    emission_curve: tuple[np.ndarray, np.ndarray] | None = None
     base_color_texture: np.ndarray | None = None  # (H, W, 3) scene-linear, row 0 = bottom (Blender order)
 
 

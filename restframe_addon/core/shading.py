@@ -40,9 +40,15 @@ _POINT_INTENSITY_PER_WATT = 1.0 / (4.0 * np.pi)
 class MaterialTable:
     """The scene's materials as arrays indexed by material number."""
 
-    def __init__(self, materials: list[Material]):
+    def __init__(self, materials: list[Material], light_speed: float = 1.0):
         if not materials:
             materials = [Material()]
+        # emission keys converted to the tracer's clock (c*t)
+        self.emission_curves = {
+            i: (np.asarray(m.emission_curve[0], dtype=np.float64) * light_speed,
+                np.asarray(m.emission_curve[1], dtype=np.float64))
+            for i, m in enumerate(materials) if m.emission_curve is not None
+        }
         self.materials = materials
         self.base = np.array([m.base_color for m in materials], dtype=np.float64).reshape(-1, 3)
         self.metallic = np.clip([m.metallic for m in materials], 0.0, 1.0)
@@ -55,6 +61,15 @@ class MaterialTable:
         self.mirror = self.roughness < MIRROR_ROUGHNESS
         self.glass = self.transmission > 0.0
         self.traces_secondary = bool(np.any(self.mirror | self.glass))
+
+    def emission_factor(self, index, clock):
+        """Multiplier of animated emissions at the emitting body's own clock (c*t units)."""
+        factor = np.ones(len(index))
+        for m, (times, values) in self.emission_curves.items():
+            sel = index == m
+            if np.any(sel):
+                factor[sel] = np.interp(clock[sel], times, values)
+        return factor
 
     def clamp(self, index):
         return np.clip(index, 0, len(self.materials) - 1)
@@ -205,6 +220,8 @@ class Shader:
             uv = (1.0 - uu - vv) * cuv[:, 0] + uu * cuv[:, 1] + vv * cuv[:, 2]
         base = self.colour.base_color(mat, uv, lam)
         values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
+        if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
+            values *= self.materials.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
         if self.lights:
             values += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam)
         if self.materials.traces_secondary and depth < self.max_bounces:

@@ -13,7 +13,7 @@ from restframe_addon.core.frames import FrameMap
 from restframe_addon.core.lorentz import Boost
 from restframe_addon.core.motion import Trajectory, segment_world_line
 from restframe_addon.core.render import RenderError, render_image
-from restframe_addon.core.scene import Mesh, RenderSettings, Scene, Velocity
+from restframe_addon.core.scene import Material, Mesh, RenderSettings, Scene, Velocity
 
 
 def gamma_of(beta):
@@ -232,6 +232,29 @@ def test_clock_approaching_at_0_6c_is_seen_running_at_d_equal_2(animated):
         scene = Scene(camera=camera, meshes=[mesh], tau_obs=c * t_obs, light_speed=c)
         seen.append(render_image(scene, settings((3, 3)))["Object Time"][1, 1, 0])
     assert (seen[1] - seen[0]) / 0.5 == pytest.approx(2.0, rel=1e-5)
+
+
+def test_animated_emission_follows_the_emitters_own_clock():
+    """An emitter blinking in its own time (keys in seconds of its clock), approaching at 0.6c,
+    is seen blinking twice as fast; at rest it follows the observer's clock."""
+    pivot = np.array([0.0, 30.0, 0.0])
+    wall = quad(pivot, (50, 50), normal_axis=1)
+    keys = (np.array([-100.0, 100.0]), np.array([-100.0, 100.0]))  # emission = own clock in seconds
+    c = 10.0
+    camera = look_at_camera((0, 0, 0), (0, 1, 0), fov_half_tan=0.01)
+    for beta, rate in ((0.0, 1.0), (0.6, 2.0)):
+        mesh = Mesh("blinker", *wall, velocity=Velocity((0.0, -beta, 0.0)), pivot=tuple(pivot))
+        mats = [Material("glow", base_color=(0, 0, 0), emission=(1.0, 1.0, 1.0), specular_ior_level=0.0,
+                         emission_curve=keys)]
+        seen = []
+        for t_obs in (1.0, 1.5):
+            scene = Scene(camera=camera, meshes=[mesh], materials=mats, tau_obs=c * t_obs, light_speed=c,
+                          world_color=(0, 0, 0))
+            passes = render_image(scene, settings((3, 3), searchlight=False))
+            seen.append((passes["Combined"][1, 1, 1], passes["Object Time"][1, 1, 0]))
+        # with the searchlight off the emission is exactly the curve at the seen clock reading
+        assert seen[0][0] == pytest.approx(seen[0][1], rel=1e-5, abs=1e-5)
+        assert (seen[1][0] - seen[0][0]) / 0.5 == pytest.approx(rate, rel=1e-5)
 
 
 # ---------------------------------------------------------------- rotation
