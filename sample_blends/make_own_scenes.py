@@ -59,7 +59,7 @@ def build_sphere_outline():
     lib.add_camera(scene, (0.0, 0.0, 12.0), (0.0, 0.0, 0.0), angle_deg=30.0)
     scene.restframe.normalize_exposure = True  # seen from the side at 0.9c: D ~ 0.4, D^4 ~ 0.03
     # the sun rides with the sphere, so the sphere is lit in its own frame as it would be at rest
-    lib.add_light(scene, "Sun", 'SUN', (0, 0, 20), power=3.0, rotation_deg=(20.0, 0.0, 20.0), velocity=(0.9, 0.0, 0.0))
+    lib.add_light(scene, "Sun", 'SUN', (0, 0, 20), power=3.0, rotation_deg=(15.0, -45.0, 0.0), velocity=(0.9, 0.0, 0.0))
     uv_sphere("Sphere", 1.5, (0.0, 0.0, 0.0), lib.material("Sphere", roughness=0.6, texture=('COLOR_GRID', 256)),
               velocity=(0.9, 0.0, 0.0), pass_index=1)
     lib.save(os.path.join(lib.HERE, "sphere_outline.blend"))
