@@ -10,9 +10,10 @@ SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"
 sys.path.insert(0, str(SAMPLES))
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def samples_addon():
-    """The add-on registered (unless tests/blender's session fixture already did it)."""
+    """The add-on registered (unless tests/blender's session fixture already did it), and
+    unregistered after the module, so tests/blender can register it again in any test order."""
     import bpy
 
     import restframe_addon
