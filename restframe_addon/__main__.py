@@ -317,4 +317,11 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    status = main()
+    if "bpy" in sys.modules and sys.modules["bpy"].app.version < (4, 3, 0):
+        # bpy 4.2 as a module segfaults in its exit handlers once an add-on registered a property
+        # with a getter: leave with the status instead (outputs are already written and closed)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
+    sys.exit(status)

@@ -53,7 +53,10 @@ plane = bpy.data.objects.new("Plane", mesh)
 plane.restframe.velocity = (0.0, 0.0, 0.9)
 scene.collection.objects.link(plane)
 settings = scene.render.image_settings
-settings.media_type = 'MULTI_LAYER_IMAGE'
+if hasattr(settings, "media_type"):  # 5.0
+    settings.media_type = 'MULTI_LAYER_IMAGE'
+else:
+    settings.file_format = 'OPEN_EXR_MULTILAYER'
 settings.color_depth = '32'
 scene.render.filepath = out_path
 bpy.ops.render.render(write_still=True)
@@ -66,3 +69,6 @@ print(json.dumps({
     "embreex": embreex.__file__,
     "site": site,
 }))
+if bpy.app.version < (4, 3, 0):  # bpy 4.2 as a module crashes in its exit handlers (see tests/blender/conftest.py)
+    sys.stdout.flush()
+    os._exit(0)
