@@ -195,7 +195,10 @@ class Gallery:
 
         lines = ["| scene | quantity | measured | predicted |", "| --- | --- | --- | --- |",
                  f"| sphere 0.9c | outline: rms distance from the best circle on the sky | {sphere['rms_px']:.2f} px "
-                 f"({sphere['outline_pixels']} outline pixels, angular radius {sphere['radius_deg']:.3f} deg) | 0 (a circle; a sphere merely contracted by 1/gamma = 0.44 would be off by several px) |",
+                 f"({sphere['outline_pixels']} outline pixels) | 0 (a circle; a sphere merely contracted by 1/gamma = 0.44 would be off by several px) |",
+                 f"| sphere 0.9c | angular radius of that circle (edge pixel centres + half a pixel) | {sphere['radius_deg']:.3f} deg | "
+                 f"{sphere['radius_pred_deg']:.3f} deg (rest-frame cone asin(R/r') aberrated back; pixel = {sphere['pixel_deg']:.3f} deg) |",
+                 f"| sphere 0.9c | circle centre vs predicted centre | {sphere['axis_error_px']:.2f} px apart | 0 |",
                  f"| sphere 0.9c | flat image width x height | {sphere['width_px']} x {sphere['height_px']} px | about equal |",
                  f"| cube 0.9c | pixels of the faces: trailing (-x) / leading (+x) / top | {cube['trailing']} / {cube['leading']} / {cube['top']} | leading 0 |",
                  f"| cube 0.9c | trailing / top area | {cube['ratio']:.3f} | {cube['exact']:.3f} (retarded corners, this camera); beta gamma = {cube['ratio_pred']:.3f} far away |",

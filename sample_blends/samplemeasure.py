@@ -119,7 +119,14 @@ def sphere_outline(passes, info) -> dict:
     radius, rms, count, _, _ = lib.outline_circle_fit(mask, lib.pixel_directions(info))
     rows, cols = np.nonzero(mask)
     pixel = lib.pixel_angle(info)
+    _, _, _, axis, _ = lib.outline_circle_fit(mask, lib.pixel_directions(info))
+    pred_radius, pred_axis = sphere_prediction(info)
+    # the outline pixels are the sphere's own edge pixels: their centres lie half a pixel inside the edge
+    radius += 0.5 * pixel
     return {"radius_deg": math.degrees(radius), "rms_px": rms / pixel, "outline_pixels": count,
+            "pixel_deg": math.degrees(pixel),
+            "radius_pred_deg": math.degrees(pred_radius),
+            "axis_error_px": float(np.arccos(np.clip(axis @ pred_axis, -1, 1))) / pixel,
             "width_px": int(cols.max() - cols.min() + 1), "height_px": int(rows.max() - rows.min() + 1)}
 
 
@@ -244,3 +251,31 @@ def terrell_prediction(info, beta=0.9) -> float:
     top = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)]
     velocity = (beta, 0.0, 0.0)
     return face_image_area(info, trailing, velocity, 40.0) / face_image_area(info, top, velocity, 40.0)
+
+
+def sphere_prediction(info, radius=1.5, beta=(0.9, 0.0, 0.0), tau_obs=12.0, samples=720):
+    """Outline of a sphere (pivot at the origin event, moving with ``beta``) on the observer's sky,
+    predicted without the renderer: in the sphere's rest frame it is static, so from the observation
+    event the outline is the cone of half-angle asin(R / r') about the direction to the centre
+    (r' = the distance there); each cone direction is aberrated back to the world frame
+    (physics.md eq. 3 with -beta).  Returns (angular radius rad, unit axis) of the circle in S."""
+    v = np.asarray(beta, float)
+    b = float(np.linalg.norm(v))
+    g = lib.gamma(b)
+    k = g * g / (g + 1.0)
+    cam = np.asarray(info["position"], float)
+    cam_rest = cam + (k * (v @ cam) - g * tau_obs) * v  # the observation event in the sphere frame
+    to_centre = -cam_rest / np.linalg.norm(cam_rest)
+    half = math.asin(radius / np.linalg.norm(cam_rest))
+    e1 = np.cross(to_centre, [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(to_centre, e1)
+    phi = np.linspace(0.0, 2 * math.pi, samples, endpoint=False)[:, None]
+    cone = math.cos(half) * to_centre + math.sin(half) * (np.cos(phi) * e1 + np.sin(phi) * e2)
+    u = -v  # from the sphere frame back to S
+    d = (cone + (k * (cone @ u)[:, None] + g) * u) / (g * (1.0 + cone @ u))[:, None]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    centre = d.mean(axis=0)
+    _, _, vt = np.linalg.svd(d - centre)
+    n = vt[2] if vt[2] @ centre > 0 else -vt[2]
+    return float(np.arccos(np.clip(d @ n, -1, 1)).mean()), n

@@ -127,6 +127,9 @@ def test_sphere_outline_is_a_circle_on_the_sky(render):
     r = sm.sphere_outline(passes, info)
     assert r["outline_pixels"] > 80
     assert r["rms_px"] < 0.5
+    # its size and place on the sky: the rest-frame outline cone aberrated into the world frame
+    assert abs(r["radius_deg"] - r["radius_pred_deg"]) < 0.3 * r["pixel_deg"]
+    assert r["axis_error_px"] < 0.3
     # not merely an unchanged circle: contraction alone would squash the width to 0.44 of the height
     assert 0.9 < r["width_px"] / r["height_px"] < 1.1
 
