@@ -198,7 +198,7 @@ def run(ctx) -> Section:
     import matplotlib.pyplot as plt
 
     all_studies = studies(ctx.smoke)
-    from matplotlib.ticker import NullFormatter
+    from matplotlib.ticker import FuncFormatter, NullFormatter
 
     cols = 3
     rows_n = -(-len(all_studies) // cols)
@@ -246,8 +246,11 @@ def run(ctx) -> Section:
         ax.loglog(times, errors, "o-")
         for v, s, e in zip([r[0] for r in rows], times, errors):
             ax.annotate(f"{v:g}", (s, e), textcoords="offset points", xytext=(4, 4), fontsize=7)
-        ax.xaxis.set_minor_formatter(NullFormatter())
-        ax.yaxis.set_minor_formatter(NullFormatter())
+        for axis, values in ((ax.xaxis, times), (ax.yaxis, errors)):
+            # within a decade the major (power of ten) labels are missing: label the minor ticks sparsely
+            narrow = values.max() / values.min() < 10
+            axis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:.2g}") if narrow else NullFormatter())
+            axis.set_tick_params(which="minor", labelsize=6)
         ax.set_xlabel("render time (s, 1 thread)")
         ax.set_ylabel("relative RMSE")
         ax.set_title(study.title, fontsize=9)
