@@ -9,10 +9,11 @@ does the scheduling, retries and fault handling; this module only describes the 
 ships the .blend when workers cannot see it, writes finished frames atomically on the
 client and assembles regions into the image a single process would have written.
 
-Workers render through a child ``python -m restframe_addon render`` process: Blender as
-a Python module must run on its process's main thread (bpy crashes when it renders from
-a Dask worker thread), and a child also keeps each frame's Blender state fresh.  The
-child uses the worker's own interpreter and ``sys.path``, so a worker must be able to
+Workers render through a child process (``python -m restframe_addon.distributed --serve``,
+one per worker, started once): Blender as a Python module must run on its process's main
+thread (bpy crashes when it renders from a Dask worker thread).  The child runs the same
+code as ``python -m restframe_addon render`` for each task (it opens the .blend afresh),
+with the worker's own interpreter and ``sys.path``, so a worker must be able to
 ``import bpy`` and ``import restframe_addon``; the client checks that on every worker
 before sending work and reports the ones that cannot.
 
@@ -22,12 +23,14 @@ Dask is imported lazily: the extension itself never needs it.
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import os
 import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -125,10 +128,10 @@ def _child_env() -> dict[str, str]:
 
 def _import_paths(paths: list[str]) -> list[str]:
     """sys.path entries worth handing to a child, less the ones bpy adds inside its own package
-    (its scripts/modules hold a pure-Python ``bpy`` that would shadow the real module).
-    Kept in step with the copy inside :func:`_make_probe`."""
+    (its scripts/modules hold a pure-Python ``bpy`` that would shadow the real module)."""
     keep = []
     for p in paths:
+        p = p or os.getcwd()  # '' = the working directory, which the child does not share
         parts = os.path.normpath(p).split(os.sep)
         if p and os.path.isdir(p) and not ("bpy" in parts[:-1] and "site-packages" in parts):
             keep.append(p)
@@ -151,8 +154,7 @@ def _local_blend(spec: dict, bundle: dict | None) -> str:
     """The .blend this worker opens: the client's path when shared, else the shipped copy."""
     if bundle is None:
         return spec["blend"]
-    root = os.path.join(tempfile.gettempdir(), f"restframe-dask-{os.getuid() if hasattr(os, 'getuid') else 0}",
-                        spec["digest"])
+    root = bundle_dir(spec["digest"])
     blend = os.path.join(root, "files", os.path.basename(spec["blend"]))
     if not os.path.isfile(os.path.join(root, ".complete")):
         staging = tempfile.mkdtemp(prefix=".staging-", dir=_makedirs(os.path.dirname(root)))
@@ -174,37 +176,161 @@ def _makedirs(path: str) -> str:
     return path
 
 
+# One long-lived render child per worker process ("render server"): it imports bpy and the
+# add-on once and renders requests on its own main thread, so a task costs a render, not an
+# interpreter start.  It dies with its worker (stdin closes; SIGKILL on Linux).
+_server = None
+_server_lock = threading.Lock()
+_SERVER_START_TIMEOUT = 300.0
+
+
+class _Server:
+    def __init__(self):
+        import collections
+
+        _remove_stale_task_dirs()
+        kwargs = {"preexec_fn": _die_with_parent} if sys.platform.startswith("linux") else {}
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "restframe_addon.distributed", "--serve"], stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_child_env(), cwd=tempfile.gettempdir(),
+            text=True, errors="replace", **kwargs)
+        self.log = collections.deque(maxlen=50)  # the child's last stderr lines, for error messages
+        threading.Thread(target=self._read_log, daemon=True).start()
+        self.hello = self._answer()  # bpy version and add-on path, or the import error
+
+    def _read_log(self):
+        for line in self.process.stderr:
+            if line.strip():
+                self.log.append(line.strip())
+
+    def _answer(self) -> dict:
+        line = self.process.stdout.readline()
+        if not line:
+            self.process.wait()
+            return {"dead": f"the render child exited with {self.process.returncode}: {self.log_tail()}"}
+        return json.loads(line)
+
+    def log_tail(self, lines: int = 5) -> str:
+        time.sleep(0.2)  # let the reader thread catch the last words
+        return " | ".join(list(self.log)[-lines:]) or "no output"
+
+    def request(self, argv: list[str]) -> dict:
+        self.process.stdin.write(json.dumps({"argv": argv}) + "\n")
+        self.process.stdin.flush()
+        return self._answer()
+
+    def close(self):
+        self.process.kill()
+        self.process.wait(timeout=10)
+
+
+def _task_dir_root() -> str:
+    return os.path.join(tempfile.gettempdir(), f"restframe-dask-{os.getuid() if hasattr(os, 'getuid') else 0}")
+
+
+def _remove_stale_task_dirs() -> None:
+    """Task folders of worker processes that died mid-frame (a killed worker cleans nothing)."""
+    root = os.path.join(_task_dir_root(), "tasks")
+    for name in os.listdir(root) if os.path.isdir(root) else []:
+        pid = name.split("-")[0]
+        if os.path.isdir("/proc") and pid.isdigit() and int(pid) != os.getpid() and not os.path.exists(f"/proc/{pid}"):
+            shutil.rmtree(os.path.join(root, name), ignore_errors=True)
+
+
+def bundle_dir(digest: str) -> str:
+    """Where a worker keeps the .blend (and files) shipped to it, by content digest."""
+    return os.path.join(_task_dir_root(), "blends", digest)
+
+
+def _ensure_server() -> _Server:
+    """This worker's render server, started (or restarted after a crash) when needed."""
+    global _server
+    if _server is None or _server.process.poll() is not None:
+        if _server is not None:
+            _server.close()
+        _server = _Server()
+    return _server
+
+
+def server_hello() -> dict:
+    """Start this worker's render server; what it says (versions, or why it cannot render)."""
+    with _server_lock:
+        server = _ensure_server()
+        hello = dict(server.hello)
+        if "ready" not in hello:
+            _forget_server()
+        return hello
+
+
+def _forget_server() -> None:
+    global _server
+    if _server is not None:
+        _server.close()
+        _server = None
+
+
+def _serve() -> int:
+    """The render server's loop: one JSON request per line on stdin, one answer per line."""
+    reply = os.fdopen(os.dup(1), "w")
+    os.dup2(2, 1)  # whatever Blender or the CLI prints goes to the log, not the protocol
+    sys.stdout = sys.stderr
+    try:
+        import bpy
+
+        import restframe_addon
+        import restframe_addon.engine  # noqa: F401  (the core and embreex)
+        from restframe_addon import __main__ as cli
+    except BaseException as error:
+        reply.write(json.dumps({"error": f"{type(error).__name__}: {error}"}) + "\n")
+        reply.flush()
+        return 1
+    reply.write(json.dumps({"ready": bpy.app.version_string, "addon": os.path.dirname(restframe_addon.__file__)})
+                + "\n")
+    reply.flush()
+    for line in sys.stdin:
+        request = json.loads(line)
+        try:
+            cli.render_command(cli.build_parser().parse_args(request["argv"]))
+            answer = {"ok": True}
+        except cli.CommandError as error:
+            answer = {"error": str(error)}
+        except SystemExit:
+            answer = {"error": f"bad render arguments {request['argv']}"}
+        reply.write(json.dumps(answer) + "\n")
+        reply.flush()
+    return 0
+
+
 def render_task(spec: dict, bundle: dict | None = None) -> dict:
-    """Render one frame (or one region of it) in a child process; return the file's bytes.
+    """Render one frame (or one region of it) in this worker's render server; return the file's bytes.
 
     Returns ``{"error": message}`` for RESTframe's own errors (bad scene: no use retrying) and
-    raises :class:`TaskCrashed` when the child died otherwise, so Dask retries the task."""
+    raises :class:`TaskCrashed` when the render child died, so Dask retries the task."""
     import socket
 
     started = time.monotonic()
+    where = f"{socket.gethostname()} (pid {os.getpid()})"
     blend = _local_blend(spec, bundle)
-    workdir = tempfile.mkdtemp(prefix="restframe-task-")
+    workdir = tempfile.mkdtemp(prefix=f"{os.getpid()}-", dir=_makedirs(os.path.join(_task_dir_root(), "tasks")))
     try:
         out = os.path.join(workdir, "result" + spec["ext"])
-        command = [sys.executable, "-m", "restframe_addon", "render", blend, "-o", out,
-                   "--frame", str(spec["frame"]), "--scene", spec["scene"]]
+        argv = ["render", blend, "-o", out, "--frame", str(spec["frame"]), "--scene", spec["scene"]]
         if spec.get("samples") is not None:
-            command += ["--samples", str(spec["samples"])]
+            argv += ["--samples", str(spec["samples"])]
         if spec.get("percentage") is not None:
-            command += ["--percentage", str(spec["percentage"])]
+            argv += ["--percentage", str(spec["percentage"])]
         if spec.get("region") is not None:
-            command += ["--region", ",".join(map(str, spec["region"]))]
-        kwargs = {"preexec_fn": _die_with_parent} if sys.platform.startswith("linux") else {}
-        child = subprocess.run(command, capture_output=True, text=True, env=_child_env(), cwd=workdir, **kwargs)
-        where = f"{socket.gethostname()} (pid {os.getpid()})"
-        if child.returncode != 0 or not os.path.isfile(out):
-            lines = [line for line in child.stderr.strip().splitlines() if line.strip()]
-            message = next((line.split("restframe: error: ", 1)[1] for line in reversed(lines)
-                            if "restframe: error: " in line), None)
-            if child.returncode == 1 and message:
-                return {"error": message, "host": where}
-            raise TaskCrashed(f"the render child on {where} exited with {child.returncode}: "
-                              + " | ".join(lines[-5:]))
+            argv += ["--region", ",".join(map(str, spec["region"]))]
+        with _server_lock:  # bpy is one per process: one render at a time per worker
+            server = _ensure_server()
+            if "ready" not in server.hello:
+                raise TaskCrashed(f"the render child on {where} cannot start: "
+                                  f"{server.hello.get('error') or server.hello.get('dead')}")
+            answer = server.request(argv)
+        if "dead" in answer:
+            raise TaskCrashed(f"on {where}: {answer['dead']}")
+        if "error" in answer:
+            return {"error": answer["error"], "host": where}
         with open(out, "rb") as fh:
             data = fh.read()
     finally:
@@ -216,28 +342,20 @@ def _make_probe(blend: str, digest: str, size: int, absolute_assets: list[str]):
     """A probe for ``client.run`` that reports whether a worker can render.
 
     Built as a closure so cloudpickle ships it by value: it must run on workers that cannot
-    import restframe_addon (that is what it finds out)."""
+    import restframe_addon (that is what it finds out).  Where it can, it starts the worker's
+    render server, which imports bpy and the add-on."""
 
     def probe():
         import hashlib as _hashlib
+        import importlib as _importlib
         import os as _os
-        import subprocess as _subprocess
         import sys as _sys
 
-        paths = []
-        for p in _sys.path:  # as _import_paths (a closure cannot call into this module)
-            parts = _os.path.normpath(p).split(_os.sep)
-            if p and _os.path.isdir(p) and not ("bpy" in parts[:-1] and "site-packages" in parts):
-                paths.append(p)
-        env = dict(_os.environ, PYTHONPATH=_os.pathsep.join(dict.fromkeys(paths)))
-        code = ("import bpy, restframe_addon, restframe_addon.engine, sys; "
-                "print(bpy.app.version_string); print(restframe_addon.__file__)")
         try:
-            child = _subprocess.run([_sys.executable, "-c", code], capture_output=True, text=True,
-                                    env=env, timeout=300, cwd=_os.path.expanduser("~"))
-            ok, output = child.returncode == 0, (child.stdout if child.returncode == 0 else child.stderr)
-        except Exception as error:  # the interpreter itself cannot start
-            ok, output = False, f"{type(error).__name__}: {error}"
+            module = _importlib.import_module("restframe_addon.distributed")
+            hello = module.server_hello()
+        except Exception as error:
+            hello = {"error": f"{type(error).__name__}: {error}"}
         same_blend = False
         if _os.path.isfile(blend) and _os.path.getsize(blend) == size:
             sha = _hashlib.sha256()
@@ -245,8 +363,8 @@ def _make_probe(blend: str, digest: str, size: int, absolute_assets: list[str]):
                 for block in iter(lambda: fh.read(1 << 20), b""):
                     sha.update(block)
             same_blend = sha.hexdigest() == digest
-        return {"import_ok": ok, "output": output.strip(), "python": _sys.executable,
-                "blend_visible": same_blend,
+        return {"import_ok": "ready" in hello, "output": hello.get("error") or hello.get("dead") or "",
+                "python": _sys.executable, "blend_visible": same_blend,
                 "assets_missing": [p for p in absolute_assets if not _os.path.exists(p)]}
 
     return probe
@@ -305,7 +423,7 @@ def connect(scheduler: str | None, workers: int | None):
 
     count = workers or os.cpu_count() or 1
     cluster = LocalCluster(n_workers=count, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address=None, silence_logs=logging.ERROR)
+                           dashboard_address=":0", silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
 
@@ -498,3 +616,9 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+if __name__ == "__main__":
+    if sys.argv[1:] == ["--serve"]:
+        sys.exit(_serve())
+    sys.exit("usage: python -m restframe_addon.distributed --serve (started by Dask workers)")

@@ -1,0 +1,225 @@
+"""The Dask render path: frame ranges and still regions on a LocalCluster of two worker
+processes on loopback match single-process renders pixel for pixel; faults lose nothing."""
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from conftest import ROOT, run_cli
+from dask_helpers import assert_same_exr, exr_channels, png_pixels
+from restframe_addon.distributed import (DistributedError, Progress, bundle_dir, render_task, split_regions,
+                                         write_atomically)
+
+
+# --------------------------------------------------------------------------- pure helpers
+@pytest.mark.parametrize("size,count", [((32, 24), 4), ((32, 24), 1), ((33, 17), 6), ((7, 5), 35), ((1920, 1080), 16),
+                                        ((5, 40), 3)])
+def test_split_regions_tiles_the_image_exactly_once(size, count):
+    width, height = size
+    regions = split_regions(width, height, count)
+    assert len(regions) == count
+    cover = np.zeros((height, width), dtype=int)
+    for x0, y0, x1, y1 in regions:
+        assert 0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height
+        cover[y0:y1, x0:x1] += 1
+    assert (cover == 1).all()
+
+
+def test_split_regions_refuses_impossible_splits():
+    for args in [(4, 4, 0), (4, 4, 17), (3, 3, 7)]:
+        with pytest.raises(DistributedError):
+            split_regions(*args)
+
+
+def test_progress_bar_counts_frames_rate_and_eta():
+    class Stream:
+        lines = []
+
+        def write(self, text):
+            self.lines.append(text)
+
+        def flush(self):
+            pass
+
+    progress = Progress(total_tasks=8, total_frames=2, stream=Stream())
+    progress.update(tasks=4, frames=1)
+    line = Stream.lines[-1]
+    assert "[###############...............] 1/2 frames (4/8 tasks)" in line
+    assert "frames/s" in line and "ETA" in line
+    progress.update(tasks=4, frames=1)
+    assert "2/2 frames (8/8 tasks)" in Stream.lines[-1] and "ETA" not in Stream.lines[-1]
+
+
+def test_atomic_write_replaces_whole_files_only(tmp_path):
+    target = tmp_path / "out" / "f.exr"
+    write_atomically(str(target), b"one")
+    write_atomically(str(target), b"two")
+    assert target.read_bytes() == b"two"
+    assert os.listdir(target.parent) == ["f.exr"]
+
+
+# --------------------------------------------------------------------------- on the cluster
+def test_frame_range_matches_single_process_and_reruns_skip(tiny_blend, reference, cluster, tmp_path):
+    address = cluster[0].scheduler_address
+    out = tmp_path / "dask"
+    result = run_cli(tiny_blend, "-o", out / "f_#.exr", "--frames", "1-4", "--scheduler", address)
+    assert result.returncode == 0, result.stderr
+    assert "4 frame(s) x 1 region(s) on 2 Dask worker(s)" in result.stdout
+    assert "4/4 frames (4/4 tasks)" in result.stdout and "frames/s" in result.stdout
+    for frame in range(1, 5):
+        assert_same_exr(out / f"f_{frame}.exr", reference / f"f_{frame}.exr")
+    assert sorted(os.listdir(out)) == [f"f_{frame}.exr" for frame in range(1, 5)]  # no partial files
+
+    # a rerun skips what is on disk and renders only the missing frame; --overwrite renders all
+    stamps = {frame: os.stat(out / f"f_{frame}.exr").st_mtime_ns for frame in range(1, 5)}
+    os.remove(out / "f_2.exr")
+    result = run_cli(tiny_blend, "-o", out / "f_#.exr", "--frames", "1-4", "--scheduler", address)
+    assert result.returncode == 0, result.stderr
+    assert "skipping 3 frame(s) already on disk (1, 3, 4)" in result.stdout
+    assert "1 frame(s) x 1 region(s)" in result.stdout and "frame 2 ->" in result.stdout
+    assert_same_exr(out / "f_2.exr", reference / "f_2.exr")
+    assert all(os.stat(out / f"f_{frame}.exr").st_mtime_ns == stamps[frame] for frame in (1, 3, 4))
+    result = run_cli(tiny_blend, "-o", out / "f_#.exr", "--frames", "1,4", "--scheduler", address, "--overwrite")
+    assert result.returncode == 0, result.stderr
+    assert "skipping" not in result.stdout and "2 frame(s) x 1 region(s)" in result.stdout
+    assert os.stat(out / "f_1.exr").st_mtime_ns != stamps[1]
+    assert_same_exr(out / "f_4.exr", reference / "f_4.exr")
+
+
+def test_still_in_four_regions_matches_single_process(tiny_blend, reference, cluster, tmp_path):
+    address = cluster[0].scheduler_address
+    result = run_cli(tiny_blend, "-o", tmp_path / "still.exr", "--frame", "3", "--regions", "4", "--scheduler", address)
+    assert result.returncode == 0, result.stderr
+    assert "1 frame(s) x 4 region(s)" in result.stdout and "1/1 frames (4/4 tasks)" in result.stdout
+    assert_same_exr(tmp_path / "still.exr", reference / "f_3.exr")
+    # the regions really were rendered apart: a region alone is a cropped part of the image
+    result = run_cli(tiny_blend, "-o", tmp_path / "part.exr", "--frame", "3", "--region", "16,0,32,12")
+    assert result.returncode == 0, result.stderr
+    part, whole = exr_channels(tmp_path / "part.exr"), exr_channels(reference / "f_3.exr")
+    for name, pixels in part.items():
+        assert pixels.shape == (12, 16)
+        np.testing.assert_allclose(pixels, whole[name][12:24, 16:32], rtol=0, atol=1e-6)  # EXR rows: top first
+
+    # an 8-bit image goes through Blender's colour management once assembled: the same bytes
+    result = run_cli(tiny_blend, "-o", tmp_path / "still.png", "--frame", "3", "--regions", "4", "--scheduler", address)
+    assert result.returncode == 0, result.stderr
+    got, want = png_pixels(tmp_path / "still.png"), png_pixels(reference / "still.png")
+    assert got.shape == want.shape == (24, 32, 3) and want.std() > 5
+    assert np.array_equal(got, want)
+    assert sorted(os.listdir(tmp_path)) == ["part.exr", "still.exr", "still.png"]
+
+
+def test_still_regions_on_a_local_cluster_started_by_the_command(tiny_blend, reference, tmp_path):
+    """Without --scheduler the command starts its own LocalCluster (--workers processes)."""
+    result = run_cli(tiny_blend, "-o", tmp_path / "s.exr", "--frame", "3", "--regions", "2", "--workers", "2")
+    assert result.returncode == 0, result.stderr
+    assert "1 frame(s) x 2 region(s) on 2 Dask worker(s) at tcp://127.0.0.1:" in result.stdout
+    assert_same_exr(tmp_path / "s.exr", reference / "f_3.exr")
+
+
+def _suspicious(keys, dask_scheduler=None):
+    """On the scheduler: how often each task was on a worker that died while running it."""
+    return {key: dask_scheduler.tasks[key].suspicious for key in keys if key in dask_scheduler.tasks}
+
+
+def test_killed_worker_loses_no_frame(tiny_blend, cluster, tmp_path):
+    cluster_, client = cluster
+    # 128 samples: most of a second per frame, so the kill lands mid-frame
+    reference = tmp_path / "reference"
+    result = run_cli(tiny_blend, "-o", reference / "f_#.exr", "--frames", "1-4", "--samples", "128")
+    assert result.returncode == 0, result.stderr
+    out = tmp_path / "killed"
+    command = [sys.executable, "-m", "restframe_addon", "render", str(tiny_blend), "-o", str(out / "f_#.exr"),
+               "--frames", "1-4", "--samples", "128", "--scheduler", cluster_.scheduler_address]
+    job = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    killed = {}
+
+    def kill_a_busy_worker():
+        deadline = time.monotonic() + 90
+        while time.monotonic() < deadline and job.poll() is None:
+            busy = {worker: [str(key) for key in keys] for worker, keys in client.processing().items()
+                    if any(str(key).startswith("restframe-frame") for key in keys)}
+            if busy:
+                worker = sorted(busy)[0]
+                time.sleep(0.2)  # the render has started
+                pid = client.run(os.getpid, workers=[worker])[worker]
+                os.kill(pid, signal.SIGKILL)
+                killed.update(worker=worker, pid=pid, keys=busy[worker])
+                end = time.monotonic() + 10
+                while time.monotonic() < end:  # the scheduler notices the death and reschedules
+                    counts = client.run_on_scheduler(_suspicious, busy[worker])
+                    if any(counts.values()):
+                        killed["suspicious"] = counts
+                        return
+                    time.sleep(0.05)
+                return
+            time.sleep(0.02)
+
+    killer = threading.Thread(target=kill_a_busy_worker)
+    killer.start()
+    stdout, stderr = job.communicate(timeout=180)
+    killer.join()
+    assert job.returncode == 0, stderr
+    assert killed, "no worker was busy to be killed"
+    assert killed.get("suspicious"), f"the killed worker had no running task: {killed}"
+    for frame in range(1, 5):  # every frame, each exactly once and complete
+        assert stdout.count(f"restframe: frame {frame} -> ") == 1, stdout
+        assert_same_exr(out / f"f_{frame}.exr", reference / f"f_{frame}.exr")
+    assert sorted(os.listdir(out)) == [f"f_{frame}.exr" for frame in range(1, 5)]
+    client.wait_for_workers(2, timeout=60)  # the nanny brought the worker back for later tests
+
+
+def test_shipped_blend_renders_where_the_path_is_not_visible(tiny_blend, reference, tmp_path):
+    """A worker that cannot see the client's path renders from the bytes the client shipped."""
+    spec = {"blend": "/nonexistent/client/only/tiny.blend", "digest": "test-" + os.urandom(6).hex(), "scene": "",
+            "frame": 2, "ext": ".exr", "samples": None, "percentage": None, "region": None}
+    try:
+        result = render_task(spec, {"tiny.blend": tiny_blend.read_bytes()})
+    finally:
+        shutil.rmtree(bundle_dir(spec["digest"]), ignore_errors=True)
+    assert "error" not in result, result
+    (tmp_path / "shipped.exr").write_bytes(result["data"])
+    assert_same_exr(tmp_path / "shipped.exr", reference / "f_2.exr")
+    # not shipped and not visible: the worker's error names the file (and is not retried)
+    result = render_task(spec, None)
+    assert "no such .blend file" in result["error"] and "/nonexistent/client/only/tiny.blend" in result["error"]
+
+
+def test_worker_that_cannot_import_the_addon_is_a_clear_error(tiny_blend, tmp_path):
+    from dask.distributed import LocalCluster
+
+    with LocalCluster(n_workers=0, host="127.0.0.1", dashboard_address=":0", processes=True) as empty:
+        env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+        worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", empty.scheduler_address,
+                                   "--nthreads", "1", "--no-dashboard"],
+                                  cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            result = run_cli(tiny_blend, "-o", tmp_path / "x.exr", "--frame", "1", "--scheduler",
+                             empty.scheduler_address)
+        finally:
+            worker.terminate()
+            worker.wait(timeout=30)
+    assert result.returncode == 1
+    assert "1 of 1 Dask worker(s) cannot import the RESTframe add-on" in result.stderr
+    assert "No module named 'restframe_addon'" in result.stderr
+    assert "Traceback" not in result.stderr
+    assert not (tmp_path / "x.exr").exists()
+
+
+def test_scenes_measured_per_region_are_refused(tmp_path, tiny_blend):
+    script = ("import sys, bpy, restframe_addon; restframe_addon.register(); "
+              "bpy.ops.wm.open_mainfile(filepath=sys.argv[1]); s = bpy.context.scene; "
+              "s.restframe.normalize_exposure = True; bpy.ops.wm.save_as_mainfile(filepath=sys.argv[2], copy=True)")
+    blend = tmp_path / "normalized.blend"
+    made = subprocess.run([sys.executable, "-c", script, str(tiny_blend), str(blend)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+    assert made.returncode == 0, made.stderr
+    result = run_cli(blend, "-o", tmp_path / "x.exr", "--frame", "1", "--regions", "4", "--workers", "1")
+    assert result.returncode == 1 and "Normalize Exposure" in result.stderr and "seams" in result.stderr
