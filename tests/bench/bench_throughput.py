@@ -254,7 +254,9 @@ def run(ctx) -> Section:
     rects0 = tiles(res)
     sec.add(f"Where the time goes (cProfile, {cases[0][0]}, {res[0]}x{res[1]}): own time of the top functions as a "
             "share of the whole call (cumulative share in the last column). embreex's Cython `run` is not seen by "
-            "the profiler: embree's own work is counted in the own time of its caller, `_local_query`.")
+            "the profiler: embree's own work is counted in the own time of its caller, `_local_query`. cProfile adds "
+            "a fixed cost to every Python call, so small helpers (`_pixel_grid`, `__getitem__` of `np.mgrid`) "
+            "look bigger here than they are.")
     sec.add("")
     sec.add("Primary visibility (pipeline):")
     sec.add("")
