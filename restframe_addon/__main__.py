@@ -206,7 +206,8 @@ def distributed_command(args, scene, out: str, ext: str, frames: list[int]) -> i
         blend=os.path.abspath(args.blend), scene=scene.name, output_ext=ext,
         frames={frame: output_path(out, frame, len(frames) > 1) for frame in frames},
         samples=args.samples, percentage=args.percentage, resolution=full_resolution(scene),
-        regions=regions, assets=relative, missing_assets=absolute)
+        regions=regions, assets=relative, missing_assets=absolute,
+        scene_format=not os.path.splitext(args.output)[1])
 
     def write_image(rgba, path):
         """An assembled still in a non-EXR format, through Blender's colour management."""

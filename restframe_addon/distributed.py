@@ -57,7 +57,7 @@ class Job:
 
     blend: str  # absolute path on the client
     scene: str
-    output_ext: str  # ".exr", ".png", ... (what the workers write)
+    output_ext: str  # ".exr", ".png", ... (what the output files are)
     frames: dict[int, str]  # frame -> output path on the client
     samples: int | None = None
     percentage: int | None = None
@@ -65,6 +65,7 @@ class Job:
     regions: int = 1
     assets: list[str] = field(default_factory=list)  # files the .blend uses, relative to its folder
     missing_assets: list[str] = field(default_factory=list)  # absolute paths the workers must see
+    scene_format: bool = False  # the output had no extension: workers use the scene's own format settings
 
 
 def split_regions(width: int, height: int, count: int) -> list[tuple[int, int, int, int]]:
@@ -215,8 +216,12 @@ class _Server:
         return " | ".join(list(self.log)[-lines:]) or "no output"
 
     def request(self, argv: list[str]) -> dict:
-        self.process.stdin.write(json.dumps({"argv": argv}) + "\n")
-        self.process.stdin.flush()
+        try:
+            self.process.stdin.write(json.dumps({"argv": argv}) + "\n")
+            self.process.stdin.flush()
+        except OSError:  # it died since the last task
+            self.process.wait()
+            return {"dead": f"the render child exited with {self.process.returncode}: {self.log_tail()}"}
         return self._answer()
 
     def close(self):
@@ -331,7 +336,10 @@ def render_task(spec: dict, bundle: dict | None = None) -> dict:
             raise TaskCrashed(f"on {where}: {answer['dead']}")
         if "error" in answer:
             return {"error": answer["error"], "host": where}
-        with open(out, "rb") as fh:
+        written = [name for name in os.listdir(workdir) if name.startswith("result")]
+        if len(written) != 1:
+            raise TaskCrashed(f"on {where}: the render child wrote {written or 'nothing'}")
+        with open(os.path.join(workdir, written[0]), "rb") as fh:
             data = fh.read()
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
@@ -564,7 +572,7 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
               f"{len(client.scheduler_info()['workers'])} Dask worker(s) at {client.scheduler.address}"
               + (" (the .blend is shipped to the workers)" if ship else ""), file=stream, flush=True)
         # regions assemble as EXR (full float) whatever the final format
-        task_ext = ".exr" if job.regions > 1 else job.output_ext
+        task_ext = ".exr" if job.regions > 1 else ("" if job.scene_format else job.output_ext)
         futures = {}
         for frame in sorted(todo):
             for index, region in enumerate(regions):
@@ -586,8 +594,10 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
             except Exception as error:
                 result = {"error": f"{type(error).__name__}: {error}"}
             if "error" in result:
-                failed[frame] = result["error"]
-                print(f"restframe: error: frame {frame}: {result['error']}", file=sys.stderr, flush=True)
+                message = result["error"]
+                message = message[len(f"frame {frame}: "):] if message.startswith(f"frame {frame}: ") else message
+                failed[frame] = message
+                print(f"restframe: error: frame {frame}: {message}", file=sys.stderr, flush=True)
                 progress.update(tasks=1)
                 continue
             done_frame = False

@@ -223,3 +223,25 @@ def test_scenes_measured_per_region_are_refused(tmp_path, tiny_blend):
     assert made.returncode == 0, made.stderr
     result = run_cli(blend, "-o", tmp_path / "x.exr", "--frame", "1", "--regions", "4", "--workers", "1")
     assert result.returncode == 1 and "Normalize Exposure" in result.stderr and "seams" in result.stderr
+
+
+def test_render_errors_on_workers_reach_the_client(tmp_path, cluster):
+    """A scene error is reported once per frame with its message (not retried), exit status 1."""
+    script = ("import sys, bpy, restframe_addon; restframe_addon.register(); "
+              "bpy.ops.wm.read_factory_settings(use_empty=True); s = bpy.context.scene; "
+              "cam = bpy.data.objects.new('Camera', bpy.data.cameras.new('Camera')); s.collection.objects.link(cam); "
+              "s.camera = cam; s.render.resolution_x, s.render.resolution_y = 8, 6; "
+              "bpy.ops.mesh.primitive_plane_add(); bpy.context.object.name = 'Tachyon'; "
+              "bpy.context.object.restframe.velocity = (0, 0, 1.5); "
+              "bpy.ops.wm.save_as_mainfile(filepath=sys.argv[1], copy=True)")
+    blend = tmp_path / "tachyon.blend"
+    made = subprocess.run([sys.executable, "-c", script, str(blend)], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120)
+    assert made.returncode == 0, made.stderr
+    result = run_cli(blend, "-o", tmp_path / "t_#.png", "--frames", "1-2", "--scheduler", cluster[0].scheduler_address)
+    assert result.returncode == 1
+    for frame in (1, 2):
+        assert result.stderr.count(f"restframe: error: frame {frame}: Error: RESTframe: Tachyon: speed 1.5 c is "
+                                   "not below the speed of light") == 1, result.stderr
+    assert "2 frame(s) failed" in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tachyon.blend"]
