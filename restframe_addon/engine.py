@@ -9,6 +9,7 @@ inside ``render()`` and would show a silent black image instead.
 from __future__ import annotations
 
 import sys
+import threading
 import time
 import traceback
 
@@ -58,6 +59,33 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         for name, channel_ids, channel_type in list_render_passes(scene, renderlayer):
             self.register_pass(scene, renderlayer, name, len(channel_ids), channel_ids, channel_type)
 
+    def _prepare(self, scene, settings):
+        """``Renderer(...)`` in a worker thread, polled for Esc every 50 ms.
+
+        Building the rest frames ends in one embree BVH build per frame, which cannot be
+        interrupted (about 3 s for a million triangles): on Esc the render returns at once
+        and the abandoned build stops at its next check.  None when cancelled.
+        """
+        cancelled = threading.Event()
+        box = {}
+
+        def work():
+            try:
+                box["renderer"] = Renderer(scene, settings, cancelled.is_set)
+            except BaseException as error:  # handed to the main thread
+                box["error"] = error
+
+        worker = threading.Thread(target=work, name="restframe-prepare", daemon=True)
+        worker.start()
+        while worker.is_alive():
+            worker.join(0.05)
+            if worker.is_alive() and self.should_stop():
+                cancelled.set()
+                return None
+        if "error" in box:
+            raise box["error"]
+        return None if self.should_stop() else box["renderer"]
+
     def render(self, depsgraph):
         try:
             self._render(depsgraph)
@@ -80,7 +108,9 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
             if self.should_stop():
                 return
             self.update_stats("", "RESTframe | Building rest frames")
-            renderer = Renderer(scene, settings, self.should_stop)
+            renderer = self._prepare(scene, settings)
+            if renderer is None:
+                return
         except export.ExportCancelled:
             return
         except (export.ExportError, RenderError) as error:

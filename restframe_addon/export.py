@@ -354,16 +354,27 @@ class _MeshData:
         self.normals, self.uvs = normals, uvs
 
 
-def _read_mesh(obj, mesh, materials: MaterialExporter) -> _MeshData | None:
-    """Vertices, loop triangles, global material indices, corner normals and UVs."""
+def _read_mesh(obj, mesh, materials: MaterialExporter, should_stop=lambda: False) -> _MeshData | None:
+    """Vertices, loop triangles, global material indices, corner normals and UVs.
+
+    ``should_stop`` is checked between the bulk reads (a million triangles take seconds).
+    """
+
+    def check():
+        if should_stop():
+            raise ExportCancelled()
+
     tris = mesh.loop_triangles
     n_tri, n_vert = len(tris), len(mesh.vertices)
     if n_tri == 0 or n_vert == 0:
         return None
+    check()
     vertices = np.empty(n_vert * 3, dtype=np.float32)
     mesh.vertices.foreach_get("co", vertices)
+    check()
     triangles = np.empty(n_tri * 3, dtype=np.int32)
     tris.foreach_get("vertices", triangles)
+    check()
     slot_of_tri = np.empty(n_tri, dtype=np.int32)
     tris.foreach_get("material_index", slot_of_tri)
 
@@ -373,11 +384,14 @@ def _read_mesh(obj, mesh, materials: MaterialExporter) -> _MeshData | None:
 
     corners = None
     normals = None
+    check()
     if mesh.normals_domain != 'FACE':  # flat meshes: the tracer's geometric normals are exact
         corners = np.empty(n_tri * 3, dtype=np.int32)
         tris.foreach_get("loops", corners)
         corner_normals = np.empty(len(mesh.loops) * 3, dtype=np.float32)
+        check()
         mesh.corner_normals.foreach_get("vector", corner_normals)
+        check()
         normals = corner_normals.reshape(-1, 3)[corners].reshape(n_tri, 3, 3).astype(np.float64)
 
     uvs = None
@@ -390,6 +404,7 @@ def _read_mesh(obj, mesh, materials: MaterialExporter) -> _MeshData | None:
         layer.uv.foreach_get("vector", corner_uvs)
         uvs = corner_uvs.reshape(-1, 2)[corners].reshape(n_tri, 3, 2).astype(np.float64)
 
+    check()
     return _MeshData(vertices.reshape(-1, 3).astype(np.float64), triangles.reshape(-1, 3),
                      global_materials, normals, uvs)
 
@@ -638,10 +653,12 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
         key = (mesh.as_pointer(), tuple(slot.material.as_pointer() if slot.material else 0
                                         for slot in obj.material_slots))
         if key not in cache:
-            cache[key] = _read_mesh(obj, mesh, materials)
+            cache[key] = _read_mesh(obj, mesh, materials, should_stop)
         data = cache[key]
         if data is None:
             continue
+        if should_stop():
+            raise ExportCancelled()
         vertices, normals = _place(data, matrix)
         meshes.append(Mesh(
             name=name,
