@@ -337,12 +337,14 @@ def run(ctx) -> Section:
     sec.add("### One core against two")
     sec.add("")
     t1, t2 = thread_study(res_th, repeats)
+    load_now = os.getloadavg()[0]
     r1, r2 = raw_thread_study(repeats, ctx.pick((256, 256), (64, 64)))
     speedup, raw_speedup = t1 / t2, r1 / r2
     sec.add(f"render_image of the 0.9c ball scene at {res_th[0]}x{res_th[1]}, 32x32 tiles, threads=1 vs threads=2 "
             f"(min of {repeats} interleaved): {t1:.2f} s vs {t2:.2f} s, **speed-up {speedup:.2f}x**. The floor: raw "
             f"embreex primary rays (a 33k-triangle sphere, 4096-ray batches) on one vs two Python threads: speed-up "
-            f"{raw_speedup:.2f}x. With other jobs on the 2 cores (see the load above) neither can reach 2x.")
+            f"{raw_speedup:.2f}x. 1-minute load average during this test: {load_now:.2f}"
+            + (" (other jobs share the 2 cores: this speed-up is not meaningful)." if load_now > 1.0 else "."))
     sec.add("")
     sec.number("thread_speedup", speedup)
     sec.number("raw_thread_speedup", raw_speedup)
