@@ -171,6 +171,7 @@ def test_cancel_stops_within_a_second_and_the_next_render_works(scene, monkeypat
     add_sun(scene)
     scene.render.resolution_x, scene.render.resolution_y = 160, 120
     scene.restframe.samples = 8
+    scene.restframe.tile_size = 32  # Esc waits for the tiles in flight (see docs/robustness.md)
     for i in range(6):
         bpy.ops.mesh.primitive_uv_sphere_add(segments=64, ring_count=32, location=(2 * i - 5, 0, 0))
         bpy.context.active_object.restframe.velocity = (0.0, 0.1 * i, 0.0)
