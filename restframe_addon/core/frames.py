@@ -118,7 +118,7 @@ class RestFrame:
     window: tuple[float, float] | None = None
     clock_offset: float = 0.0  # the body's clock = frame time + clock_offset (+ Geometry.tri_clock)
     spin: np.ndarray | None = None  # angular velocity (rad per unit c*t) about ``offset``
-    tolerance: float = 1e-3  # spinning bodies: how far a hit may be from its consistent pose (scene units)
+    tolerance: float = 1e-3  # accelerated and spinning bodies: how far they may stray from their true motion
 
     @property
     def has_geometry(self) -> bool:
@@ -402,7 +402,8 @@ def _add_segments(frames, meshes, scene: Scene, settings: MotionSettings, warnin
         end = np.inf if i == len(segments) - 1 else seg.end
         window = (t_mid + (start - seg.mid) / boost.gamma, t_mid + (end - seg.mid) / boost.gamma)
         frames.append(RestFrame(index=len(frames), velocity=Velocity(tuple(seg.beta)), boost=boost, names=[name],
-                                geometry=geometry, offset=x_mid, window=window, clock_offset=float(proper[i]) - t_mid))
+                                geometry=geometry, offset=x_mid, window=window, clock_offset=float(proper[i]) - t_mid,
+                                tolerance=settings.tolerance))
         starts.append(start)
         ends.append(end)
     speed = np.linalg.norm(trajectory.beta, axis=1).max()

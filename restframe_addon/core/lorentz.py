@@ -179,16 +179,18 @@ def compose_velocities(u, v):
     nn = float(boost.n @ body.n)
     one_minus_uv = boost.one_minus_b + boost.b * body.one_minus_b + boost.b * body.b * (1.0 - nn)
     gamma = boost.gamma * body.gamma * one_minus_uv
-    _, x = boost.events(np.array(body.gamma), body.gamma * body.b * body.n)
-    # the direction from the boosted 4-velocity; near c its length cancels, so there the speed
-    # comes from gamma (which has no cancellation)
-    norm = float(np.linalg.norm(x))
-    if norm == 0.0:
-        return np.zeros(3), gamma
-    speed = norm / gamma
-    if speed > 0.5:
-        speed = math.sqrt((gamma - 1.0) * (gamma + 1.0)) / gamma
-    return x / norm * speed, gamma
+    # v' = ((v_par - b) n + v_perp / gamma_u) / (1 - u.v): the textbook numerator
+    # v/gamma_u - u + gamma_u/(gamma_u + 1) (u.v) u with its parallel part simplified exactly
+    v = body.b * body.n
+    v_par = float(boost.n @ v)
+    v_perp = v - v_par * boost.n
+    if boost.is_identity:
+        return v, body.gamma
+    velocity = ((v_par - boost.b) * boost.n + v_perp / boost.gamma) / one_minus_uv
+    norm = float(np.linalg.norm(velocity))
+    if norm > 0.5:  # near c the speed is better known from gamma, which has no cancellation
+        velocity *= (math.sqrt((gamma - 1.0) * (gamma + 1.0)) / gamma) / norm
+    return velocity, gamma
 
 
 def speed_report(beta, lorentz_factor: float = 0.0) -> tuple[float, float, float]:

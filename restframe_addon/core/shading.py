@@ -143,11 +143,16 @@ class Shader:
         self.colour = colour
         self.max_bounces = max_bounces
         self.searchlight = searchlight
+        # how far secondary and shadow rays start off a surface: above the float32 geometry's
+        # rounding (relative to its extent), the float64 rounding of far positions (a hundred
+        # ulps), and, for the inertial segments of an accelerated body, twice the motion
+        # tolerance by which neighbouring segments of the same body may disagree
         self.epsilon = {}
         for k in frames.geometry:
             frame = frames.frames[k]
             reach = float(np.max(np.abs(frame.geometry.anchor))) + float(np.max(np.abs(frame.offset)))
-            self.epsilon[k] = 1e-5 * frame.geometry.extent + 1e-9 * reach
+            segment = 2.0 * frame.tolerance if frame.window is not None else 0.0
+            self.epsilon[k] = 1e-5 * frame.geometry.extent + 1e-14 * reach + segment
 
     # ------------------------------------------------------------------ helpers
     def _power(self, doppler, exponent: int):

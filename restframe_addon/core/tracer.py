@@ -44,7 +44,7 @@ def _clip_to_bounds(geometry, origin, d, t_lo, t_hi):
 
     Written per axis: numpy's reductions over a length-3 axis cost more than the arithmetic.
     """
-    pad = _PAD * geometry.extent + 1e-9 * float(np.max(np.abs(geometry.anchor)))
+    pad = _PAD * geometry.extent + 1e-14 * float(np.max(np.abs(geometry.anchor)))
     enter, leave = t_lo, t_hi
     with np.errstate(divide="ignore", invalid="ignore"):
         for axis in range(3):

@@ -158,6 +158,24 @@ def test_static_scene_equals_plain_ray_tracer_at_any_time():
         assert np.median(diff) < 1e-6
 
 
+def test_far_from_the_origin_shading_is_unchanged():
+    """The same lit scene moved 1e9 units away renders the same (offsets scale with the scene's
+    size and a few ulps of its position, not with its distance from the origin)."""
+    res = (32, 24)
+    far = np.array([1e9, 7e8, 3e8])
+    images = []
+    for shift in (np.zeros(3), far):
+        camera = look_at_camera(np.array([0.5, -7, 2.0]) + shift, np.array([0, 0, 0.3]) + shift, aspect=res[0] / res[1])
+        ball = uv_sphere(tuple(np.array([0, 0, 0.5]) + shift), 1.0, 48, 24)
+        floor = quad(tuple(np.array([0, 0, -0.5]) + shift), (8, 8))
+        scene = Scene(camera=camera, meshes=[Mesh("ball", *ball), Mesh("floor", *floor)],
+                      lights=[Light("lamp", "POINT", tuple(np.array([2, -3, 4]) + shift), power=800.0)])
+        images.append(render_image(scene, settings(res))["Combined"][..., :3])
+    near, moved = images
+    assert np.median(np.abs(moved - near)) < 1e-5
+    assert np.mean(np.abs(moved - near) > 1e-3 * (near + 1e-2)) < 0.01
+
+
 def ball_scene(beta, tau=3.0):
     v, t = uv_sphere((0, 0, 0), 1.0, 32, 16)
     floor = quad((0, 0, -1.2), (20, 20))
