@@ -188,19 +188,20 @@ def test_sudden_turn_at_0_99c_gives_no_nan_and_no_tear():
 def test_accelerated_body_does_not_shadow_itself():
     """Neighbouring inertial segments of one body disagree by up to the tolerance: shadow and
     secondary rays start beyond that, so the lit side of an accelerating ball has no speckles."""
-    alpha = 400.0  # gentle (beta <= 0.05): the sun's aberration stays small, many segments all the same
+    alpha = 400.0  # gentle: many segments, quick to trace; light along the motion stays on the x axis
     tau = np.linspace(-20, 20, 401)
     v, t = uv_sphere((0, 0, 0), 1.0, 64, 32)
     traj = Trajectory(tau, hyperbola(alpha, 0.0, tau), name="ball")
     camera = look_at_camera((0.0, -8.0, 0.0), (0.0, 0.0, 0.0), fov_half_tan=0.25)
-    sun = Light("sun", "SUN", (0, 0, 9), power=3.0, matrix=np.eye(3))
+    # sunlight along the motion: a neighbouring segment's ball, offset along x, would block it
+    sun = Light("sun", "SUN", (9, 0, 0), power=3.0, matrix=np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]], float))
     mats = [Material("white", base_color=(0.8, 0.8, 0.8), specular_ior_level=0.0)]
-    for tolerance in (1e-2, 1e-3):
+    for tolerance in (5e-2, 1e-2, 1e-3):
         scene = Scene(camera=camera, meshes=[Mesh("ball", v, t, pivot=(0, 0, 0), trajectory=traj)], lights=[sun],
                       materials=mats, tau_obs=8.0, world_color=(0, 0, 0))
-        assert len(segment_world_line(traj, tau[0], tau[-1], tolerance)) > 5
+        assert len(segment_world_line(traj, tau[0], tau[-1], tolerance)) >= 4
         passes = render_image(scene, settings((48, 48), motion_tolerance=tolerance))
-        facing = (passes["Depth"][..., 0] < 1e9) & (passes["Normal"][..., 2] > 0.3)
+        facing = (passes["Depth"][..., 0] < 1e9) & (passes["Normal"][..., 0] > 0.3)
         assert facing.sum() > 50
         assert np.all(passes["Combined"][..., 0][facing] > 0.0)
 
