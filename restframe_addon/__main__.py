@@ -182,6 +182,8 @@ def blend_assets(blend: str) -> tuple[list[str], list[str]]:
             continue
         path = os.path.normpath(bpy.path.abspath(image.filepath, library=image.library))
         inside = os.path.relpath(path, folder)
+        if not os.path.exists(path):
+            continue  # missing here too: the render warns about it wherever it runs
         if image.filepath.startswith("//") and not inside.startswith(os.pardir) and os.path.isfile(path):
             relative.append(inside)
         else:
@@ -195,6 +197,8 @@ def distributed_command(args, scene, out: str, ext: str, frames: list[int]) -> i
 
     if args.region is not None:
         raise CommandError("--region renders one region in this process: it does not combine with the Dask options")
+    if args.scheduler is not None and args.workers is not None:
+        raise CommandError("--workers starts a local cluster: give it or --scheduler, not both")
     regions = args.regions or 1
     if regions > 1:
         found = region_dependent_settings(scene)

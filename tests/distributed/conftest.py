@@ -2,14 +2,12 @@
 of two worker processes on loopback."""
 
 import logging
-import os
 import subprocess
 import sys
 
 import pytest
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-SAMPLE = os.path.join(ROOT, "sample_blends", "moving_sphere.blend")
+from dask_helpers import ROOT, SAMPLE, run_cli
 
 # The sample's moving sphere at 32x24, 2 samples, no dithering (8-bit images exact), saved as
 # a copy.  Run in a child so this test process never imports bpy.
@@ -25,11 +23,6 @@ scene.render.dither_intensity = 0.0
 scene.restframe.samples = 2
 bpy.ops.wm.save_as_mainfile(filepath=sys.argv[2], copy=True)
 """
-
-
-def run_cli(*args, timeout=240):
-    return subprocess.run([sys.executable, "-m", "restframe_addon", "render", *map(str, args)],
-                          cwd=ROOT, capture_output=True, text=True, timeout=timeout)
 
 
 @pytest.fixture(scope="session")

@@ -1,7 +1,20 @@
-"""Reading and comparing EXR and PNG files for the Dask tests."""
+"""Running the command line, reading and comparing EXR and PNG files for the Dask tests.
+(Not in conftest.py: test modules importing from "conftest" would get tests/blender's.)"""
+
+import os
+import subprocess
+import sys
 
 import numpy as np
 import OpenEXR
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+SAMPLE = os.path.join(ROOT, "sample_blends", "moving_sphere.blend")
+
+
+def run_cli(*args, timeout=240):
+    return subprocess.run([sys.executable, "-m", "restframe_addon", "render", *map(str, args)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=timeout)
 
 
 def exr_channels(path) -> dict[str, np.ndarray]:

@@ -12,8 +12,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import ROOT, run_cli
-from dask_helpers import assert_same_exr, exr_channels, png_pixels
+from dask_helpers import ROOT, assert_same_exr, exr_channels, png_pixels, run_cli
 from restframe_addon.distributed import (DistributedError, Progress, bundle_dir, render_task, split_regions,
                                          write_atomically)
 
