@@ -109,7 +109,9 @@ class SpectralColour:
         return self._emitter(np.broadcast_to(self.world_coeffs, (n, 3)), np.broadcast_to(self.world_scale, (n,)), lam)
 
     def to_rgb(self, values, lam):
-        return self.quadrature.observed_rgb(values)
+        """Observed spectra as Rec.709; spectra outside its gamut (strongly shifted, nearly
+        monochromatic) are clipped at zero per channel: a display cannot show negative light."""
+        return np.maximum(self.quadrature.observed_rgb(values), 0.0)
 
     @staticmethod
     def _emitter(coeffs, scale, lam):

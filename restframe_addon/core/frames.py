@@ -20,7 +20,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from embreex import rtcore_scene
+from embreex import rtcore, rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
 from . import motion
@@ -319,6 +319,16 @@ def _mesh_part(mesh, boost: Boost, warnings: list[str], relative_to=None):
     }
 
 
+_DEVICE = None  # one embree device for every scene: a device per scene crashes embree past ~1000
+
+
+def _embree_device():
+    global _DEVICE
+    if _DEVICE is None:
+        _DEVICE = rtcore.EmbreeDevice()
+    return _DEVICE
+
+
 def _geometry(parts: list[dict]) -> Geometry:
     offsets = np.cumsum([0] + [len(p["vertices"]) for p in parts[:-1]])
     vertices = np.concatenate([p["vertices"] for p in parts])
@@ -331,7 +341,7 @@ def _geometry(parts: list[dict]) -> Geometry:
     used = vertices[np.unique(triangles)]
     lo, hi = used.min(axis=0), used.max(axis=0)
     anchor = 0.5 * (lo + hi)
-    scene = rtcore_scene.EmbreeScene()
+    scene = rtcore_scene.EmbreeScene(_embree_device())
     TriangleMesh(scene, (vertices - anchor).astype(np.float32), triangles.astype(np.int32))
     # commit now (embreex commits lazily on the first query, which is not thread-safe)
     scene.run(np.zeros((1, 3), np.float32), np.array([[1, 0, 0]], np.float32))

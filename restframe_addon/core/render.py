@@ -55,6 +55,7 @@ class Renderer:
         _validate(scene, settings)
         self.scene = scene
         self.settings = settings
+        self.should_stop = should_stop
         try:
             self.frames: FrameSet = build_frames(scene, should_stop, MotionSettings(settings.motion_tolerance))
             lights = prepare_lights(scene, self.frames)
@@ -162,6 +163,8 @@ class Renderer:
         coverage = np.zeros(n)
         per_batch = max(_MAX_VALUES // (max(n, 1) * self.colour.channels), 1)
         for first in range(0, samples, per_batch):
+            if first and self.should_stop():  # Esc between sample batches of a long tile
+                break
             count = min(per_batch, samples - first)
             pix = np.repeat(pixel, count)
             smp = np.tile(np.arange(first, first + count), n)
@@ -289,24 +292,24 @@ def render_tiles(scene: Scene, settings: RenderSettings, should_stop: Callable[[
                 return
             yield renderer.render_tile(rect)
         return
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        pending = set()
-        queue = iter(rects)
-        try:
-            while True:
-                while len(pending) < 2 * workers and not should_stop():
-                    rect = next(queue, None)
-                    if rect is None:
-                        break
-                    pending.add(pool.submit(renderer.render_tile, rect))
-                if not pending or should_stop():
-                    return
-                done, pending = wait(pending, timeout=0.1, return_when=FIRST_COMPLETED)
-                for future in done:
-                    yield future.result()
-        finally:
-            for future in pending:
-                future.cancel()
+    pool = ThreadPoolExecutor(max_workers=workers)
+    pending = set()
+    queue = iter(rects)
+    try:
+        while True:
+            while len(pending) < 2 * workers and not should_stop():
+                rect = next(queue, None)
+                if rect is None:
+                    break
+                pending.add(pool.submit(renderer.render_tile, rect))
+            if not pending or should_stop():
+                return
+            done, pending = wait(pending, timeout=0.1, return_when=FIRST_COMPLETED)
+            for future in done:
+                yield future.result()
+    finally:
+        # on Esc, return at once: tiles still running stop at their next sample batch
+        pool.shutdown(wait=False, cancel_futures=True)
 
 
 def render_image(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bool] = lambda: False,

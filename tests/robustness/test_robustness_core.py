@@ -213,8 +213,6 @@ print(len(renderer.frames.frames))
 """
 
 
-@pytest.mark.xfail(strict=True, reason="core: every rest frame creates its own embree device; past ~1000 "
-                   "devices embree crashes (segfault). Fix: one shared rtcore.EmbreeDevice in frames._geometry")
 def test_two_thousand_distinct_velocities_do_not_crash():
     """In a subprocess, so a crash fails this test instead of the whole run."""
     import subprocess

@@ -156,8 +156,6 @@ def test_random_scenes_never_crash_and_keep_the_invariants():
     assert hits > 0  # the scenes are not all empty views
 
 
-@pytest.mark.xfail(strict=True, reason="core: SPECTRAL mode maps out-of-gamut (strongly shifted) spectra to "
-                   "negative scene-linear RGB (-0.012 here); needs gamut mapping or clipping in core.colour")
 def test_spectral_colours_are_never_negative():
     """A fuzz scene (seed 20261230) whose spectral render has a negative RGB component."""
     rng = np.random.default_rng(20261230)
