@@ -305,8 +305,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="split each frame into N regions rendered by different workers and assembled "
                       "into one image identical to a whole render")
     dask.add_argument("--retries", type=int, default=2, metavar="N",
-                      help="times Dask retries a task whose render crashed (default 2; a killed worker's "
-                      "task is always rescheduled)")
+                      help="times Dask retries a task whose render crashed (default 2); a task whose "
+                      "worker dies is rescheduled by the scheduler (distributed.scheduler.allowed-failures, 3 "
+                      "by default)")
     dask.add_argument("--overwrite", action="store_true",
                       help="render frames whose output already exists (default: skip them)")
     return parser

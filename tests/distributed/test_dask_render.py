@@ -56,6 +56,16 @@ def test_progress_bar_counts_frames_rate_and_eta():
     assert "2/2 frames (8/8 tasks)" in Stream.lines[-1] and "ETA" not in Stream.lines[-1]
 
 
+def test_region_option_parses_pixel_rectangles():
+    from restframe_addon.__main__ import CommandError, parse_region
+
+    assert parse_region("16,0,32,12") == (16, 0, 32, 12)
+    assert parse_region(" 0, 1 ,2,3 ") == (0, 1, 2, 3)
+    for bad in ("", "1,2,3", "1,2,3,4,5", "a,b,c,d", "-1,0,4,4"):
+        with pytest.raises(CommandError):
+            parse_region(bad)
+
+
 def test_atomic_write_replaces_whole_files_only(tmp_path):
     target = tmp_path / "out" / "f.exr"
     write_atomically(str(target), b"one")
