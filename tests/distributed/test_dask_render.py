@@ -254,3 +254,34 @@ def test_render_errors_on_workers_reach_the_client(tmp_path, cluster):
                                    "not below the speed of light") == 1, result.stderr
     assert "2 frame(s) failed" in result.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["tachyon.blend"]
+
+
+def test_blend_is_shipped_to_a_worker_that_cannot_see_it(tiny_blend, reference, tmp_path):
+    """A worker in its own mount namespace, with an empty tmpfs over the .blend's folder, gets the
+    .blend from the client and renders the same pixels."""
+    from dask.distributed import LocalCluster
+
+    folder = os.path.dirname(tiny_blend)
+    probe = subprocess.run(["unshare", "--mount", "--propagation", "private", "sh", "-c",
+                            f"mount -t tmpfs none '{folder}' && test ! -e '{tiny_blend}'"], capture_output=True)
+    if probe.returncode != 0:
+        pytest.skip(f"no private mount namespace here: {probe.stderr.decode().strip()}")
+    with LocalCluster(n_workers=0, host="127.0.0.1", dashboard_address=":0", processes=True) as empty:
+        env = dict(os.environ, PYTHONPATH=ROOT)
+        worker = subprocess.Popen(
+            ["unshare", "--mount", "--propagation", "private", "sh", "-c",
+             f"mount -t tmpfs none '{folder}' && exec '{sys.executable}' -m distributed.cli.dask_worker "
+             f"{empty.scheduler_address} --nthreads 1 --no-dashboard"],
+            cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            result = run_cli(tiny_blend, "-o", tmp_path / "f_#.exr", "--frames", "2", "--scheduler",
+                             empty.scheduler_address)
+        finally:
+            worker.terminate()
+            worker.wait(timeout=30)
+    from restframe_addon.distributed import file_digest
+
+    shutil.rmtree(bundle_dir(file_digest(str(tiny_blend))), ignore_errors=True)  # the worker's copy
+    assert result.returncode == 0, result.stderr
+    assert "(the .blend is shipped to the workers)" in result.stdout
+    assert_same_exr(tmp_path / "f_2.exr", reference / "f_2.exr")
