@@ -157,17 +157,6 @@ def set_region(scene, region: tuple[int, int, int, int]) -> None:
     render.border_min_y, render.border_max_y = edge(y0, height), edge(y1, height)
 
 
-def region_dependent_settings(scene) -> list[str]:
-    """Settings measured on the rendered region, not the whole image (regions would show seams)."""
-    rf = scene.restframe
-    found = []
-    if rf.normalize_exposure and rf.doppler_mode != 'FACTOR':
-        found.append("Normalize Exposure (measured on the rendered region)")
-    if rf.doppler_mode == 'FACTOR' and rf.doppler_range_auto:
-        found.append("the Factor display's Auto Range (measured on the rendered region)")
-    return found
-
-
 def blend_assets(blend: str) -> tuple[list[str], list[str]]:
     """Files the open .blend reads (unpacked images): (paths relative to the .blend's folder,
     absolute paths elsewhere)."""
@@ -200,11 +189,6 @@ def distributed_command(args, scene, out: str, ext: str, frames: list[int]) -> i
     if args.scheduler is not None and args.workers is not None:
         raise CommandError("--workers starts a local cluster: give it or --scheduler, not both")
     regions = args.regions or 1
-    if regions > 1:
-        found = region_dependent_settings(scene)
-        if found:
-            raise CommandError(f"cannot split this scene into regions without seams: {'; '.join(found)}; "
-                               "render it whole (--regions 1) or turn that setting off")
     relative, absolute = blend_assets(args.blend)
     job = distributed.Job(
         blend=os.path.abspath(args.blend), scene=scene.name, output_ext=ext,

@@ -34,14 +34,6 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-# Settings whose value the core measures on the rendered region rather than on the whole
-# image: split into regions, such a still would show seams.
-REGION_DEPENDENT = (
-    ("normalize_exposure", "Normalize Exposure measures the exposure on the rendered region"),
-    ("factor_auto_range", "the Factor display's Auto Range is measured on the rendered region"),
-)
-
-
 class DistributedError(Exception):
     """A problem with the cluster, the workers or a task, reported without a traceback."""
 

@@ -22,6 +22,8 @@ ROOT = os.path.dirname(HERE)
 if ROOT not in sys.path:
     sys.path.insert(0, ROOT)
 
+from restframe_addon.exr import read_passes  # noqa: E402 (after the path set-up)
+
 FPS = 24
 REFERENCE_FRAME = 1
 IMAGING_FRAME = REFERENCE_FRAME + FPS  # t_obs = 1 s after the reference time
@@ -197,24 +199,6 @@ def save(path):
 
 
 # --------------------------------------------------------------------------- rendering (bpy)
-def read_exr(path, layer="ViewLayer") -> dict:
-    """Pass name -> (H, W, C) float64 array, row 0 = TOP (image order)."""
-    import OpenEXR
-
-    passes = {}
-    with OpenEXR.File(str(path)) as exr:
-        for part in exr.parts:
-            for name, channel in part.channels.items():
-                pixels = np.asarray(channel.pixels, dtype=np.float64)
-                if pixels.ndim == 2:
-                    pixels = pixels[..., None]
-                pass_name = name[len(layer) + 1:] if name.startswith(layer + ".") else name
-                if pixels.shape[2] == 1 and "." in pass_name:
-                    pass_name = pass_name.rsplit(".", 1)[0]
-                passes.setdefault(pass_name, []).append(pixels)
-    return {name: np.concatenate(parts, axis=2) for name, parts in passes.items()}
-
-
 def render_blend(blend, exr_path, resolution=None, samples=None, prepare=None, **settings):
     """Open a sample .blend, override resolution / samples / Scene.restframe settings, render
     its saved frame (the imaging frame) to a multilayer EXR.  Returns (passes, camera info).
@@ -243,7 +227,7 @@ def render_blend(blend, exr_path, resolution=None, samples=None, prepare=None, *
     scene.render.filepath = str(exr_path)
     scene.frame_set(scene.frame_current)
     bpy.ops.render.render(write_still=True)
-    passes = read_exr(exr_path)
+    passes = read_passes(exr_path, bottom_up=False)
     if "IndexOB" in passes and "Object Index" not in passes:
         passes["Object Index"] = passes["IndexOB"]
     return passes, camera_info(scene)

@@ -88,8 +88,14 @@ class Renderer:
         width, height = self.settings.resolution
         return self.settings.region or (0, 0, width, height)
 
-    def tiles(self) -> list[tuple[int, int, int, int]]:
-        x0, y0, x1, y1 = self.region
+    @property
+    def full_image(self) -> tuple[int, int, int, int]:
+        width, height = self.settings.resolution
+        return (0, 0, width, height)
+
+    def tiles(self, area=None) -> list[tuple[int, int, int, int]]:
+        """The tiles of ``area`` (default: the region to render)."""
+        x0, y0, x1, y1 = area or self.region
         size = max(int(self.settings.tile_size), 1)
         return [
             (tx, ty, min(tx + size, x1), min(ty + size, y1))
@@ -110,9 +116,10 @@ class Renderer:
         return xs.ravel(), ys.ravel(), (ys * width + xs).ravel().astype(np.int64)
 
     def _measure_doppler_range(self, should_stop):
-        """Range of D over the region's pixel-centre rays (for the normalised FACTOR display)."""
+        """Range of D over the whole image's pixel-centre rays (for the normalised FACTOR
+        display; the whole image, so that regions rendered apart agree with a full render)."""
         lo, hi = math.inf, -math.inf
-        for rect in self.tiles():
+        for rect in self.tiles(self.full_image):
             if should_stop():
                 break
             xs, ys, _ = self._pixel_grid(rect)
@@ -127,9 +134,10 @@ class Renderer:
         """Exposure that gives the image the mean luminance of the same view without Doppler
         intensity or colour changes (the paper's dynamic-range re-normalisation, section 4.2).
 
-        Both are estimated on a small preview of the region (one ray per preview pixel).
+        Both are estimated on a small preview of the whole image (one ray per preview pixel),
+        so that regions rendered apart agree with a full render.
         """
-        x0, y0, x1, y1 = self.region
+        x0, y0, x1, y1 = self.full_image
         scale = _EXPOSURE_PREVIEW / max(x1 - x0, y1 - y0, 1)
         nx, ny = max(int((x1 - x0) * scale), 1), max(int((y1 - y0) * scale), 1)
         gx, gy = np.meshgrid(x0 + (np.arange(nx) + 0.5) * (x1 - x0) / nx, y0 + (np.arange(ny) + 0.5) * (y1 - y0) / ny)

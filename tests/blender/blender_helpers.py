@@ -8,6 +8,8 @@ import bpy
 import numpy as np
 import OpenEXR
 
+from restframe_addon.exr import read_passes as read_exr
+
 
 def add_camera(scene, location=(0.0, 0.0, 10.0), rotation=(0.0, 0.0, 0.0), **data):
     cam = bpy.data.cameras.new("Camera")
@@ -49,23 +51,6 @@ def use_multilayer_exr(scene, path):
         settings.file_format = 'OPEN_EXR_MULTILAYER'
     settings.color_depth = '32'
     scene.render.filepath = str(path)
-
-
-def read_exr(path, layer="ViewLayer") -> dict[str, np.ndarray]:
-    """Pass name -> (H, W, C) float array, row 0 = bottom (Blender's order)."""
-    passes = {}
-    with OpenEXR.File(str(path)) as exr:
-        for part in exr.parts:
-            for name, channel in part.channels.items():
-                pixels = np.asarray(channel.pixels, dtype=np.float64)
-                if pixels.ndim == 2:
-                    pixels = pixels[..., None]
-                # "ViewLayer.Doppler.X" -> "Doppler"; "ViewLayer.Combined" (RGBA grouped) -> "Combined"
-                pass_name = name[len(layer) + 1:] if name.startswith(layer + ".") else name
-                if pixels.shape[2] == 1 and "." in pass_name:
-                    pass_name = pass_name.rsplit(".", 1)[0]
-                passes.setdefault(pass_name, []).append(pixels[::-1])
-    return {name: np.concatenate(parts, axis=2) for name, parts in passes.items()}
 
 
 def render_exr(scene, path) -> dict[str, np.ndarray]:

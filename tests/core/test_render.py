@@ -293,6 +293,16 @@ def test_threads_tiles_and_regions_give_identical_pixels():
         assert np.array_equal(base[name][3:17, 5:29], region[name][3:17, 5:29]), name
 
 
+@pytest.mark.parametrize("mode", ["FACTOR", "OFF"])
+def test_whole_image_measurements_make_regions_match(mode):
+    """The Factor display's auto range and the exposure normalisation are measured on the whole
+    image, so a region renders exactly the pixels of the full render (no seams between regions)."""
+    common = dict(samples=2, doppler_mode=mode, normalize_exposure=(mode == "OFF"), tile_size=16)
+    full = render_image(ball_scene(0.8), settings((40, 30), **common))
+    part = render_image(ball_scene(0.8), settings((40, 30), region=(20, 0, 40, 15), **common))
+    assert np.array_equal(full["Combined"][0:15, 20:40], part["Combined"][0:15, 20:40])
+
+
 def test_no_nan_and_positive_doppler_at_extreme_speed():
     scene = ball_scene(0.0)
     for mesh in scene.meshes:

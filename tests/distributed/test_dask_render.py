@@ -222,18 +222,6 @@ def test_worker_that_cannot_import_the_addon_is_a_clear_error(tiny_blend, tmp_pa
     assert not (tmp_path / "x.exr").exists()
 
 
-def test_scenes_measured_per_region_are_refused(tmp_path, tiny_blend):
-    script = ("import sys, bpy, restframe_addon; restframe_addon.register(); "
-              "bpy.ops.wm.open_mainfile(filepath=sys.argv[1]); s = bpy.context.scene; "
-              "s.restframe.normalize_exposure = True; bpy.ops.wm.save_as_mainfile(filepath=sys.argv[2], copy=True)")
-    blend = tmp_path / "normalized.blend"
-    made = subprocess.run([sys.executable, "-c", script, str(tiny_blend), str(blend)], cwd=ROOT,
-                          capture_output=True, text=True, timeout=120)
-    assert made.returncode == 0, made.stderr
-    result = run_cli(blend, "-o", tmp_path / "x.exr", "--frame", "1", "--regions", "4", "--workers", "1")
-    assert result.returncode == 1 and "Normalize Exposure" in result.stderr and "seams" in result.stderr
-
-
 def test_render_errors_on_workers_reach_the_client(tmp_path, cluster):
     """A scene error is reported once per frame with its message (not retried), exit status 1."""
     script = ("import sys, bpy, restframe_addon; restframe_addon.register(); "
