@@ -18,6 +18,8 @@ from bpy.props import (
 )
 from bpy.types import PropertyGroup
 
+from .core.lorentz import Boost
+
 # Explicit numbers keep saved files stable as modes are added.
 DOPPLER_MODES = (
     ('OFF', "Off", "Geometry only: aberration, light-travel time and the searchlight effect; "
@@ -37,22 +39,17 @@ MOTION_MODES = (
 
 
 def speed_of(beta, lorentz_factor: float) -> tuple[float, float, float]:
-    """Speed as (beta, gamma, rapidity) from the two user inputs.
+    """Speed as (beta, gamma, rapidity) from the two user inputs, by the core's own boost.
 
     With ``lorentz_factor`` > 0 the speed comes from gamma, which stays exact for
     speeds too close to c to write as a float beta.  Values are ``nan`` when the
     input is not physical (speed >= c, gamma < 1, no direction for gamma > 1).
     """
-    if lorentz_factor > 0.0:
-        gamma = float(lorentz_factor)
-        if gamma < 1.0 or not math.isfinite(gamma) or (gamma > 1.0 and not any(beta)):
-            return math.nan, math.nan, math.nan
-        # beta = sqrt(1 - 1/gamma^2), written without cancellation
-        return math.sqrt((gamma - 1.0) * (gamma + 1.0)) / gamma, gamma, math.acosh(gamma)
-    b = math.sqrt(sum(float(c) * float(c) for c in beta))
-    if not b < 1.0:  # also catches nan
+    try:
+        boost = Boost.from_velocity(beta, lorentz_factor)
+    except ValueError:
         return math.nan, math.nan, math.nan
-    return b, 1.0 / math.sqrt((1.0 - b) * (1.0 + b)), math.atanh(b)
+    return boost.b, boost.gamma, boost.rapidity
 
 
 class RestframeObjectSettings(PropertyGroup):

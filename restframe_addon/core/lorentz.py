@@ -191,9 +191,3 @@ def compose_velocities(u, v):
     if norm > 0.5:  # near c the speed is better known from gamma, which has no cancellation
         velocity *= (math.sqrt((gamma - 1.0) * (gamma + 1.0)) / gamma) / norm
     return velocity, gamma
-
-
-def speed_report(beta, lorentz_factor: float = 0.0) -> tuple[float, float, float]:
-    """(b, gamma, rapidity) of a velocity as entered, for display."""
-    boost = Boost.from_velocity(beta, lorentz_factor)
-    return boost.b, boost.gamma, boost.rapidity
