@@ -245,8 +245,9 @@ def _output_node(id_data):
 class MaterialExporter:
     """Principled BSDF (and a few simple shaders) -> core Materials, each read once."""
 
-    def __init__(self, warn: Callable[[str], None]):
+    def __init__(self, warn: Callable[[str], None], scene=None):
         self.warn = warn
+        self.scene = scene
         self.materials: list[Material] = [Material(name="Default")]
         self._index: dict[int, int] = {}
 
@@ -275,7 +276,7 @@ class MaterialExporter:
             self._principled(mat, node, out)
         elif node.type == 'EMISSION':
             out.base_color = (0.0, 0.0, 0.0)
-            out.emission = self._emission(mat, node.inputs["Color"], node.inputs["Strength"])
+            out.emission = self._emission(mat, node.inputs["Color"], node.inputs["Strength"], out)
         elif node.type == 'BSDF_DIFFUSE':
             out.base_color = self._color(mat, node.inputs["Color"])
             out.roughness = 1.0
@@ -300,11 +301,40 @@ class MaterialExporter:
         out.ior = self._value(mat, inputs["IOR"])
         out.specular_ior_level = self._value(mat, inputs["Specular IOR Level"])
         out.transmission = self._value(mat, inputs["Transmission Weight"])
-        out.emission = self._emission(mat, inputs["Emission Color"], inputs["Emission Strength"])
+        out.emission = self._emission(mat, inputs["Emission Color"], inputs["Emission Strength"], out)
 
-    def _emission(self, mat, color, strength):
-        c = np.asarray(self._color(mat, color)) * self._value(mat, strength)
-        return tuple(float(v) for v in c)
+    def _emission(self, mat, color, strength, out: Material):
+        """Emission colour * strength; a keyframed strength becomes an optical-clock curve."""
+        curve = self._emission_curve(mat, strength)
+        scale = 1.0 if curve is not None else self._value(mat, strength)
+        out.emission_curve = curve
+        return tuple(float(v) for v in np.asarray(self._color(mat, color)) * scale)
+
+    def _emission_curve(self, mat, strength):
+        """(seconds of the emitter's own clock, strengths) from the strength's F-curve, or None.
+
+        The camera sees an emitter's animation at the emitter's clock reading of each seen
+        event (shared/physics.md, optical clocks): Blender frame f is clock time
+        (f - reference_frame) * fps_base / fps.  Sampled over the keys and the scene's frame
+        range, twice widened; beyond that the first and last values hold.
+        """
+        tree = getattr(mat.original, "node_tree", None)
+        animation = getattr(tree, "animation_data", None) if tree is not None else None
+        if self.scene is None or animation is None:
+            return None
+        path = strength.path_from_id("default_value")
+        curve = next((fc for fc in _fcurves(animation.action, getattr(animation, "action_slot", None))
+                      if fc.data_path == path), None)
+        if curve is None or len(curve.keyframe_points) == 0:
+            return None
+        scene = self.scene
+        keys = [k.co[0] for k in curve.keyframe_points]
+        lo, hi = min(min(keys), scene.frame_start), max(max(keys), scene.frame_end)
+        span = hi - lo + 1.0
+        frames = np.linspace(lo - 2 * span, hi + 2 * span, int(min(5 * span * SUBFRAMES, MAX_SAMPLES)) + 1)
+        values = np.array([curve.evaluate(float(f)) for f in frames])
+        seconds = (frames - scene.restframe.reference_frame) * scene.render.fps_base / scene.render.fps
+        return seconds, values
 
     def _unsupported_link(self, mat, socket) -> None:
         self.warn(f"Material '{mat.name}': the link into '{socket.name}' is not supported, using its value")
@@ -608,7 +638,7 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
     if camera_object is not None:
         camera_object = camera_object.evaluated_get(depsgraph)
     camera = export_camera(camera_object, scene)
-    materials = MaterialExporter(warn_once)
+    materials = MaterialExporter(warn_once, scene)
     meshes: list[Mesh] = []
     lights: list[Light] = []
     cache: dict[tuple, _MeshData | None] = {}

@@ -150,3 +150,45 @@ def test_object_time_pass_in_multilayer_exr(scene, tmp_path):
     # a clock at rest in the world frame shows the world time of emission: 1 s minus the light travel
     np.testing.assert_allclose(passes["Object Time"][hit], passes["Emission Time"][hit], atol=1e-5)
     assert np.all(passes["Object Time"][hit] < 1.0) and np.all(passes["Object Time"][hit] > 1.0 - 1.2 / 10 * 10)
+
+
+def test_keyframed_emission_is_seen_on_the_emitters_own_clock(scene, tmp_path):
+    """Optical clocks: an emitter whose strength is keyed to its own time (strength = 1000 +
+    24 * seconds, linear) is seen, with the searchlight off, exactly at the clock reading of the
+    seen event (the Object Time pass, seconds before the rendered frame's time: the light left
+    long ago); approaching at 0.6c that reading runs at D = 2."""
+    scene.render.fps, scene.render.fps_base = FPS, 1.0
+    scene.restframe.reference_frame = 1
+    scene.restframe.searchlight = False
+    scene.view_settings.view_transform = 'Standard'
+    scene.world = None
+    add_camera(scene, location=(0.0, 0.0, 0.0), rotation=(math.radians(90), 0.0, 0.0), lens=500)
+    glow = add_plane(scene, "Blinker", size=40.0, location=(0.0, 30.0, 0.0), velocity=(0.0, -0.6, 0.0))
+    glow.rotation_euler = (math.radians(90), 0.0, 0.0)
+    mat = bpy.data.materials.new("glow")
+    if bpy.app.version < (5, 0, 0):
+        mat.use_nodes = True
+    bsdf = mat.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Base Color"].default_value = (0, 0, 0, 1)
+    bsdf.inputs["Specular IOR Level"].default_value = 0.0
+    bsdf.inputs["Emission Color"].default_value = (1, 1, 1, 1)
+    strength = bsdf.inputs["Emission Strength"]
+    for frame, value in ((1, 1000.0), (241, 1240.0)):
+        strength.default_value = value
+        strength.keyframe_insert("default_value", frame=frame)
+    animation = mat.node_tree.animation_data
+    for fc in export._fcurves(animation.action, getattr(animation, "action_slot", None)):
+        fc.extrapolation = 'LINEAR'
+        for point in fc.keyframe_points:
+            point.interpolation = 'LINEAR'
+    glow.data.materials.append(mat)
+    scene.render.resolution_x = scene.render.resolution_y = 5  # odd (Blender's minimum is 4): pixel 2 is the axis
+    seen = []
+    for frame in (25, 37):
+        scene.frame_set(frame)
+        passes = render_exr(scene, tmp_path / f"f{frame}.exr")
+        clock = float(passes["Object Time"][2, 2, 0])
+        assert clock < 0.0
+        assert float(passes["Combined"][2, 2, 1]) == pytest.approx(1000.0 + 24.0 * clock, rel=1e-5)
+        seen.append(clock)
+    assert (seen[1] - seen[0]) / (12 / FPS) == pytest.approx(2.0, rel=1e-5)
