@@ -278,9 +278,11 @@ def get_panels():
     return panels
 
 
+_register_classes, _unregister_classes = bpy.utils.register_classes_factory(classes)
+
+
 def register():
-    for cls in classes:
-        bpy.utils.register_class(cls)
+    _register_classes()
     for panel in get_panels():
         panel.COMPAT_ENGINES.add(ENGINE)
 
@@ -288,5 +290,4 @@ def register():
 def unregister():
     for panel in get_panels():
         panel.COMPAT_ENGINES.discard(ENGINE)
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+    _unregister_classes()
