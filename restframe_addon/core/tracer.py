@@ -256,10 +256,13 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
     s_lo = np.broadcast_to(np.asarray(s_lo, dtype=np.float64), (n,))
     s_hi = np.broadcast_to(np.asarray(s_hi, dtype=np.float64), (n,))
     blocked = np.zeros(n, dtype=bool)
+    reach = _bundle_reach(tau0, x0, d, s_lo, s_hi)
     for k in frames.candidates(src, tau0, x0):
         todo = np.flatnonzero(~blocked)
         if len(todo) == 0:
             break
+        if reach is not None and not _may_meet(frames, src, k, *reach):
+            continue
         fmap = frames.map(src, k)
         frame = frames.frames[k]
         tau_k, origin = fmap.events(tau0[todo], x0[todo])
@@ -268,6 +271,46 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
         (idx,) = _query(frame, tau_k, origin, dk, lo, hi, occlusion=True)
         blocked[todo[idx]] = True
     return blocked
+
+
+def _bundle_reach(tau0, x0, d, s_lo, s_hi):
+    """(centre, radius, earliest, latest): a ball holding every ray segment of a bundle, and the
+    span of its events' times (source frame); None for unbounded rays (sunlight)."""
+    if len(d) == 0 or not np.all(np.isfinite(s_hi)):
+        return None
+    near = x0 + s_lo[:, None] * d
+    far = x0 + s_hi[:, None] * d
+    points = np.concatenate([near, far])
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    return centre, 0.5 * float(np.linalg.norm(hi - lo)), float(np.min(tau0 - s_hi)), float(np.max(tau0 - s_lo))
+
+
+def _may_meet(frames: FrameSet, src: int, k: int, centre, radius, earliest, latest) -> bool:
+    """Can frame k's body come within reach of the bundle's ball during [earliest, latest]?
+
+    The body's bounding sphere moves uniformly in the source frame (its centre's world line
+    mapped from frame k; a Lorentz-contracted body only shrinks), so over the time span it
+    sweeps a capsule: the frame matters only if the capsule meets the ball.
+    """
+    frame = frames.frames[k]
+    geometry = frame.geometry
+    if frame.spin is not None:
+        body_centre, body_radius = frame.offset, geometry.radius
+    else:
+        body_centre, body_radius = geometry.anchor + frame.offset, 0.5 * float(np.linalg.norm(geometry.hi - geometry.lo))
+    back = frames.map(k, src)
+    t_a, x_a = back.events(np.array(0.0), body_centre)
+    t_b, x_b = back.events(np.array(1.0), body_centre)
+    velocity = (x_b - x_a) / float(t_b - t_a)
+    start = x_a + velocity * (earliest - float(t_a))
+    end = x_a + velocity * (latest - float(t_a))
+    segment = end - start
+    length2 = float(segment @ segment)
+    along = 0.0 if length2 == 0.0 else min(max(float((centre - start) @ segment) / length2, 0.0), 1.0)
+    gap = float(np.linalg.norm(centre - (start + along * segment)))
+    slack = body_radius * (1.0 + 2 * _PAD) + 1e-9 * (1.0 + float(np.max(np.abs(centre))))
+    return gap <= radius + slack
 
 
 def hit_geometry(frame: RestFrame, prim, u, v, tau=None):
