@@ -135,7 +135,7 @@ class RestFrame:
     def to_local(self, x, d, tau=None):
         """Frame coordinates (points, directions; at frame times tau if spinning) -> local geometry."""
         if self.spin is None:
-            return x - self.offset, d
+            return (x - self.offset if self.offset.any() else x), d
         pose = self.pose(tau)
         return np.einsum("nji,nj->ni", pose, x - self.offset), np.einsum("nji,nj->ni", pose, d)
 

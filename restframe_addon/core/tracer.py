@@ -72,14 +72,18 @@ def _query(frame: RestFrame, tau, origin, d, t_lo, t_hi, occlusion: bool):
 
 def _local_query(geometry, origin, d, t_lo, t_hi, occlusion: bool):
     enter, leave = _clip_to_bounds(geometry, origin, d, t_lo, t_hi)
-    idx = np.flatnonzero(enter <= leave)
-    if len(idx) == 0:
-        return (idx,) if occlusion else (idx, None, None, None, None)
-    start = enter[idx]
-    start_point = origin[idx] + start[:, None] * d[idx] - geometry.anchor
-    length = (leave[idx] - start).astype(np.float32)
+    inside = enter <= leave
+    if inside.all():  # every ray reaches the bounds (the common case up close): no gathers
+        idx, start, origin_in, d_in, leave_in = np.arange(len(d)), enter, origin, d, leave
+    else:
+        idx = np.flatnonzero(inside)
+        if len(idx) == 0:
+            return (idx,) if occlusion else (idx, None, None, None, None)
+        start, origin_in, d_in, leave_in = enter[idx], origin[idx], d[idx], leave[idx]
+    start_point = origin_in + start[:, None] * d_in - geometry.anchor
+    length = (leave_in - start).astype(np.float32)
     o32 = np.ascontiguousarray(start_point, dtype=np.float32)
-    d32 = np.ascontiguousarray(d[idx], dtype=np.float32)
+    d32 = np.ascontiguousarray(d_in, dtype=np.float32)
     if occlusion:
         blocked = geometry.embree.run(o32, d32, dists=length, query="OCCLUDED") >= 0
         return (idx[blocked],)
