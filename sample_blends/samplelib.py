@@ -22,7 +22,8 @@ ROOT = os.path.dirname(HERE)
 if ROOT not in sys.path:
     sys.path.insert(0, ROOT)
 
-from restframe_addon.exr import read_passes  # noqa: E402 (after the path set-up)
+from restframe_addon.__main__ import configure_output  # noqa: E402 (after the path set-up)
+from restframe_addon.exr import read_passes  # noqa: E402
 
 FPS = 24
 REFERENCE_FRAME = 1
@@ -218,12 +219,7 @@ def render_blend(blend, exr_path, resolution=None, samples=None, prepare=None, *
         prepare(scene)
     layer = scene.view_layers[0]
     layer.use_pass_normal = layer.use_pass_object_index = layer.use_pass_z = True
-    image = scene.render.image_settings
-    if hasattr(image, "media_type"):
-        image.media_type = 'MULTI_LAYER_IMAGE'
-    else:
-        image.file_format = 'OPEN_EXR_MULTILAYER'
-    image.color_depth = '32'
+    configure_output(scene, str(exr_path))  # the CLI's 32-bit multilayer EXR set-up
     scene.render.filepath = str(exr_path)
     scene.frame_set(scene.frame_current)
     bpy.ops.render.render(write_still=True)

@@ -8,6 +8,8 @@ import bpy
 import numpy as np
 import OpenEXR
 
+from restframe_addon import export
+from restframe_addon.__main__ import configure_output
 from restframe_addon.exr import read_passes as read_exr
 
 
@@ -44,13 +46,21 @@ def add_sun(scene, strength=2.0, rotation=(math.radians(20), 0.0, 0.0)):
 
 
 def use_multilayer_exr(scene, path):
-    settings = scene.render.image_settings
-    if hasattr(settings, "media_type"):
-        settings.media_type = 'MULTI_LAYER_IMAGE'
-    else:
-        settings.file_format = 'OPEN_EXR_MULTILAYER'
-    settings.color_depth = '32'
+    """The CLI's own output set-up for a 32-bit multilayer EXR at ``path``."""
+    configure_output(scene, str(path))
     scene.render.filepath = str(path)
+
+
+def evaluated(scene):
+    return bpy.context.evaluated_depsgraph_get()
+
+
+def export_now(scene, **kwargs):
+    """export.export_scene on the evaluated depsgraph, collecting its warnings."""
+    warnings = []
+    kwargs.setdefault("warn", warnings.append)
+    out, settings = export.export_scene(evaluated(scene), **kwargs)
+    return out, settings, warnings
 
 
 def render_exr(scene, path) -> dict[str, np.ndarray]:

@@ -6,19 +6,8 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_helpers import add_camera, add_plane
+from blender_helpers import add_camera, add_plane, evaluated, export_now
 from restframe_addon import export
-
-
-def evaluated(scene):
-    return bpy.context.evaluated_depsgraph_get()
-
-
-def export_now(scene, **kwargs):
-    warnings = []
-    kwargs.setdefault("warn", warnings.append)
-    out, settings = export.export_scene(evaluated(scene), **kwargs)
-    return out, settings, warnings
 
 
 def by_name(meshes, name):

@@ -6,21 +6,10 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_helpers import add_camera, add_plane, add_sun, render_exr
+from blender_helpers import add_camera, add_plane, add_sun, render_exr, evaluated, export_now
 from restframe_addon import export
 
 FPS = 24
-
-
-def evaluated(scene):
-    return bpy.context.evaluated_depsgraph_get()
-
-
-def export_now(scene, **kwargs):
-    warnings = []
-    kwargs.setdefault("warn", warnings.append)
-    out, settings = export.export_scene(evaluated(scene), **kwargs)
-    return out, settings, warnings
 
 
 def key_linear_path(obj, start, beta, c, frames=(1, 25)):

@@ -8,15 +8,8 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_helpers import add_camera, add_plane, add_sun, render_exr
+from blender_helpers import add_camera, add_plane, add_sun, export_now, render_exr
 from restframe_addon import engine, export
-
-
-def export_now(scene, **kwargs):
-    warnings = []
-    kwargs.setdefault("warn", warnings.append)
-    out, settings = export.export_scene(bpy.context.evaluated_depsgraph_get(), **kwargs)
-    return out, settings, warnings
 
 
 def render():
