@@ -89,15 +89,11 @@ class Geometry:
     anchor: np.ndarray
     embree: object
     clusters: np.ndarray = None  # (k, 4): centre and radius of spheres that together hold every triangle
+    radius: float = 0.0  # distance from the local origin (a moving body's pivot) to its farthest used vertex
 
     @property
     def extent(self) -> float:
         return float(np.max(self.hi - self.lo))
-
-    @property
-    def radius(self) -> float:
-        """Distance from the local origin (the pivot, for moving bodies) to the farthest vertex."""
-        return float(np.max(np.linalg.norm(self.vertices[np.unique(self.triangles)], axis=1)))
 
 
 @dataclass
@@ -340,13 +336,14 @@ def _geometry(parts: list[dict]) -> Geometry:
         uvs = np.concatenate([p["uvs"] if p["uvs"] is not None else np.zeros((len(p["triangles"]), 3, 2)) for p in parts])
     used = vertices[np.unique(triangles)]
     lo, hi = used.min(axis=0), used.max(axis=0)
+    radius = float(np.max(np.linalg.norm(used, axis=1)))
     anchor = 0.5 * (lo + hi)
     scene = rtcore_scene.EmbreeScene(_embree_device())
     TriangleMesh(scene, (vertices - anchor).astype(np.float32), triangles.astype(np.int32))
     # commit now (embreex commits lazily on the first query, which is not thread-safe)
     scene.run(np.zeros((1, 3), np.float32), np.array([[1, 0, 0]], np.float32))
     return Geometry(
-        clusters=_clusters(vertices, triangles),
+        clusters=_clusters(vertices, triangles), radius=radius,
         vertices=vertices, triangles=triangles,
         tri_material=np.concatenate([p["material"] for p in parts]),
         tri_object_index=np.concatenate([p["object_index"] for p in parts]),
