@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import rows
 from .scene import Camera
 
 
@@ -61,34 +62,74 @@ def _panorama_local(camera: Camera, u, v, aspect):
     return d, valid
 
 
-def primary_rays(camera: Camera, px, py, resolution):
+class CameraRays:
+    """Primary rays of one camera at one resolution, its constants worked out once (a tile's
+    rays then cost only per-ray arithmetic).
+
+    Image coordinates as in :func:`primary_rays`; ``offset`` moves the origins (the camera's
+    placement in its rest frame).
+    """
+
+    def __init__(self, camera: Camera, resolution, offset=(0.0, 0.0, 0.0)):
+        if camera.kind not in ("PERSP", "ORTHO", "PANO"):
+            raise ValueError(f"{camera.name}: camera type {camera.kind} is not supported by RESTframe")
+        self.camera = camera
+        self.width, self.height = resolution
+        matrix = np.asarray(camera.matrix, dtype=np.float64)
+        self.rotation = matrix[:3, :3]
+        self.position = matrix[:3, 3] + np.asarray(offset, dtype=np.float64)
+        top_right, bottom_right, bottom_left, top_left = np.asarray(camera.frame, dtype=np.float64)
+        # image-plane points are corner + u across + v up (camera space); rotated once, not per ray
+        self.plane = (bottom_left, bottom_right - bottom_left, top_left - bottom_left)
+        self.world_plane = list(zip(*(self.rotation @ p for p in self.plane)))  # per axis: (corner, across, up)
+
+    def __call__(self, px, py, grid: bool = False):
+        u = np.asarray(px, dtype=np.float64) / self.width
+        v = np.asarray(py, dtype=np.float64) / self.height
+        camera = self.camera
+        if camera.kind == "PERSP":
+            return self._perspective(u, v, grid)
+        if grid:
+            u, v = np.tile(u, len(v)), np.repeat(v, len(u))
+        n = len(u)
+        if camera.kind == "ORTHO":
+            local = _camera_local(camera, u, v)
+            offsets = np.column_stack([local[:, 0], local[:, 1], np.zeros(n)])
+            axis = self.rotation[:, 2]
+            directions = np.broadcast_to(-axis / np.linalg.norm(axis), (n, 3))
+            origins = self.position + offsets @ self.rotation.T
+            valid = np.ones(n, dtype=bool)
+        else:
+            d_local, valid = _panorama_local(camera, u, v, self.width / self.height)
+            directions = rows.normalized(d_local @ self.rotation.T)
+            origins = np.broadcast_to(self.position, (n, 3))
+        return origins, directions, np.full(n, camera.clip_start), np.full(n, camera.clip_end), valid
+
+    def _perspective(self, u, v, grid):
+        n = len(u) * len(v) if grid else len(u)
+
+        def on_plane(corner, across, up):  # corner + u across + v up at every ray
+            return np.add.outer(corner + up * v, across * u).ravel() if grid else corner + across * u + up * v
+
+        directions = np.empty((n, 3))
+        for axis, (corner, across, up) in enumerate(self.world_plane):
+            directions[:, axis] = on_plane(corner, across, up)
+        inverse = 1.0 / rows.norm(directions)  # the rotation keeps lengths
+        for axis in range(3):  # one axis at a time: numpy is slow along a length-3 last axis
+            directions[:, axis] *= inverse
+        corner, across, up = self.plane
+        inverse_depth = -inverse / on_plane(corner[2], across[2], up[2])  # 1 / cosine to the view axis
+        camera = self.camera
+        return (np.broadcast_to(self.position, (n, 3)), directions, camera.clip_start * inverse_depth,
+                camera.clip_end * inverse_depth, np.ones(n, dtype=bool))
+
+
+def primary_rays(camera: Camera, px, py, resolution, offset=(0.0, 0.0, 0.0), grid: bool = False):
     """Rays for image positions px, py (pixels): origins and unit directions in the camera's
-    rest frame (world axes, camera-local origin at the camera), the clip range of
-    path lengths, and a mask of positions that see anything at all (fisheye circle)."""
-    width, height = resolution
-    u = np.asarray(px, dtype=np.float64) / width
-    v = np.asarray(py, dtype=np.float64) / height
-    matrix = np.asarray(camera.matrix, dtype=np.float64)
-    rotation, position = matrix[:3, :3], matrix[:3, 3]
-    n = len(u)
-    if camera.kind == "PERSP":
-        local = _camera_local(camera, u, v)
-        length = np.sqrt(np.einsum("ij,ij->i", local, local))
-        directions = (local @ rotation.T) / length[:, None]  # the rotation keeps lengths
-        cos_axis = -local[:, 2] / length
-        origins = np.broadcast_to(position, (n, 3))
-        return origins, directions, camera.clip_start / cos_axis, camera.clip_end / cos_axis, np.ones(n, dtype=bool)
-    if camera.kind == "ORTHO":
-        local = _camera_local(camera, u, v)
-        offsets = np.column_stack([local[:, 0], local[:, 1], np.zeros(n)])
-        directions = np.broadcast_to(-rotation[:, 2] / np.linalg.norm(rotation[:, 2]), (n, 3))
-        origins = position + offsets @ rotation.T
-        valid = np.ones(n, dtype=bool)
-    elif camera.kind == "PANO":
-        d_local, valid = _panorama_local(camera, u, v, width / height)
-        directions = d_local @ rotation.T
-        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-        origins = np.broadcast_to(position, (n, 3))
-    else:
-        raise ValueError(f"{camera.name}: camera type {camera.kind} is not supported by RESTframe")
-    return origins, directions, np.full(n, camera.clip_start), np.full(n, camera.clip_end), valid
+    rest frame (world axes, camera-local origin at the camera, moved by ``offset``), the clip
+    range of path lengths, and a mask of positions that see anything at all (fisheye circle).
+
+    With ``grid``, px (w,) and py (h,) are the columns and rows of a rectangle of positions
+    (rays in row-major order: a tile's pixel centres).  A perspective camera's origins are
+    one point, returned as a read-only broadcast view."""
+    return CameraRays(camera, resolution, offset)(px, py, grid)

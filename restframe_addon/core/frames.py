@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from embreex import rtcore, rtcore_scene
@@ -91,7 +92,7 @@ class Geometry:
     clusters: np.ndarray = None  # (k, 4): centre and radius of spheres that together hold every triangle
     radius: float = 0.0  # distance from the local origin (a moving body's pivot) to its farthest used vertex
 
-    @property
+    @cached_property
     def extent(self) -> float:
         return float(np.max(self.hi - self.lo))
 
@@ -192,6 +193,7 @@ class FrameSet:
         grouped = {int(i) for g in self.groups for i in g.frames}
         self.ungrouped = [k for k in self.geometry if k not in grouped]
         self._maps: dict[tuple[int, int], FrameMap] = {}
+        self.cone_cache: dict = {}  # the tracer's culling cones, per (frame pair, observation event)
 
     def candidates(self, src: int, tau0, x0) -> list[int]:
         """Geometry frames that rays from these events (frame src) may hit: all but the segments

@@ -136,29 +136,38 @@ class Boost:
         if self.is_identity:
             return tau, x
         nx = x @ self.n
-        x_new = x + ((self.gamma_minus_one * nx - self.gamma * self.b * tau)[..., None]) * self.n
+        shift = self.gamma_minus_one * nx - self.gamma * self.b * tau
+        x_new = np.empty(np.broadcast_shapes(x.shape, shift.shape + (3,)))
+        for axis in range(3):  # one axis at a time: numpy is slow along a length-3 last axis
+            x_new[..., axis] = x[..., axis] + shift * self.n[axis]
         return self.gamma * (tau - self.b * nx), x_new
 
     def rays(self, d):
         """Map backward light-ray directions: unit d (..., 3) -> (d', w) with s' = w s, w = 1/D.
 
-        Accurate near c and at grazing or head-on angles (see module docstring).
+        Accurate near c and at grazing or head-on angles (see module docstring).  Written one
+        axis at a time, as :meth:`events`.
         """
         d = np.asarray(d, dtype=np.float64)
         if self.is_identity:
             return d, np.ones(d.shape[:-1])
         n, b = self.n, self.b
         toward = (d @ n) < 0.0  # d close to -n: h is small, use d + n (exact there)
-        s = np.where(toward[..., None], d + n, d - n)
-        half_s2 = 0.5 * np.einsum("...i,...i->...", s, s)
+        sign = np.where(toward, 1.0, -1.0)
+        diff = [d[..., i] + sign * n[i] for i in range(3)]  # d + n or d - n: the small difference vector
+        half_s2 = 0.5 * (diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2])
         h = np.where(toward, half_s2, 2.0 - half_s2)  # h = 1 + n.d
-        # d_perp = d - (n.d) n, from the small difference vector for accuracy
-        d_perp = np.where(toward[..., None], s - half_s2[..., None] * n, s + half_s2[..., None] * n)
+        # d_perp = d - (n.d) n, from the difference vector for accuracy
+        along = sign * half_s2
+        perp = [diff[i] - along * n[i] for i in range(3)]
         # inputs a few ulps off unit length leave a residue along n; remove it exactly
-        d_perp -= (d_perp @ n)[..., None] * n
+        residue = perp[0] * n[0] + perp[1] * n[1] + perp[2] * n[2]
         one_plus_bd = self.one_minus_b + b * h
         par = (h - self.one_minus_b) / one_plus_bd
-        d_new = par[..., None] * n + d_perp / (self.gamma * one_plus_bd)[..., None]
+        inverse = 1.0 / (self.gamma * one_plus_bd)
+        d_new = np.empty(d.shape)
+        for i in range(3):
+            d_new[..., i] = par * n[i] + (perp[i] - residue * n[i]) * inverse
         return d_new, self.gamma * one_plus_bd
 
     def doppler(self, d):

@@ -21,7 +21,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from . import sampling
-from .camera import primary_rays
+from .camera import CameraRays
 from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
 from .colour import RGBColour, SpectralColour
 from .scene import RenderSettings, Scene
@@ -74,7 +74,7 @@ class Renderer:
         world_event = position + camera_boost.b * camera_boost.n * scene.tau_obs
         tau, _ = camera_boost.events(np.array(scene.tau_obs), world_event)
         self.camera_tau = float(tau)
-        self.camera_shift = shift_into_frame(camera_boost, position)
+        self.camera_rays = CameraRays(scene.camera, settings.resolution, shift_into_frame(camera_boost, position))
         self.doppler_range = settings.doppler_range
         if settings.doppler_mode == "FACTOR" and self.doppler_range is None:
             self.doppler_range = self._measure_doppler_range(should_stop)
@@ -104,16 +104,22 @@ class Renderer:
         ]
 
     # ------------------------------------------------------------------ rays
-    def _camera_rays(self, px, py):
-        origins, d, s_lo, s_hi, valid = primary_rays(self.scene.camera, px, py, self.settings.resolution)
-        tau = np.full(len(d), self.camera_tau)
-        return tau, origins + self.camera_shift, d, s_lo, np.where(valid, s_hi, -np.inf)
+    def _camera_rays(self, px, py, grid: bool = False):
+        origins, d, s_lo, s_hi, valid = self.camera_rays(px, py, grid)
+        tau = np.broadcast_to(self.camera_tau, (len(d),))  # read-only views: every ray starts at this time
+        return tau, origins, d, s_lo, s_hi if valid.all() else np.where(valid, s_hi, -np.inf)
+
+    def centre_rays(self, rect):
+        """The pixel-centre camera rays of a rectangle of pixels, in row-major order."""
+        x0, y0, x1, y1 = rect
+        return self._camera_rays(np.arange(x0, x1) + 0.5, np.arange(y0, y1) + 0.5, grid=True)
 
     def _pixel_grid(self, rect):
+        """Pixel coordinates and flat image indices of a rectangle of pixels, in row-major order."""
         x0, y0, x1, y1 = rect
-        ys, xs = np.mgrid[y0:y1, x0:x1]
-        width = self.settings.resolution[0]
-        return xs.ravel(), ys.ravel(), (ys * width + xs).ravel().astype(np.int64)
+        xs = np.tile(np.arange(x0, x1, dtype=np.int64), y1 - y0)
+        ys = np.repeat(np.arange(y0, y1, dtype=np.int64), x1 - x0)
+        return xs, ys, ys * self.settings.resolution[0] + xs
 
     def _measure_doppler_range(self, should_stop):
         """Range of D over the whole image's pixel-centre rays (for the normalised FACTOR
@@ -122,8 +128,7 @@ class Renderer:
         for rect in self.tiles(self.full_image):
             if should_stop():
                 break
-            xs, ys, _ = self._pixel_grid(rect)
-            tau, x, d, s_lo, s_hi = self._camera_rays(xs + 0.5, ys + 0.5)
+            tau, x, d, s_lo, s_hi = self.centre_rays(rect)
             hits = trace_nearest(self.frames, self.frames.camera, tau, x, d, s_lo, s_hi)
             doppler = self._hit_doppler(hits, tau, x, d)[hits.frame >= 0]
             if len(doppler):
@@ -163,7 +168,7 @@ class Renderer:
         h, w = y1 - y0, x1 - x0
         xs, ys, pixel = self._pixel_grid(rect)
         n = len(pixel)
-        centre = self._camera_rays(xs + 0.5, ys + 0.5)
+        centre = self.centre_rays(rect)
         centre_hits = trace_nearest(self.frames, self.frames.camera, *centre)
         passes = self._centre_passes(centre, centre_hits)
         samples = max(int(self.settings.samples), 1)

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import rows
 from .frames import FrameSet, RestFrame
 
 _PAD = 1e-4  # bounds padding, relative to the frame's extent: float32 geometry may sit just outside
@@ -42,55 +43,110 @@ class Hits:
 def _clip_to_bounds(geometry, origin, d, t_lo, t_hi):
     """Slab test against the geometry's bounds (local coordinates): the parameter range inside them.
 
-    Written per axis: numpy's reductions over a length-3 axis cost more than the arithmetic.
+    ``origin`` is (N, 3) or one shared point (3,).  Written per axis: numpy's reductions over a
+    length-3 axis cost more than the arithmetic.
     """
-    pad = _PAD * geometry.extent + 1e-14 * float(np.max(np.abs(geometry.anchor)))
+    pad = _padding(geometry)
     enter, leave = t_lo, t_hi
     with np.errstate(divide="ignore", invalid="ignore"):
         for axis in range(3):
             inv = 1.0 / d[:, axis]
-            t_a = (geometry.lo[axis] - pad - origin[:, axis]) * inv
-            t_b = (geometry.hi[axis] + pad - origin[:, axis]) * inv
+            t_a = (geometry.lo[axis] - pad - origin[..., axis]) * inv
+            t_b = (geometry.hi[axis] + pad - origin[..., axis]) * inv
             # fmin/fmax ignore the NaN of 0 * inf (a ray in the plane of a slab face)
             enter = np.fmax(enter, np.fmin(t_a, t_b))
             leave = np.fmin(leave, np.fmax(t_a, t_b))
     return enter, leave
 
 
-def _query(frame: RestFrame, tau, origin, d, t_lo, t_hi, occlusion: bool):
-    """Intersect rays (frame coordinates, float64, origin events at frame times tau) with the
-    frame's triangles.
+def _padding(geometry) -> float:
+    """How far float32 geometry may sit outside its float64 bounds."""
+    return _PAD * geometry.extent + 1e-14 * float(np.max(np.abs(geometry.anchor)))
 
-    Returns (index into the inputs, t, prim, u, v) of hits, or for occlusion the
-    indices of blocked rays.
+
+def _query(frame: RestFrame, tau, origin, d, t_lo, t_hi, occlusion: bool):
+    """Intersect rays (frame coordinates, float64, origin events at frame times tau; one shared
+    origin may be given as a (3,) point) with the frame's triangles.
+
+    Returns, for every ray, (t, prim, u, v) with t = inf where nothing is hit, or for
+    occlusion a mask of the blocked rays.
     """
     if frame.spin is not None:
+        if origin.ndim == 1:
+            origin = np.broadcast_to(origin, d.shape)
         return _spin_query(frame, tau, origin, d, t_lo, t_hi, occlusion)
     origin, d = frame.to_local(origin, d)
     return _local_query(frame.geometry, origin, d, t_lo, t_hi, occlusion)
 
 
 def _local_query(geometry, origin, d, t_lo, t_hi, occlusion: bool):
+    if origin.ndim == 1 and _direct_reach(geometry, origin, t_lo):
+        # a ray with t_hi < t_lo cannot meet the bounds before t_hi: embree finds nothing for it
+        return _embree_query(geometry, origin - geometry.anchor, d, t_hi, occlusion)
     enter, leave = _clip_to_bounds(geometry, origin, d, t_lo, t_hi)
     inside = enter <= leave
     if inside.all():  # every ray reaches the bounds (the common case up close): no gathers
-        idx, start, origin_in, d_in, leave_in = np.arange(len(d)), enter, origin, d, leave
-    else:
-        idx = np.flatnonzero(inside)
-        if len(idx) == 0:
-            return (idx,) if occlusion else (idx, None, None, None, None)
-        start, origin_in, d_in, leave_in = enter[idx], origin[idx], d[idx], leave[idx]
-    start_point = origin_in + start[:, None] * d_in - geometry.anchor
-    length = (leave_in - start).astype(np.float32)
-    o32 = np.ascontiguousarray(start_point, dtype=np.float32)
-    d32 = np.ascontiguousarray(d_in, dtype=np.float32)
+        return _clipped_query(geometry, origin, d, enter, leave, occlusion)
+    idx = np.flatnonzero(inside)
+    n = len(d)
     if occlusion:
-        blocked = geometry.embree.run(o32, d32, dists=length, query="OCCLUDED") >= 0
-        return (idx[blocked],)
-    out = geometry.embree.run(o32, d32, dists=length, output=1)
-    hit = out["primID"] >= 0
-    t = start[hit] + out["tfar"][hit].astype(np.float64)
-    return idx[hit], t, out["primID"][hit], out["u"][hit], out["v"][hit]
+        blocked = np.zeros(n, dtype=bool)
+        if len(idx):
+            blocked[idx] = _clipped_query(geometry, origin if origin.ndim == 1 else origin[idx], d[idx],
+                                          enter[idx], leave[idx], occlusion)
+        return blocked
+    t, prim = np.full(n, np.inf), np.full(n, -1, dtype=np.int32)
+    u, v = np.zeros(n, dtype=np.float32), np.zeros(n, dtype=np.float32)
+    if len(idx):
+        t[idx], prim[idx], u[idx], v[idx] = _clipped_query(geometry, origin if origin.ndim == 1 else origin[idx],
+                                                           d[idx], enter[idx], leave[idx], occlusion)
+    return t, prim, u, v
+
+
+_DIRECT_REACH = 4.0  # in extents: how far a shared origin may be from the bounds' centre for unclipped queries
+
+
+def _direct_reach(geometry, origin, t_lo) -> bool:
+    """Can rays from one shared (local) origin go to embree unclipped?
+
+    Yes when the origin is near enough to the geometry that float32 coordinates relative to
+    the anchor lose no more than the geometry's own float32 vertices, and no part of the
+    bounds is nearer than the rays' start (embree starts every ray at 0).
+    """
+    offset = (origin - geometry.anchor).tolist()
+    half = (0.5 * (geometry.hi - geometry.lo)).tolist()
+    reach = _DIRECT_REACH * geometry.extent
+    if math.fsum(c * c for c in offset) > reach * reach:
+        return False
+    pad = _padding(geometry)
+    gap = math.sqrt(math.fsum(max(abs(c) - h - pad, 0.0) ** 2 for c, h in zip(offset, half)))
+    return float(t_lo.max()) <= gap
+
+
+def _clipped_query(geometry, origin, d, enter, leave, occlusion: bool):
+    """Rays moved to where they enter the bounds (float64), queried from there in float32."""
+    start_point = rows.add_scaled(origin - geometry.anchor, enter, d)
+    result = _embree_query(geometry, start_point, d, leave - enter, occlusion)
+    if occlusion:
+        return result
+    t, prim, u, v = result
+    return t + enter, prim, u, v
+
+
+def _embree_query(geometry, origin, d, length, occlusion: bool):
+    """One embree call: rays from local origins (relative to the anchor) up to path length
+    ``length`` (negative: no query).  Returns (t, prim, u, v), t = inf on a miss, or the blocked mask."""
+    o32 = np.empty(d.shape, dtype=np.float32)
+    for axis in range(3):  # a shared origin is a broadcast view: filling by columns is fastest
+        o32[:, axis] = origin[..., axis]
+    d32 = np.ascontiguousarray(d, dtype=np.float32)
+    dists = length.astype(np.float32)
+    if occlusion:
+        return geometry.embree.run(o32, d32, dists=dists, query="OCCLUDED") >= 0
+    out = geometry.embree.run(o32, d32, dists=dists, output=1)
+    prim = out["primID"]
+    t = np.where(prim >= 0, out["tfar"], np.inf).astype(np.float64)
+    return t, prim, out["u"], out["v"]
 
 
 def _spin_query(frame: RestFrame, tau, origin, d, t_lo, t_hi, occlusion: bool):
@@ -106,38 +162,38 @@ def _spin_query(frame: RestFrame, tau, origin, d, t_lo, t_hi, occlusion: bool):
     """
     geometry = frame.geometry
     rim = float(np.linalg.norm(frame.spin)) * geometry.radius
+    n = len(d)
     # first guess: where the ray passes the pivot most closely
     guess = np.clip(-np.einsum("ij,ij->i", origin - frame.offset, d), t_lo, t_hi)
-    previous = np.full(len(d), np.nan)
-    previous_f = np.full(len(d), np.nan)
-    found = np.zeros(len(d), dtype=bool)
-    result_t = np.zeros(len(d))
-    prim = np.zeros(len(d), dtype=np.int32)
-    u = np.zeros(len(d))
-    v = np.zeros(len(d))
-    todo = np.arange(len(d))
+    previous = np.full(n, np.nan)
+    previous_f = np.full(n, np.nan)
+    result_t = np.full(n, np.inf)
+    prim = np.full(n, -1, dtype=np.int32)
+    u = np.zeros(n, dtype=np.float32)
+    v = np.zeros(n, dtype=np.float32)
+    todo = np.arange(n)
     for _ in range(_SPIN_ITERATIONS):
         if len(todo) == 0:
             break
         o_l, d_l = frame.to_local(origin[todo], d[todo], tau[todo] - guess[todo])
-        idx, t, p, uu, vv = _local_query(geometry, o_l, d_l, t_lo[todo], t_hi[todo], occlusion=False)
-        hit = todo[idx]
-        found[np.setdiff1d(todo, hit)] = False
-        if len(hit) == 0:
+        t, p, uu, vv = _local_query(geometry, o_l, d_l, t_lo[todo], t_hi[todo], occlusion=False)
+        hit = p >= 0
+        result_t[todo[~hit]], prim[todo[~hit]] = np.inf, -1
+        todo, t = todo[hit], t[hit]
+        if len(todo) == 0:
             break
-        found[hit], result_t[hit], prim[hit], u[hit], v[hit] = True, t, p, uu, vv
-        f = t - guess[hit]
+        result_t[todo], prim[todo], u[todo], v[todo] = t, p[hit], uu[hit], vv[hit]
+        f = t - guess[todo]
         done = np.abs(f) * rim <= frame.tolerance
         with np.errstate(divide="ignore", invalid="ignore"):
-            secant = guess[hit] - f * (guess[hit] - previous[hit]) / (f - previous_f[hit])
-        usable = np.isfinite(secant) & (secant >= t_lo[hit]) & (secant <= t_hi[hit])
-        previous[hit], previous_f[hit] = guess[hit], f
-        guess[hit] = np.where(usable, secant, t)
-        todo = hit[~done]
-    idx = np.flatnonzero(found)
+            secant = guess[todo] - f * (guess[todo] - previous[todo]) / (f - previous_f[todo])
+        usable = np.isfinite(secant) & (secant >= t_lo[todo]) & (secant <= t_hi[todo])
+        previous[todo], previous_f[todo] = guess[todo], f
+        guess[todo] = np.where(usable, secant, t)
+        todo = todo[~done]
     if occlusion:
-        return (idx,)
-    return idx, result_t[idx], prim[idx], u[idx], v[idx]
+        return prim >= 0
+    return result_t, prim, u, v
 
 
 def _ray_range(frame: RestFrame, tau, s_lo, s_hi):
@@ -155,71 +211,140 @@ def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> Hits:
     only hits with ``s_lo <= s <= s_hi`` count.
     """
     n = len(d)
-    s_lo = np.broadcast_to(np.asarray(s_lo, dtype=np.float64), (n,))
-    best = np.broadcast_to(np.asarray(s_hi, dtype=np.float64), (n,)).copy()
-    hits = Hits(
-        frame=np.full(n, -1, dtype=np.int32),
-        s=np.full(n, np.inf),
-        s_frame=np.full(n, np.inf),
-        w=np.ones(n),
-        prim=np.full(n, -1, dtype=np.int32),
-        u=np.zeros(n),
-        v=np.zeros(n),
-    )
+    s_lo = _per_ray(s_lo, n)
+    best = _per_ray(s_hi, n)
+    hits = None
     candidates = frames.candidates(src, tau0, x0)
-    # culling by bounding cones pays off only when several frames share the rays
-    shared = _shared_origin(tau0, x0) if len(candidates) > 1 else None
+    shared = _shared_origin(tau0, x0)
+    bundle = _bundle_cone(d) if shared is not None and len(candidates) > 1 and n else None
     for k in candidates:
         frame = frames.frames[k]
         fmap = frames.map(src, k)
-        rays = _toward(frames, src, k, shared, d) if shared is not None else None
-        if rays is None:
-            rays = np.arange(n)
-        elif len(rays) == 0:
+        # culling by bounding cones pays off only when several frames share the rays
+        rays = _toward(frames, src, k, shared, d, bundle) if bundle is not None else None
+        if rays is not None and len(rays) == 0:
             continue
+        d_rays, lo, hi = (d, s_lo, best) if rays is None else (d[rays], s_lo[rays], best[rays])
         if shared is not None:
             tau_k, origin = fmap.events(np.array(shared[0]), shared[1])
-            tau_k, origin = np.full(len(rays), tau_k), np.broadcast_to(origin, (len(rays), 3))
+            tau_k = np.broadcast_to(tau_k, lo.shape)
         else:
-            tau_k, origin = fmap.events(tau0[rays], x0[rays])
-        dk, w = fmap.rays(d[rays])
-        lo, hi = _ray_range(frame, tau_k, s_lo[rays] * w, best[rays] * w)
-        idx, t, prim, u, v = _query(frame, tau_k, origin, dk, lo, hi, occlusion=False)
-        if len(idx) == 0:
+            tau_k, origin = fmap.events(tau0, x0) if rays is None else fmap.events(tau0[rays], x0[rays])
+        if fmap.is_identity:
+            dk, w = d_rays, None
+        else:
+            dk, w = fmap.rays(d_rays)
+            lo, hi = lo * w, hi * w
+        lo, hi = _ray_range(frame, tau_k, lo, hi)
+        t, prim, u, v = _query(frame, tau_k, origin, dk, lo, hi, occlusion=False)
+        s = t if w is None else t / w
+        nearer = s < (best if rays is None else best[rays])  # ties keep the earlier frame
+        if hits is None and rays is None:  # the first frame to see every ray: its hits as they are
+            hits = Hits(frame=np.where(nearer, np.int32(k), np.int32(-1)), s=np.where(nearer, s, np.inf),
+                        s_frame=np.where(nearer, t, np.inf), w=np.ones(n) if w is None else w,
+                        prim=np.where(nearer, prim, np.int32(-1)), u=u, v=v)
+            best = np.minimum(best, s)
             continue
-        s = t / w[idx]
-        nearer = s < best[rays[idx]]  # ties keep the earlier frame
-        sub, s, t = idx[nearer], s[nearer], t[nearer]
-        idx = rays[sub]
-        best[idx] = s
-        hits.frame[idx] = k
-        hits.s[idx] = s
-        hits.s_frame[idx] = t
-        hits.w[idx] = w[sub]
-        hits.prim[idx] = prim[nearer]
-        hits.u[idx] = u[nearer]
-        hits.v[idx] = v[nearer]
-    return hits
+        if hits is None:
+            hits = _no_hits(n)
+            best = best.copy()
+        if rays is None:
+            _update(hits, best, nearer, k, s, t, w, prim, u, v)
+        elif nearer.any():
+            keep = np.flatnonzero(nearer)
+            _update(hits, best, rays[keep], k, s[keep], t[keep], None if w is None else w[keep],
+                    prim[keep], u[keep], v[keep])
+    return _no_hits(n) if hits is None else hits
+
+
+def _per_ray(value, n: int) -> np.ndarray:
+    """A per-ray float64 array from an array or one number (read-only then)."""
+    value = np.asarray(value, dtype=np.float64)
+    return value if value.shape == (n,) else np.broadcast_to(value, (n,))
+
+
+def _no_hits(n: int) -> Hits:
+    return Hits(frame=np.full(n, -1, dtype=np.int32), s=np.full(n, np.inf), s_frame=np.full(n, np.inf),
+                w=np.ones(n), prim=np.full(n, -1, dtype=np.int32), u=np.zeros(n, dtype=np.float32),
+                v=np.zeros(n, dtype=np.float32))
+
+
+def _update(hits: Hits, best, where, k, s, t, w, prim, u, v):
+    """Record the hits of frame k for the rays ``where`` (a mask over all rays, or indices with
+    values already selected)."""
+    if where.dtype == bool:
+        for target, value in ((best, s), (hits.s, s), (hits.s_frame, t), (hits.prim, prim), (hits.u, u), (hits.v, v)):
+            np.copyto(target, value, where=where)
+        np.copyto(hits.frame, k, where=where)
+        np.copyto(hits.w, 1.0 if w is None else w, where=where)
+        return
+    best[where] = hits.s[where] = s
+    hits.frame[where] = k
+    hits.s_frame[where] = t
+    hits.prim[where] = prim
+    hits.u[where] = u
+    hits.v[where] = v
+    hits.w[where] = 1.0 if w is None else w
 
 
 def _shared_origin(tau0, x0):
     """(tau, x) when every ray starts at the same event (a perspective camera's rays), else None."""
-    if len(tau0) == 0 or not (np.all(tau0 == tau0[0]) and np.all(x0 == x0[0])):
+    if len(tau0) == 0:
         return None
+    if not (tau0.strides[0] == 0 and x0.strides[0] == 0):  # broadcast views are shared by construction
+        if not (np.all(tau0 == tau0[0]) and np.all(x0 == x0[0])):
+            return None
     return float(tau0[0]), np.array(x0[0])
 
 
 _CONE_SAMPLES = 16
 
 
-def _toward(frames: FrameSet, src: int, k: int, origin_event, d):
+def _toward(frames: FrameSet, src: int, k: int, origin_event, d, bundle):
     """Indices of rays from one event that point into a cone subtended there by one of the
-    frame's bounding spheres, or None when the event is inside one (no culling possible).
+    frame's bounding spheres, or None when every ray may (the event is inside a sphere, or
+    the bundle's own cone lies inside one).
+
+    ``bundle`` = (axis, half-angle) of a cone holding every ray: sphere cones that miss it are
+    skipped and, where one holds it whole, no ray needs testing.
+    """
+    cones = _cones(frames, src, k, origin_event)
+    if cones is None:
+        return None
+    axes, spread = cones
+    bundle_axis, bundle_angle = bundle
+    apart = np.arccos(np.clip(axes @ bundle_axis, -1.0, 1.0))
+    if np.any(apart + bundle_angle <= spread):
+        return None
+    meeting = np.flatnonzero(apart <= spread + bundle_angle)
+    inside = np.zeros(len(d), dtype=bool)
+    for axis, limit in zip(axes[meeting], np.cos(spread[meeting])):
+        inside |= d @ axis >= limit
+    return np.flatnonzero(inside)
+
+
+def _bundle_cone(d):
+    """(axis, half-angle) of a cone holding every direction d."""
+    axis = d.sum(axis=0)
+    length = float(np.linalg.norm(axis))
+    if length < 1e-9 * len(d):
+        return np.array([1.0, 0.0, 0.0]), np.pi
+    axis /= length
+    return axis, float(np.arccos(np.clip((d @ axis).min(), -1.0, 1.0)))
+
+
+def _cones(frames: FrameSet, src: int, k: int, origin_event):
+    """(axes (m, 3), half-angles (m,)) in frame src of the cones that frame k's bounding spheres
+    subtend at one event, or None when the event is inside one.  Cached per event: every tile
+    of a perspective camera shares it.
 
     Each cone is built in frame k and mapped to frame src by aberration, which maps circles
     on the sky to circles: its image is found from ``_CONE_SAMPLES`` rim directions around
     the mapped axis, widened by a margin for the sampling.
     """
+    key = (src, k, origin_event[0], *origin_event[1].tolist())
+    if key in frames.cone_cache:
+        return frames.cone_cache[key]
     frame = frames.frames[k]
     geometry = frame.geometry
     _, x_k = frames.map(src, k).events(np.array(origin_event[0]), origin_event[1])
@@ -231,34 +356,33 @@ def _toward(frames: FrameSet, src: int, k: int, origin_event, d):
     offset = spheres[:, :3] - x_k
     distance = np.linalg.norm(offset, axis=1)
     radius = spheres[:, 3] + pad
-    if np.any(distance <= radius * 1.01):
-        return None
-    axes = offset / distance[:, None]
-    half = np.arcsin(radius / distance)
-    t1 = np.cross(axes, np.where(np.abs(axes[:, :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(axes, t1)
-    phi = np.linspace(0.0, 2 * np.pi, _CONE_SAMPLES, endpoint=False)
-    rim = (np.cos(half)[:, None, None] * axes[:, None, :]
-           + np.sin(half)[:, None, None] * (np.cos(phi)[None, :, None] * t1[:, None, :]
-                                            + np.sin(phi)[None, :, None] * t2[:, None, :]))
-    directions = np.concatenate([axes[:, None, :], rim], axis=1).reshape(-1, 3)
-    src_dirs, _ = frames.map(k, src).rays(directions)
-    src_dirs = src_dirs.reshape(len(spheres), _CONE_SAMPLES + 1, 3)
-    centre_dirs = src_dirs[:, 0]
-    spread = np.max(np.arccos(np.clip(np.einsum("kij,kj->ki", src_dirs[:, 1:], centre_dirs), -1.0, 1.0)), axis=1)
-    cos_spread = np.cos(np.minimum(spread * 1.05 + 1e-9, np.pi))
-    inside = np.zeros(len(d), dtype=bool)
-    for axis, limit in zip(centre_dirs, cos_spread):
-        inside |= d @ axis >= limit
-    return np.flatnonzero(inside)
+    cones = None
+    if not np.any(distance <= radius * 1.01):
+        axes = offset / distance[:, None]
+        half = np.arcsin(radius / distance)
+        t1 = np.cross(axes, np.where(np.abs(axes[:, :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
+        t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+        t2 = np.cross(axes, t1)
+        phi = np.linspace(0.0, 2 * np.pi, _CONE_SAMPLES, endpoint=False)
+        rim = (np.cos(half)[:, None, None] * axes[:, None, :]
+               + np.sin(half)[:, None, None] * (np.cos(phi)[None, :, None] * t1[:, None, :]
+                                                + np.sin(phi)[None, :, None] * t2[:, None, :]))
+        directions = np.concatenate([axes[:, None, :], rim], axis=1).reshape(-1, 3)
+        src_dirs, _ = frames.map(k, src).rays(directions)
+        src_dirs = src_dirs.reshape(len(spheres), _CONE_SAMPLES + 1, 3)
+        centre_dirs = src_dirs[:, 0]
+        spread = np.max(np.arccos(np.clip(np.einsum("kij,kj->ki", src_dirs[:, 1:], centre_dirs), -1.0, 1.0)), axis=1)
+        cones = centre_dirs, np.minimum(spread * 1.05 + 1e-9, np.pi)
+    if len(frames.cone_cache) > 4096:  # many observation events (animations, secondary bundles): start afresh
+        frames.cone_cache.clear()
+    frames.cone_cache[key] = cones
+    return cones
 
 
 def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
     """True where anything in any frame lies on the backward ray with s_lo <= s <= s_hi."""
     n = len(d)
-    s_lo = np.broadcast_to(np.asarray(s_lo, dtype=np.float64), (n,))
-    s_hi = np.broadcast_to(np.asarray(s_hi, dtype=np.float64), (n,))
+    s_lo, s_hi = _per_ray(s_lo, n), _per_ray(s_hi, n)
     blocked = np.zeros(n, dtype=bool)
     reach = _bundle_reach(tau0, x0, d, s_lo, s_hi)
     for k in frames.candidates(src, tau0, x0):
@@ -272,8 +396,7 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
         tau_k, origin = fmap.events(tau0[todo], x0[todo])
         dk, w = fmap.rays(d[todo])
         lo, hi = _ray_range(frame, tau_k, s_lo[todo] * w, s_hi[todo] * w)
-        (idx,) = _query(frame, tau_k, origin, dk, lo, hi, occlusion=True)
-        blocked[todo[idx]] = True
+        blocked[todo[_query(frame, tau_k, origin, dk, lo, hi, occlusion=True)]] = True
     return blocked
 
 

@@ -29,8 +29,7 @@ def pipeline_primary(renderer: Renderer, rects):
     """What the renderer does for primary visibility: camera rays per tile, then trace_nearest."""
     hit = 0
     for rect in rects:
-        xs, ys, _ = renderer._pixel_grid(rect)
-        tau, x, d, s_lo, s_hi = renderer._camera_rays(xs + 0.5, ys + 0.5)
+        tau, x, d, s_lo, s_hi = renderer.centre_rays(rect)
         hits = trace_nearest(renderer.frames, renderer.frames.camera, tau, x, d, s_lo, s_hi)
         hit += int(np.count_nonzero(hits.frame >= 0))
     return hit
@@ -42,8 +41,7 @@ def raw_batches(renderer: Renderer, rects):
     frames = renderer.frames
     batches = []
     for rect in rects:
-        xs, ys, _ = renderer._pixel_grid(rect)
-        tau, x, d, _, _ = renderer._camera_rays(xs + 0.5, ys + 0.5)
+        tau, x, d, _, _ = renderer.centre_rays(rect)
         for k in frames.geometry:
             fmap = frames.map(frames.camera, k)
             _, origin = fmap.events(tau, x)
