@@ -24,7 +24,7 @@ import numpy as np
 from embreex import rtcore, rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
-from . import motion
+from . import motion, rows
 from .lorentz import Boost
 from .scene import REST, Scene, Velocity
 
@@ -95,6 +95,12 @@ class Geometry:
     @cached_property
     def extent(self) -> float:
         return float(np.max(self.hi - self.lo))
+
+    @cached_property
+    def face_normals(self) -> np.ndarray:
+        """Unit geometric normal of every triangle (float64; 0 for degenerate ones)."""
+        tri = self.vertices[self.triangles]
+        return rows.normalized(rows.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]))
 
 
 @dataclass

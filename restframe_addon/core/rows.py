@@ -16,6 +16,7 @@ _ONES = np.ones(3)
 
 def dot(a, b) -> np.ndarray:
     """Row-wise dot products: (n, 3) with (n, 3), or (n, 3) with one (3,) vector."""
+    a = np.asarray(a)
     b = np.asarray(b)
     if b.ndim == 1:
         return a @ b
@@ -27,9 +28,12 @@ def norm(a) -> np.ndarray:
 
 
 def scale(a, s) -> np.ndarray:
-    """Each row of a (n, 3) times its own scalar s (n,)."""
-    out = np.empty(np.shape(a))
-    for axis in range(3):
+    """Each row of a (n, C) times its own scalar s (n,): column by column for few columns."""
+    a = np.asarray(a)
+    if a.shape[1] > 4:  # long rows (spectra): numpy's broadcast is fast there
+        return a * s[:, None]
+    out = np.empty(a.shape, dtype=np.result_type(a, s))
+    for axis in range(a.shape[1]):
         np.multiply(a[:, axis], s, out=out[:, axis])
     return out
 

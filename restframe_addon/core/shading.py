@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import sampling, spectral
+from . import rows, sampling, spectral
 from .frames import FrameSet, shift_into_frame
 from .scene import Light, Material, Scene
 from .tracer import hit_geometry, occluded, trace_nearest
@@ -177,7 +177,7 @@ class Shader:
             _, w_world = self.frames.map(src, self.frames.world).rays(d[miss])
             doppler = 1.0 / w_world
             world = self.colour.world(self.colour.shift(_rows(lam, miss), doppler), len(miss))
-            values[miss] = world * self._power(doppler, 4)[:, None]
+            values[miss] = rows.scale(world, self._power(doppler, 4))
         for k in np.unique(hits.frame[hits.frame >= 0]):
             sel = np.flatnonzero(hits.frame == k)
             fmap = self.frames.map(src, int(k))
@@ -188,7 +188,7 @@ class Shader:
             local = self._shade_surface(int(k), tau_hit, d_k, hits.prim[sel], hits.u[sel],
                                         hits.v[sel], depth, pixel[sel], sample[sel],
                                         self.colour.shift(_rows(lam, sel), doppler))
-            values[sel] = local * self._power(doppler, 4)[:, None]
+            values[sel] = rows.scale(local, self._power(doppler, 4))
         return values, hits
 
     def surface_doppler(self, k: int, prim, u, v, tau_hit, d_k):
@@ -199,19 +199,18 @@ class Shader:
             return np.ones(len(prim))
         position, _, _ = hit_geometry(frame, prim, u, v, tau_hit)
         velocity = frame.surface_velocity(position)
-        speed2 = np.einsum("ij,ij->i", velocity, velocity)
-        return np.sqrt(1.0 - speed2) / (1.0 + np.einsum("ij,ij->i", velocity, d_k))
+        return np.sqrt(1.0 - rows.dot(velocity, velocity)) / (1.0 + rows.dot(velocity, d_k))
 
     def surface_info(self, k: int, prim, u, v, d_k, tau_hit=None):
         """Position, facing geometric and shading normals, and material index at hits of frame k."""
         frame = self.frames.frames[k]
         position, ng, ns = hit_geometry(frame, prim, u, v, tau_hit)
-        back = np.einsum("ij,ij->i", ng, d_k) > 0.0
-        ng = np.where(back[:, None], -ng, ng)
-        ns = np.where(back[:, None], -ns, ns)
+        back = rows.dot(ng, d_k) > 0.0
+        facing = np.where(back, -1.0, 1.0)
+        ng, ns = rows.scale(ng, facing), rows.scale(ns, facing)
         # a shading normal turned away from the viewer falls back to the geometric one
-        away = np.einsum("ij,ij->i", ns, d_k) >= 0.0
-        ns = np.where(away[:, None], ng, ns)
+        away = rows.dot(ns, d_k) >= 0.0
+        ns[away] = ng[away]
         material = self.materials.clamp(frame.geometry.tri_material[prim])
         return position, ng, ns, material, back
 
@@ -236,14 +235,16 @@ class Shader:
     # ------------------------------------------------------------------ direct light
     def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam):
         mats = self.materials
-        diffuse = base * ((1.0 - mats.metallic[mat]) * (1.0 - mats.transmission[mat]))[:, None] / np.pi
+        diffuse = rows.scale(base, (1.0 - mats.metallic[mat]) * (1.0 - mats.transmission[mat]) / np.pi)
         rough = ~mats.mirror[mat]
         metallic = mats.metallic[mat]
         # Specular IOR Level scales the whole dielectric lobe (0 = none), grazing reflection included
         level = np.minimum(mats.specular_scale[mat], 1.0)
         f0_dielectric = np.minimum(_dielectric_f0(mats.ior[mat]) * mats.specular_scale[mat], 1.0)
-        f0 = (f0_dielectric * (1.0 - metallic))[:, None] + base * metallic[:, None]
+        f0 = rows.scale(base, metallic) + (f0_dielectric * (1.0 - metallic))[:, None]
         f90 = level * (1.0 - metallic) + metallic
+        # a rough surface without a specular lobe (Specular IOR Level 0, not metallic) skips GGX
+        rough &= (f90 > 0.0) | np.any(f0 > 0.0, axis=1)
         alpha = np.maximum(mats.roughness[mat] ** 2, _MIN_ALPHA)
         eps = self.epsilon[k]
         origin = position + eps * ng
@@ -253,8 +254,8 @@ class Shader:
             xi1 = sampling.uniform(pixel, sample, dim)
             xi2 = sampling.uniform(pixel, sample, dim + 1)
             e_k, strength, doppler, s_max = self._incident(light, k, tau, position, xi1, xi2)
-            cos_n = np.einsum("ij,ij->i", ns, e_k)
-            lit = (cos_n > 0.0) & (np.einsum("ij,ij->i", ng, e_k) > 0.0) & (strength > 0.0)
+            cos_n = rows.dot(ns, e_k)
+            lit = (cos_n > 0.0) & (rows.dot(ng, e_k) > 0.0) & (strength > 0.0)
             sel = np.flatnonzero(lit)
             if len(sel) == 0:
                 continue
@@ -267,7 +268,7 @@ class Shader:
             if len(r):
                 brdf[rough[sel]] += _ggx(ns[r], view[r], e_k[r], alpha[r], f0[r], f90[r])
             emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel))
-            total[sel] += brdf * emitted * (strength[sel] * cos_n[sel])[:, None]
+            total[sel] += rows.scale(brdf * emitted, strength[sel] * cos_n[sel])
         return total
 
     def _incident(self, pl: PreparedLight, k, tau, position, xi1, xi2):
@@ -291,7 +292,7 @@ class Shader:
             e_k, doppler = back.rays(e_j)
             return e_k, self._power(doppler, 2), doppler, np.full(n, np.inf)
         _, x_j = to_light.events(tau, position)
-        sample = np.broadcast_to(pl.position, (n, 3)).copy()
+        sample = np.broadcast_to(pl.position, (n, 3))
         if light.kind == "AREA":
             sx, sy = light.area_size
             if light.area_shape in ("DISK", "ELLIPSE"):
@@ -299,16 +300,16 @@ class Shader:
                 a, b = 0.5 * radius * np.cos(angle), 0.5 * radius * np.sin(angle)
             else:
                 a, b = xi1 - 0.5, xi2 - 0.5
-            sample += (a * sx)[:, None] * x_axis + (b * sy)[:, None] * y_axis
+            sample = rows.add_scaled(rows.add_scaled(sample, a * sx, x_axis), b * sy, y_axis)
         delta = sample - x_j
-        r_rest = np.linalg.norm(delta, axis=1)
-        e_j = delta / np.maximum(r_rest, 1e-300)[:, None]
+        r_rest = rows.norm(delta)
+        e_j = rows.scale(delta, 1.0 / np.maximum(r_rest, 1e-300))
         if light.kind != "AREA" and light.radius > 0.0:
             # a soft (spherical) light: aim at a point of its disc facing the surface
             disc = _disc_sample(e_j, light.radius, xi1, xi2)
             delta = sample + disc - x_j
-            r_rest = np.linalg.norm(delta, axis=1)
-            e_j = delta / np.maximum(r_rest, 1e-300)[:, None]
+            r_rest = rows.norm(delta)
+            e_j = rows.scale(delta, 1.0 / np.maximum(r_rest, 1e-300))
         if light.kind == "AREA":
             intensity = np.maximum(e_j @ z_axis, 0.0) / np.pi  # Lambertian, emitting along -Z
         else:
@@ -380,20 +381,20 @@ def _fresnel_dielectric(cos_i, eta):
 
 def _ggx(n, view, light, alpha, f0, f90):
     """Cook-Torrance GGX specular BRDF (Schlick Fresnel from f0 to f90, separable Smith shadowing)."""
-    h = view + light
-    h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-300)
-    n_h = np.clip(np.einsum("ij,ij->i", n, h), 0.0, 1.0)
-    n_v = np.clip(np.einsum("ij,ij->i", n, view), 1e-6, 1.0)
-    n_l = np.clip(np.einsum("ij,ij->i", n, light), 1e-6, 1.0)
-    v_h = np.clip(np.einsum("ij,ij->i", view, h), 0.0, 1.0)
+    h = rows.normalized(view + light)
+    n_h = np.clip(rows.dot(n, h), 0.0, 1.0)
+    n_v = np.clip(rows.dot(n, view), 1e-6, 1.0)
+    n_l = np.clip(rows.dot(n, light), 1e-6, 1.0)
+    v_h = np.clip(rows.dot(view, h), 0.0, 1.0)
     a2 = alpha**2
     ndf = a2 / (np.pi * (n_h**2 * (a2 - 1.0) + 1.0) ** 2)
 
     def smith(c):
         return 2.0 * c / (c + np.sqrt(a2 + (1.0 - a2) * c * c))
 
-    fresnel = f0 + (f90[:, None] - f0) * ((1.0 - v_h) ** 5)[:, None]
-    return fresnel * (ndf * smith(n_v) * smith(n_l) / (4.0 * n_v * n_l))[:, None]
+    schlick = (1.0 - v_h) ** 5
+    fresnel = rows.scale(f0, 1.0 - schlick) + (f90 * schlick)[:, None]
+    return rows.scale(fresnel, ndf * smith(n_v) * smith(n_l) / (4.0 * n_v * n_l))
 
 
 def _spot_falloff(cos_angle, spot_size, blend):

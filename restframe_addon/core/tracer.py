@@ -444,18 +444,18 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None):
     """Float64 position, unit geometric normal and unit shading normal at hits of one frame
     (frame coordinates; ``tau``, the hits' frame times, poses a spinning body)."""
     geometry = frame.geometry
-    tri = geometry.vertices[geometry.triangles[prim]]  # (n, 3, 3)
-    u = u[:, None]
-    v = v[:, None]
-    position = tri[:, 0] + u * (tri[:, 1] - tri[:, 0]) + v * (tri[:, 2] - tri[:, 0])
-    ng = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    ng /= np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
+    corners = geometry.triangles[prim]
+    p0 = geometry.vertices[corners[:, 0]]
+    u = np.asarray(u, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    position = rows.add_scaled(rows.add_scaled(p0, u, geometry.vertices[corners[:, 1]] - p0), v,
+                               geometry.vertices[corners[:, 2]] - p0)
+    ng = geometry.face_normals[prim]
     if geometry.corner_normals is None:
         ns = ng
     else:
         cn = geometry.corner_normals[prim]
-        ns = (1.0 - u - v) * cn[:, 0] + u * cn[:, 1] + v * cn[:, 2]
-        ns /= np.maximum(np.linalg.norm(ns, axis=1, keepdims=True), 1e-300)
+        ns = rows.normalized(rows.add_scaled(rows.add_scaled(rows.scale(cn[:, 0], 1.0 - u - v), u, cn[:, 1]), v, cn[:, 2]))
     position, ng = frame.to_frame(position, ng, tau)
     if frame.spin is not None:
         _, ns = frame.to_frame(position, ns, tau)
