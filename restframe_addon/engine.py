@@ -16,27 +16,23 @@ import traceback
 import bpy
 
 from . import export
-from .core.render import PASSES, Renderer, RenderError, render_tiles
+from .core.render import Renderer, RenderError, render_tiles
 
 # Blender 5.0 renamed its object index pass ("IndexOB" before).
 OBJECT_INDEX_PASS = "Object Index" if bpy.app.version >= (5, 0, 0) else "IndexOB"
 
 # Blender pass name -> the core's pass name
 _CORE_PASS = {OBJECT_INDEX_PASS: "IndexOB"}
+_BLENDER_PASS = {core: blender for blender, core in _CORE_PASS.items()}
+_CHANNELS = {"Depth": ("Z", 'VALUE'), "Normal": ("XYZ", 'VECTOR')}
 
 
 def list_render_passes(scene, view_layer):
-    """(name, channel ids, type) of every pass a render of this view layer produces."""
+    """(name, channel ids, type) of every pass a render of this view layer produces: Combined,
+    then the core's (``export.core_passes``: Blender's enabled ones, RESTframe's own always)."""
     yield ("Combined", "RGBA", 'COLOR')
-    if view_layer.use_pass_z:
-        yield ("Depth", "Z", 'VALUE')
-    if view_layer.use_pass_normal:
-        yield ("Normal", "XYZ", 'VECTOR')
-    if view_layer.use_pass_object_index:
-        yield (OBJECT_INDEX_PASS, "X", 'VALUE')
-    # RESTframe's own passes (Doppler, Emission Time, ...), always rendered
-    for name, channels in PASSES.items():
-        yield (name, "X", 'VALUE') if channels == 1 else (name, "XYZW"[:channels], 'VECTOR')
+    for name in export.core_passes(view_layer):
+        yield (_BLENDER_PASS.get(name, name), *_CHANNELS.get(name, ("X", 'VALUE')))
 
 
 class RestframeRenderEngine(bpy.types.RenderEngine):

@@ -16,6 +16,7 @@ import bpy
 import numpy as np
 
 from .core.motion import Trajectory
+from .core.render import PASSES
 from .core.scene import Camera, Light, Material, Mesh, RenderSettings, Scene, Velocity
 from .properties import speed_of
 
@@ -573,7 +574,16 @@ def border_region(scene, resolution) -> tuple[int, int, int, int] | None:
     return (x0, y0, x1, y1)
 
 
-def render_settings(scene, resolution=None) -> RenderSettings:
+def core_passes(view_layer) -> tuple[str, ...]:
+    """The core passes a render of this view layer fills besides Combined: Blender's where the
+    view layer enables them, RESTframe's own always."""
+    blender = (("Depth", view_layer.use_pass_z), ("Normal", view_layer.use_pass_normal),
+               ("IndexOB", view_layer.use_pass_object_index))
+    return tuple(name for name, used in blender if used) + tuple(PASSES)
+
+
+def render_settings(scene, resolution=None, view_layer=None) -> RenderSettings:
+    """The render settings of the scene's RESTframe and Render panels (all passes without a view layer)."""
     rf = scene.restframe
     render = scene.render
     resolution = tuple(resolution) if resolution is not None else full_resolution(scene)
@@ -592,6 +602,7 @@ def render_settings(scene, resolution=None) -> RenderSettings:
         doppler_range=None if rf.doppler_range_auto else tuple(rf.doppler_range),
         doppler_levels=rf.doppler_levels,
         motion_tolerance=rf.motion_tolerance,
+        passes=None if view_layer is None else core_passes(view_layer),
     )
 
 
@@ -716,4 +727,4 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
         tau_obs=rf.light_speed * observation_time(scene),
         light_speed=rf.light_speed,
     )
-    return out, render_settings(scene, resolution)
+    return out, render_settings(scene, resolution, depsgraph.view_layer)

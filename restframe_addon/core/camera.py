@@ -109,7 +109,7 @@ class CameraRays:
         n = len(u) * len(v) if grid else len(u)
 
         def on_plane(corner, across, up):  # corner + u across + v up at every ray
-            return np.add.outer(corner + up * v, across * u).ravel() if grid else corner + across * u + up * v
+            return np.add.outer(corner + up * v, across * u).ravel() if grid else (corner + up * v) + across * u
 
         directions = np.empty((n, 3))
         for axis, (corner, across, up) in enumerate(self.world_plane):
@@ -118,10 +118,11 @@ class CameraRays:
         for axis in range(3):  # one axis at a time: numpy is slow along a length-3 last axis
             directions[:, axis] *= inverse
         corner, across, up = self.plane
-        inverse_depth = -inverse / on_plane(corner[2], across[2], up[2])  # 1 / cosine to the view axis
+        # path length per unit of depth along the view axis: 1 / cosine to the axis (the plane is at z < 0)
+        per_depth = -1.0 / (inverse * on_plane(corner[2], across[2], up[2]))
         camera = self.camera
-        return (np.broadcast_to(self.position, (n, 3)), directions, camera.clip_start * inverse_depth,
-                camera.clip_end * inverse_depth, np.ones(n, dtype=bool))
+        return (np.broadcast_to(self.position, (n, 3)), directions, camera.clip_start * per_depth,
+                camera.clip_end * per_depth, np.ones(n, dtype=bool))
 
 
 def primary_rays(camera: Camera, px, py, resolution, offset=(0.0, 0.0, 0.0), grid: bool = False):

@@ -20,7 +20,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from . import sampling
+from . import rows, sampling
 from .camera import CameraRays
 from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
 from .colour import RGBColour, SpectralColour
@@ -29,7 +29,8 @@ from .shading import MaterialTable, Shader, prepare_lights
 from .tracer import trace_nearest
 
 PASSES = {"Doppler": 1, "Emission Time": 1, "Object Time": 1}  # RESTframe's own (Depth, Normal, IndexOB are Blender's)
-ALL_PASSES = {"Combined": 4, **PASSES, "Depth": 1, "Normal": 3, "IndexOB": 1}
+EXTRA_PASSES = {**PASSES, "Depth": 1, "Normal": 3, "IndexOB": 1}  # what RenderSettings.passes may ask for
+ALL_PASSES = {"Combined": 4, **EXTRA_PASSES}
 DOPPLER_MODES = ("OFF", "FACTOR", "SPECTRAL")
 _MAX_VALUES = 3 << 16  # ray colour values per batch: bounds memory whatever the tile size, samples and wavelengths
 _EXPOSURE_PREVIEW = 48  # pixels on the longer side of the exposure-normalisation preview
@@ -75,6 +76,7 @@ class Renderer:
         tau, _ = camera_boost.events(np.array(scene.tau_obs), world_event)
         self.camera_tau = float(tau)
         self.camera_rays = CameraRays(scene.camera, settings.resolution, shift_into_frame(camera_boost, position))
+        self.passes = tuple(EXTRA_PASSES) if settings.passes is None else tuple(settings.passes)
         self.doppler_range = settings.doppler_range
         if settings.doppler_mode == "FACTOR" and self.doppler_range is None:
             self.doppler_range = self._measure_doppler_range(should_stop)
@@ -239,21 +241,26 @@ class Renderer:
         return t
 
     def _centre_passes(self, rays, hits):
-        """Passes of the pixel-centre ray: exact, quotable values (no sample averaging)."""
+        """The requested passes of the pixel-centre ray: exact, quotable values (no sample averaging)."""
         tau, x, d, _, _ = rays
         camera = self.frames.camera
+        wanted = set(self.passes)
         n = len(d)
-        doppler = np.zeros(n)
-        emission_time = np.zeros(n)
-        depth = np.full(n, 1e10)
-        normal = np.zeros((n, 3))
-        index = np.zeros(n)
         hit = hits.frame >= 0
-        object_time = np.zeros(n)
-        depth[hit] = hits.s[hit]
-        # world time of the hit event: back along the ray in the camera frame, then into S
-        world_tau, _ = self.frames.map(camera, self.frames.world).events(tau[hit] - hits.s[hit], x[hit] + hits.s[hit, None] * d[hit])
-        emission_time[hit] = world_tau / self.scene.light_speed
+        passes = {}
+        if "Depth" in wanted:
+            passes["Depth"] = np.where(hit, hits.s, 1e10)
+        if "Emission Time" in wanted:
+            # world time of the hit event: back along the ray in the camera frame, then into S
+            world_tau, _ = self.frames.map(camera, self.frames.world).events(
+                tau[hit] - hits.s[hit], rows.add_scaled(x[hit], hits.s[hit], d[hit]))
+            passes["Emission Time"] = np.zeros(n)
+            passes["Emission Time"][hit] = world_tau / self.scene.light_speed
+        per_frame = {"Doppler": (1,), "Normal": (3,), "IndexOB": (1,), "Object Time": (1,)}
+        for name in wanted & per_frame.keys():
+            passes[name] = np.zeros((n, *per_frame[name]))
+        if not wanted & per_frame.keys():
+            return passes
         for k in np.unique(hits.frame[hit]):
             sel = np.flatnonzero(hits.frame == k)
             frame = self.frames.frames[int(k)]
@@ -262,13 +269,15 @@ class Renderer:
             d_k, w = fmap.rays(d[sel])
             tau_hit = tau_k - hits.s_frame[sel]
             prim, u, v = hits.prim[sel], hits.u[sel], hits.v[sel]
-            doppler[sel] = self.shader.surface_doppler(int(k), prim, u, v, tau_hit, d_k) / w
-            _, _, ns, _, _ = self.shader.surface_info(int(k), prim, u, v, d_k, tau_hit)
-            normal[sel] = ns
-            index[sel] = frame.geometry.tri_object_index[prim]
-            object_time[sel] = frame.object_clock(tau_hit, prim) / self.scene.light_speed
-        return {"Doppler": doppler, "Emission Time": emission_time, "Object Time": object_time, "Depth": depth,
-                "Normal": normal, "IndexOB": index}
+            if "Doppler" in wanted:
+                passes["Doppler"][sel, 0] = self.shader.surface_doppler(int(k), prim, u, v, tau_hit, d_k) / w
+            if "Normal" in wanted:
+                passes["Normal"][sel] = self.shader.surface_info(int(k), prim, u, v, d_k, tau_hit)[2]
+            if "IndexOB" in wanted:
+                passes["IndexOB"][sel, 0] = frame.geometry.tri_object_index[prim]
+            if "Object Time" in wanted:
+                passes["Object Time"][sel, 0] = frame.object_clock(tau_hit, prim) / self.scene.light_speed
+        return passes
 
 
 def _validate(scene: Scene, settings: RenderSettings) -> None:
@@ -285,6 +294,9 @@ def _validate(scene: Scene, settings: RenderSettings) -> None:
         raise RenderError(f"the speed of light must be a positive number (got {scene.light_speed})")
     if not math.isfinite(scene.tau_obs):
         raise RenderError("the observation time is not finite: check the reference frame and the speed of light")
+    unknown = set(settings.passes or ()) - set(EXTRA_PASSES)
+    if unknown:
+        raise RenderError(f"unknown passes {sorted(unknown)}: RESTframe fills {list(EXTRA_PASSES)} besides Combined")
     if settings.doppler_mode not in DOPPLER_MODES:
         raise RenderError(f"Doppler display mode {settings.doppler_mode!r} is not one of {DOPPLER_MODES}")
 
@@ -330,7 +342,8 @@ def render_image(scene: Scene, settings: RenderSettings, should_stop: Callable[[
     """Render the whole image (or region) into full-size pass arrays, row 0 at the bottom."""
     renderer = Renderer(scene, settings, should_stop)
     width, height = settings.resolution
-    passes = {name: np.zeros((height, width, channels), dtype=np.float32) for name, channels in ALL_PASSES.items()}
+    passes = {name: np.zeros((height, width, ALL_PASSES[name]), dtype=np.float32)
+              for name in ("Combined", *renderer.passes)}
     total = len(renderer.tiles())
     for done, tile in enumerate(render_tiles(scene, settings, should_stop, renderer), start=1):
         for name, data in tile.passes.items():

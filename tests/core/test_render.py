@@ -325,3 +325,24 @@ def test_cancel_stops_rendering():
 
     passes = render_image(scene, settings((64, 64), tile_size=8), should_stop=stop)
     assert np.count_nonzero(passes["Combined"][..., 3]) < 64 * 64
+
+
+def test_clip_range_is_the_clip_depth_over_the_cosine_to_the_view_axis():
+    """Clip distances are depths along the view axis: path lengths clip / cos(angle to the axis),
+    whatever the scale of the camera's frame (a long lens puts it far from z = -1); a tile's
+    pixel-centre grid gives the same rays as the same positions listed one by one."""
+    camera = look_at_camera((1.0, -2.0, 0.5), (0.0, 3.0, 1.0), fov_half_tan=0.7, aspect=1.5)
+    camera.frame = camera.frame * 3.5  # same view, image plane at z = -3.5
+    camera.clip_start, camera.clip_end = 0.25, 40.0
+    res = (12, 8)
+    xs, ys = np.arange(3, 9) + 0.5, np.arange(2, 7) + 0.5
+    px, py = np.tile(xs, len(ys)), np.repeat(ys, len(xs))
+    origins, d, s_lo, s_hi, valid = primary_rays(camera, px, py, res)
+    axis = -np.asarray(camera.matrix)[:3, 2]
+    cosine = d @ axis
+    np.testing.assert_allclose(s_lo, 0.25 / cosine, rtol=1e-14)
+    np.testing.assert_allclose(s_hi, 40.0 / cosine, rtol=1e-14)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, rtol=1e-15)
+    grid = primary_rays(camera, xs, ys, res, grid=True)
+    for flat, tiled in zip((origins, d, s_lo, s_hi, valid), grid):
+        np.testing.assert_array_equal(flat, tiled)
