@@ -346,3 +346,16 @@ def test_clip_range_is_the_clip_depth_over_the_cosine_to_the_view_axis():
     grid = primary_rays(camera, xs, ys, res, grid=True)
     for flat, tiled in zip((origins, d, s_lo, s_hi, valid), grid):
         np.testing.assert_array_equal(flat, tiled)
+
+
+def test_only_the_requested_passes_are_filled_and_they_match_a_full_render():
+    v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, 24, 12)
+    scene = Scene(camera=look_at_camera((0, -4, 0), (0, 0, 0)),
+                  meshes=[Mesh("ball", v, t, velocity=Velocity((0.5, 0.0, 0.0)))])
+    full = render_image(scene, settings((16, 16)))
+    some = render_image(scene, settings((16, 16), passes=("Depth", "Doppler")))
+    assert set(some) == {"Combined", "Depth", "Doppler"}
+    for name in some:
+        np.testing.assert_array_equal(some[name], full[name])
+    with pytest.raises(RenderError, match="unknown passes"):
+        render_image(scene, settings((16, 16), passes=("Vector",)))
