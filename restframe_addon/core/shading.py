@@ -114,6 +114,14 @@ class PreparedLight:
     axes: np.ndarray  # 3x3, columns = local X, Y, Z (emits along -Z)
     radiant: np.ndarray  # colour * power in Blender units
 
+    @property
+    def sampled(self) -> bool:
+        """Whether shadow rays aim at random points of it (soft and area lights, a sun with an angle)."""
+        light = self.light
+        if light.kind == "SUN":
+            return light.sun_angle > 0.0
+        return light.kind == "AREA" or light.radius > 0.0
+
 
 def prepare_lights(scene: Scene, frames: FrameSet) -> list[PreparedLight]:
     prepared = []
@@ -251,8 +259,9 @@ class Shader:
         total = np.zeros_like(base)
         for index, light in enumerate(self.lights):
             dim = 1000 + 100 * depth + 4 * index
-            xi1 = sampling.uniform(pixel, sample, dim)
-            xi2 = sampling.uniform(pixel, sample, dim + 1)
+            xi1 = xi2 = None  # a point light or sharp sun needs no random numbers
+            if light.sampled:
+                xi1, xi2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
             e_k, strength, doppler, s_max = self._incident(light, k, tau, position, xi1, xi2)
             cos_n = rows.dot(ns, e_k)
             lit = (cos_n > 0.0) & (rows.dot(ng, e_k) > 0.0) & (strength > 0.0)

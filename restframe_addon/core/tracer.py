@@ -405,10 +405,10 @@ def _bundle_reach(tau0, x0, d, s_lo, s_hi):
     span of its events' times (source frame); None for unbounded rays (sunlight)."""
     if len(d) == 0 or not np.all(np.isfinite(s_hi)):
         return None
-    near = x0 + s_lo[:, None] * d
-    far = x0 + s_hi[:, None] * d
-    points = np.concatenate([near, far])
-    lo, hi = points.min(axis=0), points.max(axis=0)
+    lo, hi = np.empty(3), np.empty(3)
+    for axis in range(3):  # one axis at a time: numpy is slow along a length-3 last axis
+        ends = np.concatenate([x0[:, axis] + s_lo * d[:, axis], x0[:, axis] + s_hi * d[:, axis]])
+        lo[axis], hi[axis] = ends.min(), ends.max()
     centre = 0.5 * (lo + hi)
     return centre, 0.5 * float(np.linalg.norm(hi - lo)), float(np.min(tau0 - s_hi)), float(np.max(tau0 - s_lo))
 
