@@ -26,7 +26,7 @@ from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
 from .colour import RGBColour, SpectralColour
 from .scene import RenderSettings, Scene
 from .shading import MaterialTable, Shader, prepare_lights
-from .tracer import trace_nearest
+from .tracer import frames_hit, trace_nearest
 
 PASSES = {"Doppler": 1, "Emission Time": 1, "Object Time": 1}  # RESTframe's own (Depth, Normal, IndexOB are Blender's)
 EXTRA_PASSES = {**PASSES, "Depth": 1, "Normal": 3, "IndexOB": 1}  # what RenderSettings.passes may ask for
@@ -220,7 +220,7 @@ class Renderer:
     def _hit_doppler(self, hits, tau, x, d):
         """Doppler factor of camera-ray hits (the frame's, times a spinning surface's own)."""
         doppler = 1.0 / hits.w
-        for k in np.unique(hits.frame[hits.frame >= 0]):
+        for k in frames_hit(hits):
             frame = self.frames.frames[int(k)]
             if frame.spin is None:
                 continue
@@ -261,7 +261,7 @@ class Renderer:
             passes[name] = np.zeros((n, *per_frame[name]))
         if not wanted & per_frame.keys():
             return passes
-        for k in np.unique(hits.frame[hit]):
+        for k in frames_hit(hits):
             sel = np.flatnonzero(hits.frame == k)
             frame = self.frames.frames[int(k)]
             fmap = self.frames.map(camera, int(k))

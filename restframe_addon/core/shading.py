@@ -26,7 +26,7 @@ import numpy as np
 from . import rows, sampling, spectral
 from .frames import FrameSet, shift_into_frame
 from .scene import Light, Material, Scene
-from .tracer import hit_geometry, occluded, trace_nearest
+from .tracer import frames_hit, hit_geometry, occluded, trace_nearest
 
 MIRROR_ROUGHNESS = 0.05  # smoother surfaces reflect by traced mirror rays, rougher ones by GGX highlights
 _MIN_ALPHA = 1e-3
@@ -186,7 +186,7 @@ class Shader:
             doppler = 1.0 / w_world
             world = self.colour.world(self.colour.shift(_rows(lam, miss), doppler), len(miss))
             values[miss] = rows.scale(world, self._power(doppler, 4))
-        for k in np.unique(hits.frame[hits.frame >= 0]):
+        for k in frames_hit(hits):
             sel = np.flatnonzero(hits.frame == k)
             fmap = self.frames.map(src, int(k))
             tau_k, _ = fmap.events(tau0[sel], x0[sel])

@@ -263,6 +263,11 @@ def _per_ray(value, n: int) -> np.ndarray:
     return value if value.shape == (n,) else np.broadcast_to(value, (n,))
 
 
+def frames_hit(hits: Hits) -> np.ndarray:
+    """The frames that some ray hit (a count per frame: no sort of the whole bundle)."""
+    return np.flatnonzero(np.bincount(hits.frame + 1)[1:])
+
+
 def _no_hits(n: int) -> Hits:
     return Hits(frame=np.full(n, -1, dtype=np.int32), s=np.full(n, np.inf), s_frame=np.full(n, np.inf),
                 w=np.ones(n), prim=np.full(n, -1, dtype=np.int32), u=np.zeros(n, dtype=np.float32),
