@@ -198,7 +198,7 @@ class FrameSet:
         self.geometry = [f.index for f in frames if f.has_geometry]
         grouped = {int(i) for g in self.groups for i in g.frames}
         self.ungrouped = [k for k in self.geometry if k not in grouped]
-        self._maps: dict[tuple[int, int], FrameMap] = {}
+        self._maps: dict[tuple, object] = {}  # frame maps and body lines, by frame pair
         self.cone_cache: dict = {}  # the tracer's culling cones, per (frame pair, observation event)
 
     def candidates(self, src: int, tau0, x0) -> list[int]:
@@ -213,6 +213,25 @@ class FrameSet:
         for group in self.groups:
             chosen.extend(int(k) for k in group.visible_from(tau_c, x_c, spread))
         return chosen
+
+    def body_line(self, k: int, src: int):
+        """(t, x, velocity, radius): a sphere holding frame k's body, moving uniformly in frame src
+        (its centre is at x at time t; a Lorentz-contracted body only shrinks).  Cached."""
+        key = ("body", k, src)
+        cached = self._maps.get(key)
+        if cached is None:
+            frame = self.frames[k]
+            geometry = frame.geometry
+            if frame.spin is not None:
+                centre, radius = frame.offset, geometry.radius
+            else:
+                centre, radius = geometry.anchor + frame.offset, 0.5 * float(np.linalg.norm(geometry.hi - geometry.lo))
+            back = self.map(k, src)
+            t_a, x_a = back.events(np.array(0.0), centre)
+            t_b, x_b = back.events(np.array(1.0), centre)
+            cached = (float(t_a), x_a, (x_b - x_a) / float(t_b - t_a), radius)
+            self._maps[key] = cached
+        return cached
 
     def map(self, a: int, b: int) -> FrameMap:
         """The map from frame a's coordinates to frame b's (cached)."""

@@ -394,55 +394,78 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
         todo = np.flatnonzero(~blocked)
         if len(todo) == 0:
             break
-        if reach is not None and not _may_meet(frames, src, k, *reach):
+        if reach is not None and not _may_meet(frames, src, k, reach):
             continue
         fmap = frames.map(src, k)
         frame = frames.frames[k]
         tau_k, origin = fmap.events(tau0[todo], x0[todo])
-        dk, w = fmap.rays(d[todo])
+        if reach is not None and reach.direction is not None:  # parallel rays (sunlight): map one
+            dk, w = fmap.rays(reach.direction)
+            dk, w = np.broadcast_to(dk, (len(todo), 3)), float(w)
+        else:
+            dk, w = fmap.rays(d[todo])
         lo, hi = _ray_range(frame, tau_k, s_lo[todo] * w, s_hi[todo] * w)
         blocked[todo[_query(frame, tau_k, origin, dk, lo, hi, occlusion=True)]] = True
     return blocked
 
 
-def _bundle_reach(tau0, x0, d, s_lo, s_hi):
-    """(centre, radius, earliest, latest): a ball holding every ray segment of a bundle, and the
-    span of its events' times (source frame); None for unbounded rays (sunlight)."""
-    if len(d) == 0 or not np.all(np.isfinite(s_hi)):
+@dataclass
+class Reach:
+    """Where the rays of a shadow-ray bundle can be (source frame): every ray starts (at s_lo)
+    inside the ball (centre, radius) at a time in [earliest, latest] and, for finite rays, ends
+    in it too; unbounded rays (sunlight) all run along one ``direction``."""
+
+    centre: np.ndarray
+    radius: float
+    earliest: float
+    latest: float
+    direction: np.ndarray | None = None
+
+
+def _bundle_reach(tau0, x0, d, s_lo, s_hi) -> Reach | None:
+    """The bundle's :class:`Reach`; None for unbounded rays in different directions."""
+    if len(d) == 0:
+        return None
+    bounded = bool(np.all(np.isfinite(s_hi)))
+    if not bounded and not np.all(d == d[0]):
         return None
     lo, hi = np.empty(3), np.empty(3)
     for axis in range(3):  # one axis at a time: numpy is slow along a length-3 last axis
-        ends = np.concatenate([x0[:, axis] + s_lo * d[:, axis], x0[:, axis] + s_hi * d[:, axis]])
+        ends = x0[:, axis] + s_lo * d[:, axis]
+        if bounded:
+            ends = np.concatenate([ends, x0[:, axis] + s_hi * d[:, axis]])
         lo[axis], hi[axis] = ends.min(), ends.max()
-    centre = 0.5 * (lo + hi)
-    return centre, 0.5 * float(np.linalg.norm(hi - lo)), float(np.min(tau0 - s_hi)), float(np.max(tau0 - s_lo))
+    start = tau0 - s_lo
+    return Reach(0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo)),
+                 float(np.min(tau0 - s_hi)) if bounded else float(np.min(start)), float(np.max(start)),
+                 None if bounded else np.array(d[0]))
 
 
-def _may_meet(frames: FrameSet, src: int, k: int, centre, radius, earliest, latest) -> bool:
-    """Can frame k's body come within reach of the bundle's ball during [earliest, latest]?
+def _may_meet(frames: FrameSet, src: int, k: int, reach: Reach) -> bool:
+    """Can frame k's body come within reach of the bundle?
 
     The body's bounding sphere moves uniformly in the source frame (its centre's world line
-    mapped from frame k; a Lorentz-contracted body only shrinks), so over the time span it
-    sweeps a capsule: the frame matters only if the capsule meets the ball.
+    mapped from frame k; a Lorentz-contracted body only shrinks).  Finite rays: over the
+    bundle's time span the sphere sweeps a capsule, which must meet the bundle's ball.
+    Unbounded parallel rays: relative to the body a ray from x0 at time t runs from
+    x0 - X(t) along d + v, so the rays fill a half-cylinder about the ray from the ball's
+    centre, widened by how far the body moves during the span of start times.
     """
-    frame = frames.frames[k]
-    geometry = frame.geometry
-    if frame.spin is not None:
-        body_centre, body_radius = frame.offset, geometry.radius
-    else:
-        body_centre, body_radius = geometry.anchor + frame.offset, 0.5 * float(np.linalg.norm(geometry.hi - geometry.lo))
-    back = frames.map(k, src)
-    t_a, x_a = back.events(np.array(0.0), body_centre)
-    t_b, x_b = back.events(np.array(1.0), body_centre)
-    velocity = (x_b - x_a) / float(t_b - t_a)
-    start = x_a + velocity * (earliest - float(t_a))
-    end = x_a + velocity * (latest - float(t_a))
-    segment = end - start
-    length2 = float(segment @ segment)
-    along = 0.0 if length2 == 0.0 else min(max(float((centre - start) @ segment) / length2, 0.0), 1.0)
-    gap = float(np.linalg.norm(centre - (start + along * segment)))
-    slack = body_radius * (1.0 + 2 * _PAD) + 1e-9 * (1.0 + float(np.max(np.abs(centre))))
-    return gap <= radius + slack
+    t_a, x_a, velocity, body_radius = frames.body_line(k, src)
+    slack = body_radius * (1.0 + 2 * _PAD) + 1e-9 * (1.0 + float(np.max(np.abs(reach.centre))))
+    if reach.direction is None:
+        start = x_a + velocity * (reach.earliest - t_a)
+        segment = velocity * (reach.latest - reach.earliest)
+        length2 = float(segment @ segment)
+        along = 0.0 if length2 == 0.0 else min(max(float((reach.centre - start) @ segment) / length2, 0.0), 1.0)
+        return float(np.linalg.norm(reach.centre - (start + along * segment))) <= reach.radius + slack
+    middle = 0.5 * (reach.earliest + reach.latest)
+    relative = reach.centre - (x_a + velocity * (middle - t_a))
+    spread = reach.radius + float(np.linalg.norm(velocity)) * 0.5 * (reach.latest - reach.earliest)
+    along_ray = reach.direction + velocity
+    length2 = float(along_ray @ along_ray)
+    s = 0.0 if length2 == 0.0 else max(-float(relative @ along_ray) / length2, 0.0)
+    return float(np.linalg.norm(relative + s * along_ray)) <= spread + slack
 
 
 def hit_geometry(frame: RestFrame, prim, u, v, tau=None):

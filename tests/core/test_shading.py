@@ -160,3 +160,47 @@ def test_sun_seen_from_a_moving_surface_is_aberrated_and_scaled_by_d_squared():
     assert centre(passes, "Doppler")[0] == pytest.approx(1.0, rel=1e-9)  # the camera moves with the floor
     still = render_image(floor_scene([sun], floor_velocity=v, camera_velocity=v), settings(searchlight=False))
     assert centre(still)[0] == pytest.approx(2.0 / g / math.pi, rel=1e-6)  # only the aberrated cosine
+
+
+@pytest.mark.parametrize("sun", [False, True])
+def test_culled_shadow_rays_block_exactly_as_unculled_ones(monkeypatch, sun):
+    """Shadow-ray bundles skip frames whose body cannot reach them (finite rays: a swept
+    capsule; sunlight: a half-cylinder along the common direction).  Against many small
+    boxes moving at random velocities, the blocked rays must be exactly those found when
+    every frame is queried -- and the culling must have skipped some frames."""
+    from shapes import box
+
+    from restframe_addon.core import tracer
+    from restframe_addon.core.frames import build_frames
+
+    rng = np.random.default_rng(7)
+    meshes = []
+    for i in range(60):
+        centre = rng.uniform(-6.0, 6.0, 3)
+        beta = rng.normal(size=3)
+        beta *= rng.uniform(0.0, 0.95) / np.linalg.norm(beta)
+        meshes.append(Mesh(f"box{i}", *box(tuple(centre), (1.2, 1.2, 1.2)), velocity=Velocity(tuple(beta)),
+                           pivot=tuple(centre)))
+    frames = build_frames(Scene(camera=look_at_camera((0, -20, 0), (0, 0, 0)), meshes=meshes))
+    n = 400
+    # bundles of 40 rays from small patches (as a tile's hits), something to cull
+    x0 = np.repeat(rng.uniform(-4.0, 4.0, (n // 40, 3)), 40, axis=0) + rng.uniform(-0.3, 0.3, (n, 3))
+    tau0 = rng.uniform(-1.0, 1.0, n)
+    if sun:
+        d = np.broadcast_to(np.array([0.3, -0.2, 0.9]) / np.linalg.norm([0.3, -0.2, 0.9]), (n, 3))
+        s_hi = np.full(n, np.inf)
+    else:
+        d = rng.normal(size=(n, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        s_hi = rng.uniform(0.5, 4.0, n)
+    src = frames.world
+    queried = []
+    original = tracer._may_meet
+    monkeypatch.setattr(tracer, "_may_meet", lambda *a: queried.append(original(*a)) or queried[-1])
+    bundles = [slice(i, i + 40) for i in range(0, n, 40)]
+    culled = np.concatenate([tracer.occluded(frames, src, tau0[b], x0[b], d[b], 1e-6, s_hi[b]) for b in bundles])
+    monkeypatch.setattr(tracer, "_may_meet", lambda *a: True)
+    full = np.concatenate([tracer.occluded(frames, src, tau0[b], x0[b], d[b], 1e-6, s_hi[b]) for b in bundles])
+    np.testing.assert_array_equal(culled, full)
+    assert 0 < np.count_nonzero(full) < n
+    assert queried.count(False) > 0
