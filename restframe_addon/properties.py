@@ -189,8 +189,9 @@ class RestframeSceneSettings(PropertyGroup):
     )
     tile_size: IntProperty(
         name="Tile Size",
-        description="Pixels per side of the chunks the image fills in with",
-        default=64,
+        description="Pixels per side of the chunks the image fills in with (smaller: quicker Esc and "
+                    "progress, larger: less per-chunk overhead)",
+        default=128,
         min=8,
         max=4096,
         subtype='PIXEL',

@@ -154,20 +154,25 @@ class Boost:
         n, b = self.n, self.b
         toward = (d @ n) < 0.0  # d close to -n: h is small, use d + n (exact there)
         sign = np.where(toward, 1.0, -1.0)
-        diff = [d[..., i] + sign * n[i] for i in range(3)]  # d + n or d - n: the small difference vector
+        moving = [i for i in range(3) if n[i] != 0.0]  # axes along which n has a component
+        # d + n or d - n: the small difference vector
+        diff = [d[..., i] + sign * n[i] if i in moving else d[..., i] for i in range(3)]
         half_s2 = 0.5 * (diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2])
         h = np.where(toward, half_s2, 2.0 - half_s2)  # h = 1 + n.d
         # d_perp = d - (n.d) n, from the difference vector for accuracy
         along = sign * half_s2
-        perp = [diff[i] - along * n[i] for i in range(3)]
+        perp = [diff[i] - along * n[i] if i in moving else diff[i] for i in range(3)]
         # inputs a few ulps off unit length leave a residue along n; remove it exactly
-        residue = perp[0] * n[0] + perp[1] * n[1] + perp[2] * n[2]
+        residue = sum(perp[i] * n[i] for i in moving)
         one_plus_bd = self.one_minus_b + b * h
         par = (h - self.one_minus_b) / one_plus_bd
         inverse = 1.0 / (self.gamma * one_plus_bd)
         d_new = np.empty(d.shape)
         for i in range(3):
-            d_new[..., i] = par * n[i] + (perp[i] - residue * n[i]) * inverse
+            if i in moving:
+                d_new[..., i] = par * n[i] + (perp[i] - residue * n[i]) * inverse
+            else:
+                np.multiply(perp[i], inverse, out=d_new[..., i])
         return d_new, self.gamma * one_plus_bd
 
     def doppler(self, d):

@@ -322,9 +322,8 @@ def _toward(frames: FrameSet, src: int, k: int, origin_event, d, bundle):
     if np.any(apart + bundle_angle <= spread):
         return None
     meeting = np.flatnonzero(apart <= spread + bundle_angle)
-    inside = np.zeros(len(d), dtype=bool)
-    for axis, limit in zip(axes[meeting], np.cos(spread[meeting])):
-        inside |= d @ axis >= limit
+    # every ray against every cone at once: one (m, 3) x (3, n) product, reduced over the cones
+    inside = (axes[meeting] @ d.T >= np.cos(spread[meeting])[:, None]).any(axis=0)
     return np.flatnonzero(inside)
 
 

@@ -14,10 +14,10 @@ import numpy as np
 from bench_common import (ROOT, Goal, Section, ball_scene, box, interleaved, look_at_camera, settings, timed,
                           uv_sphere)
 from restframe_addon.core.render import Renderer, render_image
-from restframe_addon.core.scene import Light, Material, Mesh, Scene, Velocity
+from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity
 from restframe_addon.core.tracer import trace_nearest
 
-TILE = 64  # the renderer's default tile: 4096 rays per batch
+TILE = RenderSettings().tile_size  # the renderer's default tile (128: 16384 rays per batch)
 
 
 def tiles(res, size=TILE):
