@@ -215,21 +215,32 @@ class FrameSet:
         return chosen
 
     def body_line(self, k: int, src: int):
-        """(t, x, velocity, radius): a sphere holding frame k's body, moving uniformly in frame src
-        (its centre is at x at time t; a Lorentz-contracted body only shrinks).  Cached."""
+        """(t, x, velocity, half): an axis-aligned box with half-extents ``half`` that holds frame
+        k's body at every time of frame src, its centre moving uniformly (at x at time t).  Cached.
+
+        The body's box in its rest frame, Lorentz-contracted along the relative velocity (a
+        linear map I - c n n^T with 0 <= c < 1: each of its entries lies between its values at
+        c = 0 and c = 1, which bounds the image box); a spinning body: the cube around its sphere.
+        """
         key = ("body", k, src)
         cached = self._maps.get(key)
         if cached is None:
             frame = self.frames[k]
             geometry = frame.geometry
-            if frame.spin is not None:
-                centre, radius = frame.offset, geometry.radius
-            else:
-                centre, radius = geometry.anchor + frame.offset, 0.5 * float(np.linalg.norm(geometry.hi - geometry.lo))
             back = self.map(k, src)
+            if frame.spin is not None:
+                centre, half = frame.offset, np.full(3, geometry.radius)
+            else:
+                centre, half = geometry.anchor + frame.offset, 0.5 * (geometry.hi - geometry.lo)
             t_a, x_a = back.events(np.array(0.0), centre)
             t_b, x_b = back.events(np.array(1.0), centre)
-            cached = (float(t_a), x_a, (x_b - x_a) / float(t_b - t_a), radius)
+            velocity = (x_b - x_a) / float(t_b - t_a)
+            speed = float(np.linalg.norm(velocity))
+            if speed > 0.0 and frame.spin is None:
+                n = velocity / speed
+                contracted = np.abs(np.eye(3) - np.outer(n, n))
+                half = np.maximum(np.eye(3), contracted) @ half
+            cached = (float(t_a), x_a, velocity, half)
             self._maps[key] = cached
         return cached
 

@@ -411,11 +411,11 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
 @dataclass
 class Reach:
     """Where the rays of a shadow-ray bundle can be (source frame): every ray starts (at s_lo)
-    inside the ball (centre, radius) at a time in [earliest, latest] and, for finite rays, ends
-    in it too; unbounded rays (sunlight) all run along one ``direction``."""
+    inside the box [lo, hi] at a time in [earliest, latest] and, for finite rays, ends in it
+    too; unbounded rays (sunlight) all run along one ``direction``."""
 
-    centre: np.ndarray
-    radius: float
+    lo: np.ndarray
+    hi: np.ndarray
     earliest: float
     latest: float
     direction: np.ndarray | None = None
@@ -435,36 +435,45 @@ def _bundle_reach(tau0, x0, d, s_lo, s_hi) -> Reach | None:
             ends = np.concatenate([ends, x0[:, axis] + s_hi * d[:, axis]])
         lo[axis], hi[axis] = ends.min(), ends.max()
     start = tau0 - s_lo
-    return Reach(0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo)),
-                 float(np.min(tau0 - s_hi)) if bounded else float(np.min(start)), float(np.max(start)),
+    return Reach(lo, hi, float(np.min(tau0 - s_hi)) if bounded else float(np.min(start)), float(np.max(start)),
                  None if bounded else np.array(d[0]))
 
 
 def _may_meet(frames: FrameSet, src: int, k: int, reach: Reach) -> bool:
     """Can frame k's body come within reach of the bundle?
 
-    The body's bounding sphere moves uniformly in the source frame (its centre's world line
-    mapped from frame k; a Lorentz-contracted body only shrinks).  Finite rays: over the
-    bundle's time span the sphere sweeps a capsule, which must meet the bundle's ball.
-    Unbounded parallel rays: relative to the body a ray from x0 at time t runs from
-    x0 - X(t) along d + v, so the rays fill a half-cylinder about the ray from the ball's
-    centre, widened by how far the body moves during the span of start times.
+    The body lies in a box moving uniformly in the source frame (``FrameSet.body_line``).
+    Finite rays lie in the bundle's box: over the bundle's time span the body box's centre
+    runs along a segment, which must meet the bundle's box widened by the body's half-extents.
+    Unbounded parallel rays: relative to the body a ray starting at p at time t runs from
+    p - X(t) along w = d + v, so it can meet the body only if the ray from the body's centre
+    along -w meets the box of relative starts widened by the body's half-extents.
     """
-    t_a, x_a, velocity, body_radius = frames.body_line(k, src)
-    slack = body_radius * (1.0 + 2 * _PAD) + 1e-9 * (1.0 + float(np.max(np.abs(reach.centre))))
+    t_a, x_a, velocity, half = frames.body_line(k, src)
+    scale = 1.0 + float(np.max(np.abs(reach.hi))) + float(np.max(np.abs(reach.lo)))
+    widen = half * (1.0 + 2 * _PAD) + 2 * _PAD * float(np.max(half)) + 1e-9 * scale
     if reach.direction is None:
         start = x_a + velocity * (reach.earliest - t_a)
-        segment = velocity * (reach.latest - reach.earliest)
-        length2 = float(segment @ segment)
-        along = 0.0 if length2 == 0.0 else min(max(float((reach.centre - start) @ segment) / length2, 0.0), 1.0)
-        return float(np.linalg.norm(reach.centre - (start + along * segment))) <= reach.radius + slack
+        return _segment_meets_box(start, velocity * (reach.latest - reach.earliest), 1.0,
+                                  reach.lo - widen, reach.hi + widen)
     middle = 0.5 * (reach.earliest + reach.latest)
-    relative = reach.centre - (x_a + velocity * (middle - t_a))
-    spread = reach.radius + float(np.linalg.norm(velocity)) * 0.5 * (reach.latest - reach.earliest)
-    along_ray = reach.direction + velocity
-    length2 = float(along_ray @ along_ray)
-    s = 0.0 if length2 == 0.0 else max(-float(relative @ along_ray) / length2, 0.0)
-    return float(np.linalg.norm(relative + s * along_ray)) <= spread + slack
+    centre = x_a + velocity * (middle - t_a)
+    drift = np.abs(velocity) * 0.5 * (reach.latest - reach.earliest)  # how far the body moves about X(middle)
+    return _segment_meets_box(np.zeros(3), -(reach.direction + velocity), np.inf,
+                              reach.lo - centre - drift - widen, reach.hi - centre + drift + widen)
+
+
+def _segment_meets_box(origin, direction, t_max: float, lo, hi) -> bool:
+    """Whether origin + t direction, 0 <= t <= t_max, meets the box [lo, hi] (3-vectors)."""
+    enter, leave = 0.0, t_max
+    for o, e, a, b in zip(origin.tolist(), direction.tolist(), lo.tolist(), hi.tolist()):
+        if e == 0.0:
+            if not a <= o <= b:
+                return False
+            continue
+        t_a, t_b = (a - o) / e, (b - o) / e
+        enter, leave = max(enter, min(t_a, t_b)), min(leave, max(t_a, t_b))
+    return enter <= leave
 
 
 def hit_geometry(frame: RestFrame, prim, u, v, tau=None):
