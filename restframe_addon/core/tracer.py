@@ -90,7 +90,7 @@ def _local_query(geometry, origin, d, t_lo, t_hi, occlusion: bool):
     out = geometry.embree.run(o32, d32, dists=length, output=1)
     hit = out["primID"] >= 0
     t = start[hit] + out["tfar"][hit].astype(np.float64)
-    return idx[hit], t, out["primID"][hit], out["u"][hit], out["v"][hit]
+    return idx[hit], t, geometry.piece_start[out["geomID"][hit]] + out["primID"][hit], out["u"][hit], out["v"][hit]
 
 
 def _spin_query(frame: RestFrame, tau, origin, d, t_lo, t_hi, occlusion: bool):
