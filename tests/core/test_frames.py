@@ -26,15 +26,25 @@ def grid(cells=CELLS):
     return vertices, triangles
 
 
-def grid_scene(**mesh_options):
-    vertices, triangles = grid()
+def grid_scene(mesh=None, **mesh_options):
+    vertices, triangles = mesh or grid()
     camera = look_at_camera((CELLS / 2, CELLS / 2, 10.0), (CELLS / 2, CELLS / 2, 0.0))
     return Scene(camera=camera, meshes=[Mesh("grid", vertices, triangles, **mesh_options)])
 
 
-def test_a_mesh_in_many_pieces_traces_the_analytic_triangle_and_barycentrics(monkeypatch):
+@pytest.mark.parametrize("shuffled", [False, True], ids=["grid order", "shuffled"])
+def test_a_mesh_in_many_pieces_traces_the_analytic_triangle_and_barycentrics(monkeypatch, shuffled):
     monkeypatch.setattr(frames, "_PIECE_TRIANGLES", PIECE)
-    frame_set = build_frames(grid_scene())
+    vertices, triangles = grid()
+    order = np.arange(len(triangles))  # order[k]: the grid triangle stored k-th
+    if shuffled:  # each piece then uses vertices from all over the mesh
+        rng = np.random.default_rng(3)
+        order = rng.permutation(len(triangles))
+        renumber = rng.permutation(len(vertices))
+        moved = np.empty_like(vertices)
+        moved[renumber] = vertices
+        vertices, triangles = moved, renumber[triangles[order]]
+    frame_set = build_frames(grid_scene((vertices, triangles)))
     geometry = frame_set.frames[frame_set.world].geometry
     assert len(geometry.piece_start) == CELLS * CELLS * 2 // PIECE
 
@@ -50,7 +60,7 @@ def test_a_mesh_in_many_pieces_traces_the_analytic_triangle_and_barycentrics(mon
 
     fx, fy = fraction.T
     upper = fy > fx  # the second triangle of the cell, [a, c, d]
-    assert np.array_equal(hits.prim, 2 * (cell[:, 1] * CELLS + cell[:, 0]) + upper)
+    assert np.array_equal(order[hits.prim], 2 * (cell[:, 1] * CELLS + cell[:, 0]) + upper)
     # position = (1 - u - v) v0 + u v1 + v v2
     assert np.allclose(hits.u, np.where(upper, fx, fx - fy), atol=1e-5)
     assert np.allclose(hits.v, np.where(upper, fy - fx, fy), atol=1e-5)
