@@ -145,7 +145,10 @@ def _embree_query(geometry, origin, d, length, occlusion: bool):
         return geometry.embree.run(o32, d32, dists=dists, query="OCCLUDED") >= 0
     out = geometry.embree.run(o32, d32, dists=dists, output=1)
     prim = out["primID"]
-    t = np.where(prim >= 0, out["tfar"], np.inf).astype(np.float64)
+    hit = prim >= 0
+    if len(geometry.piece_start) > 1:  # triangles were attached in pieces: number them as the geometry does
+        prim = np.where(hit, geometry.piece_start[out["geomID"]] + prim, np.int32(-1))
+    t = np.where(hit, out["tfar"], np.inf).astype(np.float64)
     return t, prim, out["u"], out["v"]
 
 
