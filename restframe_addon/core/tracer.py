@@ -140,12 +140,11 @@ def _spin_query(frame: RestFrame, tau, origin, d, t_lo, t_hi, occlusion: bool):
     return idx, result_t[idx], prim[idx], u[idx], v[idx]
 
 
-def _ray_range(frame: RestFrame, tau, s_lo, s_hi):
-    """Clip path lengths in the frame to its time window: a hit at s has frame time tau - s."""
+def _ray_range(frame: RestFrame, tau, origin, d, s_lo, s_hi):
+    """Clip path lengths of rays (frame coordinates) to the stretch of spacetime where the frame's body holds."""
     if frame.window is None:
         return s_lo, s_hi
-    t0, t1 = frame.window
-    return np.maximum(s_lo, tau - t1), np.minimum(s_hi, tau - t0)
+    return frame.window.clip(tau, origin, d, s_lo, s_hi)
 
 
 def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> Hits:
@@ -183,7 +182,7 @@ def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> Hits:
         else:
             tau_k, origin = fmap.events(tau0[rays], x0[rays])
         dk, w = fmap.rays(d[rays])
-        lo, hi = _ray_range(frame, tau_k, s_lo[rays] * w, best[rays] * w)
+        lo, hi = _ray_range(frame, tau_k, origin, dk, s_lo[rays] * w, best[rays] * w)
         idx, t, prim, u, v = _query(frame, tau_k, origin, dk, lo, hi, occlusion=False)
         if len(idx) == 0:
             continue
@@ -271,7 +270,7 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
         frame = frames.frames[k]
         tau_k, origin = fmap.events(tau0[todo], x0[todo])
         dk, w = fmap.rays(d[todo])
-        lo, hi = _ray_range(frame, tau_k, s_lo[todo] * w, s_hi[todo] * w)
+        lo, hi = _ray_range(frame, tau_k, origin, dk, s_lo[todo] * w, s_hi[todo] * w)
         (idx,) = _query(frame, tau_k, origin, dk, lo, hi, occlusion=True)
         blocked[todo[idx]] = True
     return blocked
