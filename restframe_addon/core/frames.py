@@ -10,8 +10,8 @@ body is Lorentz-contracted about it as seen from S.
 
 Bodies in accelerated motion or rotation become several frames (inertial
 segments, see :mod:`.motion`) that share one :class:`Geometry` placed by an
-offset, each valid only in a window of frame time; a rotating body is one
-frame whose pose the tracer sets per ray.
+offset, each valid only between two of the body's simultaneity slices (a
+:class:`Window`); a rotating body is one frame whose pose the tracer sets per ray.
 """
 
 from __future__ import annotations
@@ -104,13 +104,62 @@ class Geometry:
         return rows.normalized(rows.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]))
 
 
+@dataclass(frozen=True)
+class Slice:
+    """A Born-rigid body's simultaneity slice through one pivot event, in a frame's coordinates:
+    the events (t, x) with ``(t - time) - beta.(x - position) = 0``, beta the pivot's velocity there.
+
+    ``slack`` (time) is how far the segments on both sides of this cut reach past it: their
+    surfaces disagree there by up to the sum of their error bounds, and without the overlap a
+    ray crossing the surface at the cut could pass between them into the body.  With it a ray
+    meets one of the two surfaces (both within the tolerance of the true one) unless it crosses
+    within 30 degrees of grazing.
+    """
+
+    time: float
+    position: np.ndarray
+    beta: np.ndarray
+    slack: float = 0.0
+
+    def crossing(self, tau, origin, d, later: float):
+        """Path length at which backward rays ``(tau - s, origin + s d)`` cross the slice moved
+        ``later`` in time; their events lie after it for smaller s (the denominator
+        ``1 + beta.d`` is positive, |beta| < 1)."""
+        after = tau - self.time - (origin - self.position) @ self.beta
+        return (after - later) / (1.0 + d @ self.beta)
+
+
+@dataclass(frozen=True)
+class Window:
+    """Where an inertial segment of an accelerated body holds: after its ``start`` slice and
+    before its ``end`` slice, each widened by its slack (None: the motion continues inertially).
+
+    The slices are the body's true ones at the segment's ends, shared with its neighbours, so the
+    segments tile the body's world tube.  Bounding each segment by its own simultaneity instead
+    leaves wedges between neighbours whose slices differ in tilt: at a distance r from the pivot
+    along the acceleration a, the body would be missing (or doubled) for a share ~ r a / 2 of the
+    time, whatever the tolerance, and rays slip into the body through the gaps.
+    """
+
+    start: Slice | None
+    end: Slice | None
+
+    def clip(self, tau, origin, d, s_lo, s_hi):
+        """Narrow the path-length ranges of backward rays (frame coordinates) to the window."""
+        if self.end is not None:
+            s_lo = np.maximum(s_lo, self.end.crossing(tau, origin, d, self.end.slack))
+        if self.start is not None:
+            s_hi = np.minimum(s_hi, self.start.crossing(tau, origin, d, -self.start.slack))
+        return s_lo, s_hi
+
+
 @dataclass
 class RestFrame:
     """One inertial frame, and the triangles at rest in it (possibly none).
 
     Local geometry coordinates map to frame coordinates by ``local + offset``, or for a
     spinning body by ``pose(t) @ local + offset`` at frame time t.  ``window`` limits the
-    placement to frame times [t0, t1] (the inertial segments of an accelerated body).
+    placement to a stretch of spacetime (the inertial segments of an accelerated body).
     """
 
     index: int
@@ -119,7 +168,7 @@ class RestFrame:
     names: list[str] = field(default_factory=list)
     geometry: Geometry | None = None
     offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    window: tuple[float, float] | None = None
+    window: Window | None = None
     clock_offset: float = 0.0  # the body's clock = frame time + clock_offset (+ Geometry.tri_clock)
     spin: np.ndarray | None = None  # angular velocity (rad per unit c*t) about ``offset``
     tolerance: float = 1e-3  # accelerated and spinning bodies: how far they may stray from their true motion
@@ -478,14 +527,19 @@ def _add_segments(frames, meshes, scene: Scene, settings: MotionSettings, warnin
     proper = trajectory.proper_time(mids)
     first = len(frames)
     starts, ends = [], []
-    # before the first and after the last segment the motion continues inertially
+    # the cuts between neighbouring segments; before the first and after the last segment the
+    # motion continues inertially
+    cuts = np.array([seg.end for seg in segments[:-1]])
+    cut_position, cut_beta = trajectory.state(cuts)
+    slack = [a.error + b.error for a, b in zip(segments[:-1], segments[1:])]
     for i, seg in enumerate(segments):
         boost = Boost.from_velocity(tuple(seg.beta), name=name)
         t_mid, x_mid = boost.events(np.array(seg.mid), seg.position)
         t_mid = float(t_mid)
         start = -np.inf if i == 0 else seg.start
         end = np.inf if i == len(segments) - 1 else seg.end
-        window = (t_mid + (start - seg.mid) / boost.gamma, t_mid + (end - seg.mid) / boost.gamma)
+        window = Window(*(_slice(boost, cuts[j], cut_position[j], cut_beta[j], slack[j])
+                          if 0 <= j < len(cuts) else None for j in (i - 1, i)))
         frames.append(RestFrame(index=len(frames), velocity=Velocity(tuple(seg.beta)), boost=boost, names=[name],
                                 geometry=geometry, offset=x_mid, window=window, clock_offset=float(proper[i]) - t_mid,
                                 tolerance=settings.tolerance))
@@ -493,8 +547,19 @@ def _add_segments(frames, meshes, scene: Scene, settings: MotionSettings, warnin
         ends.append(end)
     speed = np.linalg.norm(trajectory.beta, axis=1).max()
     gamma_max = 1.0 / math.sqrt((1.0 - speed) * (1.0 + speed))
+    # the overlaps at the cuts reach past the segments' pivot times by up to gamma * slack
     groups.append(SegmentGroup(trajectory, np.arange(first, len(frames)), np.array(starts), np.array(ends),
-                               reach=(gamma_max + 1.0) * trajectory.body_radius + settings.tolerance))
+                               reach=(gamma_max + 1.0) * trajectory.body_radius + settings.tolerance
+                               + 2.0 * gamma_max * max(slack, default=0.0)))
+
+
+def _slice(boost: Boost, tau, position, beta, slack: float) -> Slice:
+    """The body's slice through its pivot event (tau, position) of velocity beta (in S), in the
+    coordinates of the frame of ``boost``."""
+    t, x = boost.events(np.array(tau), position)
+    gamma = 1.0 / math.sqrt(1.0 - float(beta @ beta))
+    u0, u = boost.events(np.array(gamma), gamma * beta)  # the pivot's 4-velocity
+    return Slice(float(t), x, u / u0, slack)
 
 
 def _add_rotation(frames, mesh, scene: Scene, settings: MotionSettings, warnings, should_stop) -> None:

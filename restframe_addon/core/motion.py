@@ -13,8 +13,9 @@ is replaced by the same body moving with the segment's mid velocity, i.e. a
 static body in that segment's rest frame (Born rigidity: its points lie on the
 pivot's momentary simultaneity slice).  Segments are halved until the body
 points, pivot included, stay within the user's ``tolerance`` of the true
-Born-rigid motion.  A segment only holds for its slice of frame time, which the
-tracer applies as a clip range on each ray.
+Born-rigid motion.  A segment only holds between the body's simultaneity slices
+at its ends, shared with its neighbours (``frames.Window``), which the tracer
+applies as a clip range on each ray.
 
 Rotation at constant angular velocity is exactly rigid in the inertial frame of
 the axis (physics.md).  Each ray meets the body in the pose of its own hit time:

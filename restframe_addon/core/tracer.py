@@ -199,12 +199,11 @@ def _spin_query(frame: RestFrame, tau, origin, d, t_lo, t_hi, occlusion: bool):
     return result_t, prim, u, v
 
 
-def _ray_range(frame: RestFrame, tau, s_lo, s_hi):
-    """Clip path lengths in the frame to its time window: a hit at s has frame time tau - s."""
+def _ray_range(frame: RestFrame, tau, origin, d, s_lo, s_hi):
+    """Clip path lengths of rays (frame coordinates) to the stretch of spacetime where the frame's body holds."""
     if frame.window is None:
         return s_lo, s_hi
-    t0, t1 = frame.window
-    return np.maximum(s_lo, tau - t1), np.minimum(s_hi, tau - t0)
+    return frame.window.clip(tau, origin, d, s_lo, s_hi)
 
 
 def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> Hits:
@@ -238,7 +237,7 @@ def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> Hits:
         else:
             dk, w = fmap.rays(d_rays)
             lo, hi = lo * w, hi * w
-        lo, hi = _ray_range(frame, tau_k, lo, hi)
+        lo, hi = _ray_range(frame, tau_k, origin, dk, lo, hi)
         t, prim, u, v = _query(frame, tau_k, origin, dk, lo, hi, occlusion=False)
         s = t if w is None else t / w
         nearer = s < (best if rays is None else best[rays])  # ties keep the earlier frame
@@ -406,7 +405,7 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
             dk, w = np.broadcast_to(dk, (len(todo), 3)), float(w)
         else:
             dk, w = fmap.rays(d[todo])
-        lo, hi = _ray_range(frame, tau_k, s_lo[todo] * w, s_hi[todo] * w)
+        lo, hi = _ray_range(frame, tau_k, origin, dk, s_lo[todo] * w, s_hi[todo] * w)
         blocked[todo[_query(frame, tau_k, origin, dk, lo, hi, occlusion=True)]] = True
     return blocked
 

@@ -22,7 +22,7 @@ for path in (ROOT, ROOT / "tests" / "core"):
     if str(path) not in sys.path:
         sys.path.insert(0, str(path))
 
-from shapes import box, look_at_camera, quad, uv_sphere  # noqa: E402  (tests/core/shapes.py)
+from shapes import HyperbolicBall, box, look_at_camera, quad, uv_sphere  # noqa: E402  (tests/core/shapes.py)
 
 from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity  # noqa: E402
 

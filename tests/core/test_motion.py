@@ -6,14 +6,15 @@ import mpmath as mp
 import numpy as np
 import pytest
 from scipy import ndimage
-from shapes import box, look_at_camera, quad, uv_sphere
+from shapes import HyperbolicBall, box, look_at_camera, quad, uv_sphere
 
 from restframe_addon.core.camera import primary_rays
-from restframe_addon.core.frames import FrameMap
+from restframe_addon.core.frames import FrameMap, MotionSettings, build_frames
 from restframe_addon.core.lorentz import Boost
 from restframe_addon.core.motion import Trajectory, segment_world_line
 from restframe_addon.core.render import RenderError, render_image
 from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity
+from restframe_addon.core.tracer import occluded, trace_nearest
 
 
 def gamma_of(beta):
@@ -204,6 +205,90 @@ def test_accelerated_body_does_not_shadow_itself():
         facing = (passes["Depth"][..., 0] < 1e9) & (passes["Normal"][..., 0] > 0.3)
         assert facing.sum() > 50
         assert np.all(passes["Combined"][..., 0][facing] > 0.0)
+
+
+def strongly_accelerated_ball(tolerance, camera=None):
+    """A ball of radius 0.8 turning around with proper acceleration 0.5 (R a = 0.4, so its front
+    and back accelerate 0.71 and 1.67 times as hard as its centre), sampled every 0.1 (the samples
+    stray 6e-4 from the hyperbola): the analytic ball and the tracer's frames."""
+    ball = HyperbolicBall(alpha=2.0, radius=0.8)
+    tau = np.linspace(-10.0, 10.0, 201)
+    v, t = uv_sphere((0, 0, 0), ball.radius, 48, 24)
+    scene = Scene(camera=camera or look_at_camera((0, -5, 0), (0, 0, 0)),
+                  meshes=[Mesh("ball", v, t, pivot=(0, 0, 0), trajectory=Trajectory(tau, ball.centre(tau), name="ball"))])
+    return ball, build_frames(scene, motion_settings=MotionSettings(tolerance))
+
+
+FACETS = 0.005  # the 48 x 24 UV sphere lies within this of the round one
+
+
+@pytest.mark.parametrize("tolerance", [1e-1, 1e-2])
+def test_accelerated_ball_is_seen_from_outside_where_the_analytic_ball_is(tolerance):
+    """Camera rays against the exact Born-rigid ball: each one that meets the ball hits its surface
+    (within the tolerance) before going inside it.  The inertial segments' windows once followed
+    each segment's own simultaneity, which left wedges between neighbours at the front and back of
+    the ball, where rays slipped inside and showed its far side from within."""
+    tau_obs = 3.0  # the ball is seen at about t = -2, moving at 0.7c toward -x and braking
+    camera = look_at_camera((0, -5, 0), HyperbolicBall(2.0, 0.8).centre(-2.0)[0], fov_half_tan=0.25)
+    ball, frames = strongly_accelerated_ball(tolerance, camera)
+    res = (40, 40)
+    ys, xs = np.mgrid[0:res[1], 0:res[0]]
+    x0, d, s_lo, s_hi, _ = primary_rays(camera, xs.ravel() + 0.5, ys.ravel() + 0.5, res)
+    x0 = np.array(x0)
+    tau = np.full(len(d), tau_obs)
+    hits = trace_nearest(frames, frames.camera, tau, x0, d, s_lo, s_hi)
+    hit = hits.frame >= 0
+    assert hit.sum() > 300
+    bound = tolerance + FACETS
+    deepest_before_hit = ball.deepest(tau, x0, d, s_lo, np.where(hit, hits.s, s_hi), step=bound / 4)
+    inside = deepest_before_hit < -bound
+    assert not inside.any(), f"{inside.sum()} of {hit.sum()} rays went {-deepest_before_hit.min():.3f} deep into the ball"
+    on_surface = ball.margin(tau[hit] - hits.s[hit], x0[hit] + hits.s[hit, None] * d[hit])
+    assert np.all(np.abs(on_surface) < bound)
+
+
+def test_accelerated_ball_blocks_shadow_rays_as_the_analytic_ball_does():
+    """Shadow rays against the exact Born-rigid ball.  Rays toward a lamp from its lit side never
+    come closer to it than where they start: light cannot pass through the ball's own past (with
+    uniform acceleration the ball is a geodesic ball of Rindler optical space, which light leaving
+    it never re-enters), and the tracer lets them through.  Rays passing through earlier events of
+    the ball, at its front, back and sides, are blocked, and near misses are not."""
+    tolerance = 1e-2
+    ball, frames = strongly_accelerated_ball(tolerance)
+    bound = 2 * tolerance + FACETS
+    rng = np.random.default_rng(7)
+    normals = rng.normal(size=(60, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    t_centre = np.repeat([-3.0, -1.0, 0.5, 2.0], 15)
+    t_s, x_s = ball.surface_event(t_centre, normals)
+    # from the lit side toward a lamp at rest
+    lamp = np.array([3.0, -4.0, 5.0])
+    to_lamp = lamp - x_s
+    reach = np.linalg.norm(to_lamp, axis=1)
+    to_lamp /= reach[:, None]
+    facing = np.array([float(Boost.from_velocity((float(b), 0.0, 0.0)).rays(e)[0] @ n)
+                       for b, e, n in zip(ball.velocity(t_centre), to_lamp, normals)])
+    lit = np.flatnonzero(facing > 0.2)
+    start = ball.margin(t_s[lit] - bound, x_s[lit] + bound * to_lamp[lit])
+    assert len(lit) > 20 and np.all(start > 0)
+    assert np.all(ball.deepest(t_s[lit], x_s[lit], to_lamp[lit], bound, reach[lit], step=bound / 4) >= start - 1e-12)
+    # through (or just past) the ball: rays whose events 3 units along are body points at 0.5 radii
+    # or points at 1.1 radii (rest frame)
+    directions = rng.normal(size=(60, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    scale = np.where(np.arange(60) % 2 == 0, 0.5, 1.1)[:, None]
+    t_b, x_b = ball.surface_event(t_centre, normals * scale)
+    tau_b, x_b = t_b + 3.0, x_b - 3.0 * directions
+    deepest = ball.deepest(tau_b, x_b, directions, 0.0, 6.0, step=bound / 4)
+    clear = np.flatnonzero(np.abs(deepest) > bound)
+    assert 20 <= np.count_nonzero(deepest[clear] < 0) <= len(clear) - 10
+    tau0 = np.concatenate([t_s[lit], tau_b[clear]])
+    x0 = np.concatenate([x_s[lit], x_b[clear]])
+    d = np.concatenate([to_lamp[lit], directions[clear]])
+    s_lo = np.concatenate([np.full(len(lit), bound), np.zeros(len(clear))])
+    s_hi = np.concatenate([reach[lit], np.full(len(clear), 6.0)])
+    expected = np.concatenate([np.zeros(len(lit), bool), deepest[clear] < 0])
+    assert np.array_equal(occluded(frames, frames.world, tau0, x0, d, s_lo, s_hi), expected)
 
 
 def test_turn_too_sharp_for_the_samples_warns():
