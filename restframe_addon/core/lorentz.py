@@ -189,9 +189,9 @@ def compose_velocities(u, v):
     """
     boost = Boost.from_velocity(u, name="frame velocity")
     body = Boost.from_velocity(v, name="body velocity")
-    # gamma' = gamma_u gamma_v (1 - u.v), written without cancellation for u.v near 1
-    nn = float(boost.n @ body.n)
-    one_minus_uv = boost.one_minus_b + boost.b * body.one_minus_b + boost.b * body.b * (1.0 - nn)
+    # gamma' = gamma_u gamma_v (1 - u.v), with 1 - u.v exact from the float inputs (as 1 - b^2 in
+    # from_velocity): near c it is the small difference that carries the whole result
+    one_minus_uv = float(1 - sum(Fraction(float(a)) * Fraction(float(c)) for a, c in zip(u, v)))
     gamma = boost.gamma * body.gamma * one_minus_uv
     # v' = ((v_par - b) n + v_perp / gamma_u) / (1 - u.v): the textbook numerator
     # v/gamma_u - u + gamma_u/(gamma_u + 1) (u.v) u with its parallel part simplified exactly
