@@ -61,6 +61,14 @@ class MaterialTable:
         self.mirror = self.roughness < MIRROR_ROUGHNESS
         self.glass = self.transmission > 0.0
         self.traces_secondary = bool(np.any(self.mirror | self.glass))
+        # the direct-light lobes, per material (worked out once, gathered per hit)
+        self.diffuse_weight = (1.0 - self.metallic) * (1.0 - self.transmission) / np.pi
+        # Specular IOR Level scales the whole dielectric lobe (0 = none), grazing reflection included
+        self.f0_dielectric = np.minimum(_dielectric_f0(self.ior) * self.specular_scale, 1.0) * (1.0 - self.metallic)
+        self.f90 = np.minimum(self.specular_scale, 1.0) * (1.0 - self.metallic) + self.metallic
+        self.alpha = np.maximum(self.roughness**2, _MIN_ALPHA)
+        # rough surfaces with a specular lobe get GGX highlights (Specular IOR Level 0, not metallic: none)
+        self.glossy = ~self.mirror & ((self.f90 > 0.0) | (self.f0_dielectric > 0.0) | (self.metallic > 0.0))
 
     def emission_factor(self, index, clock):
         """Multiplier of animated emissions at the emitting body's own clock (c*t units)."""
@@ -182,19 +190,26 @@ class Shader:
         values = np.empty((n, self.colour.channels))
         miss = np.flatnonzero(hits.frame < 0)
         if len(miss):
-            _, w_world = self.frames.map(src, self.frames.world).rays(d[miss])
-            doppler = 1.0 / w_world
-            world = self.colour.world(self.colour.shift(_rows(lam, miss), doppler), len(miss))
-            values[miss] = rows.scale(world, self._power(doppler, 4))
+            to_world = self.frames.map(src, self.frames.world)
+            if to_world.is_identity:  # the background is at rest with the viewer: D = 1
+                values[miss] = self.colour.world(_rows(lam, miss), len(miss))
+            else:
+                doppler = 1.0 / to_world.rays(d[miss])[1]
+                world = self.colour.world(self.colour.shift(_rows(lam, miss), doppler), len(miss))
+                values[miss] = rows.scale(world, self._power(doppler, 4))
         for k in frames_hit(hits):
             sel = np.flatnonzero(hits.frame == k)
             fmap = self.frames.map(src, int(k))
             tau_k, _ = fmap.events(tau0[sel], x0[sel])
             d_k, w = fmap.rays(d[sel])
             tau_hit = tau_k - hits.s_frame[sel]
-            doppler = self.surface_doppler(int(k), hits.prim[sel], hits.u[sel], hits.v[sel], tau_hit, d_k) / w
-            local = self._shade_surface(int(k), tau_hit, d_k, hits.prim[sel], hits.u[sel],
-                                        hits.v[sel], depth, pixel[sel], sample[sel],
+            prim, u, v = hits.prim[sel], hits.u[sel], hits.v[sel]
+            if fmap.is_identity and self.frames.frames[k].spin is None:  # at rest with the viewer: D = 1
+                values[sel] = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, pixel[sel], sample[sel],
+                                                  _rows(lam, sel))
+                continue
+            doppler = self.surface_doppler(int(k), prim, u, v, tau_hit, d_k) / w
+            local = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, pixel[sel], sample[sel],
                                         self.colour.shift(_rows(lam, sel), doppler))
             values[sel] = rows.scale(local, self._power(doppler, 4))
         return values, hits
@@ -243,17 +258,11 @@ class Shader:
     # ------------------------------------------------------------------ direct light
     def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam):
         mats = self.materials
-        diffuse = rows.scale(base, (1.0 - mats.metallic[mat]) * (1.0 - mats.transmission[mat]) / np.pi)
-        rough = ~mats.mirror[mat]
-        metallic = mats.metallic[mat]
-        # Specular IOR Level scales the whole dielectric lobe (0 = none), grazing reflection included
-        level = np.minimum(mats.specular_scale[mat], 1.0)
-        f0_dielectric = np.minimum(_dielectric_f0(mats.ior[mat]) * mats.specular_scale[mat], 1.0)
-        f0 = rows.scale(base, metallic) + (f0_dielectric * (1.0 - metallic))[:, None]
-        f90 = level * (1.0 - metallic) + metallic
-        # a rough surface without a specular lobe (Specular IOR Level 0, not metallic) skips GGX
-        rough &= (f90 > 0.0) | np.any(f0 > 0.0, axis=1)
-        alpha = np.maximum(mats.roughness[mat] ** 2, _MIN_ALPHA)
+        diffuse = rows.scale(base, mats.diffuse_weight[mat])
+        rough = mats.glossy[mat]
+        if rough.any():
+            f0 = rows.scale(base, mats.metallic[mat]) + mats.f0_dielectric[mat][:, None]
+            f90, alpha = mats.f90[mat], mats.alpha[mat]
         eps = self.epsilon[k]
         origin = position + eps * ng
         total = np.zeros_like(base)

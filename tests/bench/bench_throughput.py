@@ -155,7 +155,7 @@ def resolution_study(sizes, repeats, ctx):
 
 def thread_study(res, repeats):
     scene = ball_scene(beta=0.9, segments=64)
-    s1, s2 = settings(res, threads=1, tile_size=32), settings(res, threads=2, tile_size=32)
+    s1, s2 = settings(res, threads=1), settings(res, threads=2)
     t = interleaved({"1 thread": lambda: render_image(scene, s1), "2 threads": lambda: render_image(scene, s2)}, repeats)
     return t["1 thread"]["min"], t["2 threads"]["min"]
 
@@ -331,16 +331,16 @@ def run(ctx) -> Section:
     sec.add("")
 
     # threads
-    res_th = ctx.pick((256, 192), (32, 24))
+    res_th = ctx.pick((512, 384), (32, 24))
     sec.add("### One core against two")
     sec.add("")
     t1, t2 = thread_study(res_th, repeats)
     load_now = os.getloadavg()[0]
     r1, r2 = raw_thread_study(repeats, ctx.pick((256, 256), (64, 64)))
     speedup, raw_speedup = t1 / t2, r1 / r2
-    sec.add(f"render_image of the 0.9c ball scene at {res_th[0]}x{res_th[1]}, 32x32 tiles, threads=1 vs threads=2 "
+    sec.add(f"render_image of the 0.9c ball scene at {res_th[0]}x{res_th[1]}, {TILE}x{TILE} tiles (the default), threads=1 vs threads=2 "
             f"(min of {repeats} interleaved): {t1:.2f} s vs {t2:.2f} s, **speed-up {speedup:.2f}x**. The floor: raw "
-            f"embreex primary rays (a 33k-triangle sphere, 4096-ray batches) on one vs two Python threads: speed-up "
+            f"embreex primary rays (a 33k-triangle sphere, {TILE * TILE}-ray batches) on one vs two Python threads: speed-up "
             f"{raw_speedup:.2f}x. 1-minute load average during this test: {load_now:.2f}"
             + (" (other jobs share the 2 cores: this speed-up is not meaningful)." if load_now > 1.0 else "."))
     sec.add("")
