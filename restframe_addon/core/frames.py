@@ -246,6 +246,7 @@ class FrameSet:
         self.warnings = warnings
         self.groups = list(groups)
         self.geometry = [f.index for f in frames if f.has_geometry]
+        self.geometry_slot = {k: i for i, k in enumerate(self.geometry)}  # frame index -> place in self.geometry
         grouped = {int(i) for g in self.groups for i in g.frames}
         self.ungrouped = [k for k in self.geometry if k not in grouped]
         self._maps: dict[tuple, object] = {}  # frame maps and body lines, by frame pair
@@ -264,33 +265,39 @@ class FrameSet:
             chosen.extend(int(k) for k in group.visible_from(tau_c, x_c, spread))
         return chosen
 
-    def body_line(self, k: int, src: int):
-        """(t, x, velocity, half): an axis-aligned box with half-extents ``half`` that holds frame
-        k's body at every time of frame src, its centre moving uniformly (at x at time t).  Cached.
+    def body_boxes(self, src: int):
+        """(t, x, velocity, half), each (len(self.geometry), ...): for every geometry frame, an
+        axis-aligned box with half-extents ``half`` that holds its body at every time of frame
+        src, its centre moving uniformly (at x at time t).  Cached per src.
 
         The body's box in its rest frame, Lorentz-contracted along the relative velocity (a
         linear map I - c n n^T with 0 <= c < 1: each of its entries lies between its values at
         c = 0 and c = 1, which bounds the image box); a spinning body: the cube around its sphere.
         """
-        key = ("body", k, src)
+        key = ("boxes", src)
         cached = self._maps.get(key)
         if cached is None:
-            frame = self.frames[k]
-            geometry = frame.geometry
-            back = self.map(k, src)
-            if frame.spin is not None:
-                centre, half = frame.offset, np.full(3, geometry.radius)
-            else:
-                centre, half = geometry.anchor + frame.offset, 0.5 * (geometry.hi - geometry.lo)
-            t_a, x_a = back.events(np.array(0.0), centre)
-            t_b, x_b = back.events(np.array(1.0), centre)
-            velocity = (x_b - x_a) / float(t_b - t_a)
-            speed = float(np.linalg.norm(velocity))
-            if speed > 0.0 and frame.spin is None:
-                n = velocity / speed
-                contracted = np.abs(np.eye(3) - np.outer(n, n))
-                half = np.maximum(np.eye(3), contracted) @ half
-            cached = (float(t_a), x_a, velocity, half)
+            if "world lines" not in self._maps:  # each body's centre in S: two events of its world line
+                lines = []
+                for k in self.geometry:
+                    frame = self.frames[k]
+                    centre = frame.offset if frame.spin is not None else frame.geometry.anchor + frame.offset
+                    to_world = self.map(k, self.world)
+                    lines.append([np.concatenate([np.atleast_1d(t), x]) for t, x in
+                                  (to_world.events(np.array(0.0), centre), to_world.events(np.array(1.0), centre))])
+                self._maps["world lines"] = np.array(lines).reshape(len(self.geometry), 2, 4)
+            lines = self._maps["world lines"]
+            t, x = self.map(self.world, src).events(lines[..., 0], lines[..., 1:])
+            velocity = (x[:, 1] - x[:, 0]) / (t[:, 1] - t[:, 0])[:, None]
+            half = np.array([np.full(3, self.frames[k].geometry.radius) if self.frames[k].spin is not None
+                             else 0.5 * (self.frames[k].geometry.hi - self.frames[k].geometry.lo) for k in self.geometry])
+            speed = np.linalg.norm(velocity, axis=1)
+            moving = (speed > 0.0) & np.array([self.frames[k].spin is None for k in self.geometry])
+            if moving.any():
+                n = velocity[moving] / speed[moving, None]
+                contracted = np.abs(np.eye(3) - n[:, :, None] * n[:, None, :])
+                half[moving] = np.einsum("kij,kj->ki", np.maximum(np.eye(3), contracted), half[moving])
+            cached = (t[:, 0], x[:, 0], velocity, half)
             self._maps[key] = cached
         return cached
 

@@ -391,12 +391,13 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
     s_lo, s_hi = _per_ray(s_lo, n), _per_ray(s_hi, n)
     blocked = np.zeros(n, dtype=bool)
     reach = _bundle_reach(tau0, x0, d, s_lo, s_hi)
-    for k in frames.candidates(src, tau0, x0):
+    candidates = frames.candidates(src, tau0, x0)
+    if reach is not None:
+        candidates = [k for k, meets in zip(candidates, _may_meet(frames, src, candidates, reach)) if meets]
+    for k in candidates:
         todo = np.flatnonzero(~blocked)
         if len(todo) == 0:
             break
-        if reach is not None and not _may_meet(frames, src, k, reach):
-            continue
         fmap = frames.map(src, k)
         frame = frames.frames[k]
         tau_k, origin = fmap.events(tau0[todo], x0[todo])
@@ -441,40 +442,45 @@ def _bundle_reach(tau0, x0, d, s_lo, s_hi) -> Reach | None:
                  None if bounded else np.array(d[0]))
 
 
-def _may_meet(frames: FrameSet, src: int, k: int, reach: Reach) -> bool:
-    """Can frame k's body come within reach of the bundle?
+def _may_meet(frames: FrameSet, src: int, ks, reach: Reach) -> np.ndarray:
+    """Which of the frames ``ks`` have a body that can come within reach of the bundle (a mask)?
 
-    The body lies in a box moving uniformly in the source frame (``FrameSet.body_line``).
-    Finite rays lie in the bundle's box: over the bundle's time span the body box's centre
-    runs along a segment, which must meet the bundle's box widened by the body's half-extents.
-    Unbounded parallel rays: relative to the body a ray starting at p at time t runs from
+    Every body lies in a box moving uniformly in the source frame (``FrameSet.body_boxes``).
+    Finite rays lie in the bundle's box: over the bundle's time span a body box's centre runs
+    along a segment, which must meet the bundle's box widened by the body's half-extents.
+    Unbounded parallel rays: relative to a body a ray starting at p at time t runs from
     p - X(t) along w = d + v, so it can meet the body only if the ray from the body's centre
     along -w meets the box of relative starts widened by the body's half-extents.
+    All frames at once: a slab test per frame, vectorised.
     """
-    t_a, x_a, velocity, half = frames.body_line(k, src)
+    slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
+    t_a, x_a, velocity, half = (a[slots] for a in frames.body_boxes(src))
     scale = 1.0 + float(np.max(np.abs(reach.hi))) + float(np.max(np.abs(reach.lo)))
-    widen = half * (1.0 + 2 * _PAD) + 2 * _PAD * float(np.max(half)) + 1e-9 * scale
+    widen = half * (1.0 + 2 * _PAD) + 2 * _PAD * half.max(axis=1, keepdims=True) + 1e-9 * scale
     if reach.direction is None:
-        start = x_a + velocity * (reach.earliest - t_a)
-        return _segment_meets_box(start, velocity * (reach.latest - reach.earliest), 1.0,
-                                  reach.lo - widen, reach.hi + widen)
+        start = x_a + velocity * (reach.earliest - t_a)[:, None]
+        return _segments_meet_boxes(start, velocity * (reach.latest - reach.earliest), 1.0,
+                                    reach.lo - widen, reach.hi + widen)
     middle = 0.5 * (reach.earliest + reach.latest)
-    centre = x_a + velocity * (middle - t_a)
-    drift = np.abs(velocity) * 0.5 * (reach.latest - reach.earliest)  # how far the body moves about X(middle)
-    return _segment_meets_box(np.zeros(3), -(reach.direction + velocity), np.inf,
-                              reach.lo - centre - drift - widen, reach.hi - centre + drift + widen)
+    centre = x_a + velocity * (middle - t_a)[:, None]
+    drift = np.abs(velocity) * 0.5 * (reach.latest - reach.earliest)  # how far each body moves about X(middle)
+    return _segments_meet_boxes(np.zeros_like(centre), -(reach.direction + velocity), np.inf,
+                                reach.lo - centre - drift - widen, reach.hi - centre + drift + widen)
 
 
-def _segment_meets_box(origin, direction, t_max: float, lo, hi) -> bool:
-    """Whether origin + t direction, 0 <= t <= t_max, meets the box [lo, hi] (3-vectors)."""
-    enter, leave = 0.0, t_max
-    for o, e, a, b in zip(origin.tolist(), direction.tolist(), lo.tolist(), hi.tolist()):
-        if e == 0.0:
-            if not a <= o <= b:
-                return False
-            continue
-        t_a, t_b = (a - o) / e, (b - o) / e
-        enter, leave = max(enter, min(t_a, t_b)), min(leave, max(t_a, t_b))
+def _segments_meet_boxes(origin, direction, t_max: float, lo, hi) -> np.ndarray:
+    """Whether each origin + t direction, 0 <= t <= t_max, meets its box [lo, hi] ((m, 3) arrays)."""
+    enter = np.zeros(len(origin))
+    leave = np.full(len(origin), t_max)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for axis in range(3):
+            o, e = origin[:, axis], direction[:, axis]
+            parallel = e == 0.0  # inside the slab for every t, or never
+            t_a = np.where(parallel, -np.inf, (lo[:, axis] - o) / e)
+            t_b = np.where(parallel, np.inf, (hi[:, axis] - o) / e)
+            enter = np.maximum(enter, np.minimum(t_a, t_b))
+            leave = np.minimum(leave, np.maximum(t_a, t_b))
+            leave[parallel & ((o < lo[:, axis]) | (o > hi[:, axis]))] = -np.inf
     return enter <= leave
 
 

@@ -196,11 +196,23 @@ def test_culled_shadow_rays_block_exactly_as_unculled_ones(monkeypatch, sun):
     src = frames.world
     queried = []
     original = tracer._may_meet
-    monkeypatch.setattr(tracer, "_may_meet", lambda *a: queried.append(original(*a)) or queried[-1])
+    monkeypatch.setattr(tracer, "_may_meet", lambda *a: queried.extend(original(*a)) or original(*a))
     bundles = [slice(i, i + 40) for i in range(0, n, 40)]
     culled = np.concatenate([tracer.occluded(frames, src, tau0[b], x0[b], d[b], 1e-6, s_hi[b]) for b in bundles])
-    monkeypatch.setattr(tracer, "_may_meet", lambda *a: True)
+    monkeypatch.setattr(tracer, "_may_meet", lambda frames, src, ks, reach: np.ones(len(ks), dtype=bool))
     full = np.concatenate([tracer.occluded(frames, src, tau0[b], x0[b], d[b], 1e-6, s_hi[b]) for b in bundles])
     np.testing.assert_array_equal(culled, full)
     assert 0 < np.count_nonzero(full) < n
     assert queried.count(False) > 0
+
+
+def test_segment_box_test_handles_axis_parallel_segments_on_faces():
+    from restframe_addon.core.tracer import _segments_meet_boxes
+
+    lo, hi = np.zeros((4, 3)), np.ones((4, 3))
+    origin = np.array([[0.0, 0.5, -1.0],   # on the x = 0 face, moving along z: meets
+                       [-1e-9, 0.5, -1.0],  # just outside that face, moving along z: misses
+                       [0.5, 0.5, -1.0],    # straight through
+                       [0.5, 0.5, -1.0]])   # too short to reach
+    direction = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 3.0], [0.0, 0.0, 0.9]])
+    np.testing.assert_array_equal(_segments_meet_boxes(origin, direction, 1.0, lo, hi), [True, False, True, False])
