@@ -225,9 +225,7 @@ class Renderer:
             if frame.spin is None:
                 continue
             sel = np.flatnonzero(hits.frame == k)
-            fmap = self.frames.map(self.frames.camera, int(k))
-            tau_k, _ = fmap.events(tau[sel], x[sel])
-            d_k, _ = fmap.rays(d[sel])
+            tau_k, d_k = hits.tau_frame[sel], hits.d_frame[sel]
             doppler[sel] *= self.shader.surface_doppler(int(k), hits.prim[sel], hits.u[sel], hits.v[sel],
                                                         tau_k - hits.s_frame[sel], d_k)
         return doppler
@@ -264,10 +262,8 @@ class Renderer:
         for k in frames_hit(hits):
             sel = np.flatnonzero(hits.frame == k)
             frame = self.frames.frames[int(k)]
-            fmap = self.frames.map(camera, int(k))
-            tau_k, _ = fmap.events(tau[sel], x[sel])
-            d_k, w = fmap.rays(d[sel])
-            tau_hit = tau_k - hits.s_frame[sel]
+            d_k, w = hits.d_frame[sel], hits.w[sel]
+            tau_hit = hits.tau_frame[sel] - hits.s_frame[sel]
             prim, u, v = hits.prim[sel], hits.u[sel], hits.v[sel]
             if "Doppler" in wanted:
                 passes["Doppler"][sel, 0] = self.shader.surface_doppler(int(k), prim, u, v, tau_hit, d_k) / w

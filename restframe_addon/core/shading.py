@@ -200,9 +200,8 @@ class Shader:
         for k in frames_hit(hits):
             sel = np.flatnonzero(hits.frame == k)
             fmap = self.frames.map(src, int(k))
-            tau_k, _ = fmap.events(tau0[sel], x0[sel])
-            d_k, w = fmap.rays(d[sel])
-            tau_hit = tau_k - hits.s_frame[sel]
+            d_k, w = hits.d_frame[sel], hits.w[sel]
+            tau_hit = hits.tau_frame[sel] - hits.s_frame[sel]
             prim, u, v = hits.prim[sel], hits.u[sel], hits.v[sel]
             if fmap.is_identity and self.frames.frames[k].spin is None:  # at rest with the viewer: D = 1
                 values[sel] = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, pixel[sel], sample[sel],

@@ -38,6 +38,8 @@ class Hits:
     prim: np.ndarray  # (N,) triangle index within the frame
     u: np.ndarray  # (N,) barycentric coordinates from embree
     v: np.ndarray
+    d_frame: np.ndarray  # (N, 3) the ray's direction in the hit frame (mapped once, reused by shading)
+    tau_frame: np.ndarray  # (N,) the ray's start time in the hit frame
 
 
 def _clip_to_bounds(geometry, origin, d, t_lo, t_hi):
@@ -242,20 +244,22 @@ def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> Hits:
         s = t if w is None else t / w
         nearer = s < (best if rays is None else best[rays])  # ties keep the earlier frame
         if hits is None and rays is None:  # the first frame to see every ray: its hits as they are
+            last = k == candidates[-1]  # later frames write into the arrays: they must be our own
             hits = Hits(frame=np.where(nearer, np.int32(k), np.int32(-1)), s=np.where(nearer, s, np.inf),
                         s_frame=np.where(nearer, t, np.inf), w=np.ones(n) if w is None else w,
-                        prim=np.where(nearer, prim, np.int32(-1)), u=u, v=v)
+                        prim=np.where(nearer, prim, np.int32(-1)), u=u, v=v,
+                        d_frame=dk if last else np.array(dk), tau_frame=tau_k if last else np.array(tau_k))
             best = np.minimum(best, s)
             continue
         if hits is None:
             hits = _no_hits(n)
             best = best.copy()
         if rays is None:
-            _update(hits, best, nearer, k, s, t, w, prim, u, v)
+            _update(hits, best, nearer, k, s, t, w, prim, u, v, dk, tau_k)
         elif nearer.any():
             keep = np.flatnonzero(nearer)
             _update(hits, best, rays[keep], k, s[keep], t[keep], None if w is None else w[keep],
-                    prim[keep], u[keep], v[keep])
+                    prim[keep], u[keep], v[keep], dk[keep], tau_k[keep])
     return _no_hits(n) if hits is None else hits
 
 
@@ -273,15 +277,18 @@ def frames_hit(hits: Hits) -> np.ndarray:
 def _no_hits(n: int) -> Hits:
     return Hits(frame=np.full(n, -1, dtype=np.int32), s=np.full(n, np.inf), s_frame=np.full(n, np.inf),
                 w=np.ones(n), prim=np.full(n, -1, dtype=np.int32), u=np.zeros(n, dtype=np.float32),
-                v=np.zeros(n, dtype=np.float32))
+                v=np.zeros(n, dtype=np.float32), d_frame=np.zeros((n, 3)), tau_frame=np.zeros(n))
 
 
-def _update(hits: Hits, best, where, k, s, t, w, prim, u, v):
+def _update(hits: Hits, best, where, k, s, t, w, prim, u, v, d_frame, tau_frame):
     """Record the hits of frame k for the rays ``where`` (a mask over all rays, or indices with
     values already selected)."""
     if where.dtype == bool:
-        for target, value in ((best, s), (hits.s, s), (hits.s_frame, t), (hits.prim, prim), (hits.u, u), (hits.v, v)):
+        for target, value in ((best, s), (hits.s, s), (hits.s_frame, t), (hits.prim, prim), (hits.u, u), (hits.v, v),
+                              (hits.tau_frame, tau_frame)):
             np.copyto(target, value, where=where)
+        for axis in range(3):
+            np.copyto(hits.d_frame[:, axis], d_frame[:, axis], where=where)
         np.copyto(hits.frame, k, where=where)
         np.copyto(hits.w, 1.0 if w is None else w, where=where)
         return
@@ -292,6 +299,8 @@ def _update(hits: Hits, best, where, k, s, t, w, prim, u, v):
     hits.u[where] = u
     hits.v[where] = v
     hits.w[where] = 1.0 if w is None else w
+    hits.d_frame[where] = d_frame
+    hits.tau_frame[where] = tau_frame
 
 
 def _shared_origin(tau0, x0):
