@@ -115,7 +115,8 @@ def main(argv=None) -> int:
         for g in sec.goals:
             met = "n/a" if g.met is None else ("**yes**" if g.met else "**no**")
             lines.append(f"| {g.name} | {g.target} | {g.measured} | {met} |")
-    lines.append("")
+    lines += ["", "Where a speed goal is missed, its cause and the speed work done so far (before and after): "
+              "[speed.md](speed.md).", ""]
     for sec in sections:
         lines += [f"## {sec.title}", "", *sec.body, "", f"*(section time {sec.seconds:.0f} s)*", ""]
     out.write_text("\n".join(lines) + "\n")
