@@ -20,7 +20,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from . import rows, sampling
+from . import blas, rows, sampling
 from .camera import CameraRays
 from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
 from .colour import RGBColour, SpectralColour
@@ -305,8 +305,12 @@ def render_tiles(scene: Scene, settings: RenderSettings, should_stop: Callable[[
                  renderer: Renderer | None = None) -> Iterator[Tile]:
     """Yield rendered tiles as they complete; return early once ``should_stop()`` is true."""
     renderer = renderer or Renderer(scene, settings, should_stop)
+    with blas.single_threaded():  # the render threads use the cores (see blas)
+        yield from _tiles_in_threads(renderer, _worker_count(settings), should_stop)
+
+
+def _tiles_in_threads(renderer: Renderer, workers: int, should_stop) -> Iterator[Tile]:
     rects = renderer.tiles()
-    workers = _worker_count(settings)
     if workers == 1:
         for rect in rects:
             if should_stop():

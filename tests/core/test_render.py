@@ -359,3 +359,26 @@ def test_only_the_requested_passes_are_filled_and_they_match_a_full_render():
         np.testing.assert_array_equal(some[name], full[name])
     with pytest.raises(RenderError, match="unknown passes"):
         render_image(scene, settings((16, 16), passes=("Vector",)))
+
+
+def test_blas_runs_on_one_thread_while_tiles_render_and_is_restored_after():
+    """numpy's OpenBLAS would start its own threads in every thin matrix product, and two render
+    threads doing so oversubscribe the cores (see core/blas.py)."""
+    import sys
+
+    from restframe_addon.core import blas
+    from restframe_addon.core.render import render_tiles
+
+    controls = blas._openblas()
+    if controls is None:
+        assert not sys.platform.startswith("linux"), "numpy's OpenBLAS was not found"
+        pytest.skip("no OpenBLAS in this numpy")
+    set_threads, get_threads = controls
+    before = get_threads()
+    v, t = quad((0.0, 5.0, 0.0), (4.0, 4.0), normal_axis=1)
+    scene = Scene(camera=look_at_camera((0, 0, 0), (0, 1, 0)), meshes=[Mesh("wall", v, t)])
+    seen = []
+    for tile in render_tiles(scene, settings((8, 8), tile_size=4, threads=2)):
+        seen.append(get_threads())
+    assert seen == [1, 1, 1, 1]
+    assert get_threads() == before
