@@ -30,7 +30,6 @@ shaded in the axis frame (the aberration and Doppler shift of the light it
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np

@@ -28,7 +28,7 @@ matplotlib.use("Agg")
 
 import numpy as np  # noqa: E402
 
-from bench_common import ROOT, Context, Section, fmt, load  # noqa: E402
+from bench_common import ROOT, Context, Section, load  # noqa: E402
 
 SECTIONS = {
     "1": "bench_knobs",

@@ -6,7 +6,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_helpers import add_camera, add_plane, add_sun, render_exr, evaluated, export_now
+from blender_helpers import add_camera, add_plane, add_sun, render_exr, export_now
 from restframe_addon import export
 
 FPS = 24

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from blender_helpers import add_camera, add_plane, add_sun, export_now, render_exr
-from restframe_addon import engine, export
+from restframe_addon import engine
 
 
 def render():

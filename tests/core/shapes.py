@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from restframe_addon.core.scene import Camera, Light, Material, Mesh, RenderSettings, Scene, Velocity
+from restframe_addon.core.scene import Camera, Velocity
 
 
 def uv_sphere(center=(0.0, 0.0, 0.0), radius=1.0, segments=64, rings=32):

@@ -312,7 +312,6 @@ def test_faster_than_light_animation_is_refused_naming_object_and_frames():
 
 def test_over_c_animation_is_a_render_error():
     v, t = box()
-    bad = type("T", (), {})  # a trajectory built inside the renderer would raise the same way
     with pytest.raises(RenderError, match="Probe"):
         scene = Scene(camera=look_at_camera((0, -5, 0), (0, 0, 0)),
                       meshes=[Mesh("Probe", v, t, velocity=Velocity((0.0, 0.0, 1.0)))])

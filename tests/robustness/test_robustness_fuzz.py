@@ -9,7 +9,6 @@ import os
 import time
 
 import numpy as np
-import pytest
 
 from restframe_addon.core.motion import Trajectory
 from restframe_addon.core.render import render_image
