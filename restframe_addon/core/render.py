@@ -176,21 +176,20 @@ class Renderer:
         samples = max(int(self.settings.samples), 1)
         rgb = np.zeros((n, 3))
         coverage = np.zeros(n)
-        per_batch = max(_MAX_VALUES // (max(n, 1) * self.colour.channels), 1)
-        for first in range(0, samples, per_batch):
-            if first and self.should_stop():  # Esc between sample batches of a long tile
+        for index, (part, first, count) in enumerate(_batches(n, samples, self.colour.channels)):
+            if index and self.should_stop():  # Esc between sample batches of a long tile
                 break
-            count = min(per_batch, samples - first)
-            pix = np.repeat(pixel, count)
-            smp = np.tile(np.arange(first, first + count), n)
+            m = part.stop - part.start
+            pix = np.repeat(pixel[part], count)
+            smp = np.tile(np.arange(first, first + count), m)
             if samples == 1:  # the one sample is the pixel-centre ray, already traced
-                color, hit = self._sample(centre, pix, smp, centre_hits)
+                color, hit = self._sample(tuple(a[part] for a in centre), pix, smp, centre_hits.take(part))
             else:
                 ox, oy = sampling.stratified_offsets(pix, smp, samples)
-                rays = self._camera_rays(np.repeat(xs, count) + ox, np.repeat(ys, count) + oy)
+                rays = self._camera_rays(np.repeat(xs[part], count) + ox, np.repeat(ys[part], count) + oy)
                 color, hit = self._sample(rays, pix, smp)
-            rgb += color.reshape(n, count, 3).sum(axis=1)
-            coverage += hit.reshape(n, count).sum(axis=1)
+            rgb[part] += color.reshape(m, count, 3).sum(axis=1)
+            coverage[part] += hit.reshape(m, count).sum(axis=1)
         rgb *= self.exposure / samples
         coverage /= samples
         alpha = coverage if self.settings.film_transparent else np.ones(n)
@@ -274,6 +273,18 @@ class Renderer:
             if "Object Time" in wanted:
                 passes["Object Time"][sel, 0] = frame.object_clock(tau_hit, prim) / self.scene.light_speed
         return passes
+
+
+def _batches(n: int, samples: int, channels: int):
+    """(pixels, first sample, sample count) of a tile's batches: at most ``_MAX_VALUES`` colour
+    values each, whatever the tile size, samples and wavelengths (pixels split when one sample
+    of the whole tile is already more)."""
+    part_size = n if n * channels <= _MAX_VALUES else max(_MAX_VALUES // channels, 1)
+    for start in range(0, n, part_size):
+        part = slice(start, min(start + part_size, n))
+        per_batch = max(_MAX_VALUES // ((part.stop - part.start) * channels), 1)
+        for first in range(0, samples, per_batch):
+            yield part, first, min(per_batch, samples - first)
 
 
 def _validate(scene: Scene, settings: RenderSettings) -> None:

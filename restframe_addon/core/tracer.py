@@ -16,7 +16,7 @@ bounds never reach embree.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -40,6 +40,10 @@ class Hits:
     v: np.ndarray
     d_frame: np.ndarray  # (N, 3) the ray's direction in the hit frame (mapped once, reused by shading)
     tau_frame: np.ndarray  # (N,) the ray's start time in the hit frame
+
+    def take(self, index) -> "Hits":
+        """The hits of some of the rays (an index or slice)."""
+        return Hits(*(getattr(self, f.name)[index] for f in fields(self)))
 
 
 def _clip_to_bounds(geometry, origin, d, t_lo, t_hi):

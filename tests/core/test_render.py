@@ -382,3 +382,27 @@ def test_blas_runs_on_one_thread_while_tiles_render_and_is_restored_after():
         seen.append(get_threads())
     assert seen == [1, 1, 1, 1]
     assert get_threads() == before
+
+
+def test_batches_bound_the_colour_values_whatever_the_tile_and_cover_each_sample_once():
+    from restframe_addon.core.render import _MAX_VALUES, _batches
+
+    for n, samples, channels in ((65536, 1, 32), (65536, 4, 3), (4096, 16, 64), (10, 7, 3)):
+        seen = np.zeros((n, samples), dtype=int)
+        for part, first, count in _batches(n, samples, channels):
+            assert (part.stop - part.start) * count * channels <= max(_MAX_VALUES, channels)
+            seen[part, first:first + count] += 1
+        assert np.all(seen == 1)
+
+
+def test_a_tile_larger_than_one_batch_renders_as_small_tiles_do():
+    """Spectral mode with many wavelengths: one sample of a 64x64 tile is more colour values than
+    a batch may hold, so the tile is rendered in pixel parts -- with the same result."""
+    v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, 24, 12)
+    scene = Scene(camera=look_at_camera((0, -4, 0), (0, 0, 0)), lights=[Light("lamp", "POINT", (1, -3, 2), power=500.0)],
+                  meshes=[Mesh("ball", v, t, velocity=Velocity((0.6, 0.0, 0.0)))])
+    common = dict(doppler_mode="SPECTRAL", spectral_samples=64)
+    whole = render_image(scene, settings((64, 64), tile_size=64, **common))
+    small = render_image(scene, settings((64, 64), tile_size=16, **common))
+    np.testing.assert_array_equal(whole["Combined"], small["Combined"])
+    assert whole["Combined"][..., :3].max() > 0
