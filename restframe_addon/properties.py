@@ -191,7 +191,7 @@ class RestframeSceneSettings(PropertyGroup):
         name="Tile Size",
         description="Pixels per side of the chunks the image fills in with (smaller: quicker Esc and "
                     "progress, larger: less per-chunk overhead)",
-        default=128,
+        default=256,
         min=8,
         max=4096,
         subtype='PIXEL',

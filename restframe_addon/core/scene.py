@@ -170,7 +170,7 @@ class RenderSettings:
     motion_tolerance: float = 1e-3  # scene units: how far accelerated/rotating bodies may stray from their true motion
     normalize_exposure: bool = False  # scale the image to the mean brightness it would have without Doppler intensity changes
     film_transparent: bool = False
-    tile_size: int = 128
+    tile_size: int = 256
     threads: int = 0  # 0 = all cores
     doppler_range: tuple[float, float] | None = None  # FACTOR display: None = the frame's own range
     doppler_levels: int = 0  # FACTOR display: quantise to N grey levels (0 = continuous)
