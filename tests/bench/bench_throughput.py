@@ -336,7 +336,7 @@ def run(ctx) -> Section:
     sec.add("")
     t1, t2 = thread_study(res_th, repeats)
     load_now = os.getloadavg()[0]
-    r1, r2 = raw_thread_study(repeats, ctx.pick((256, 256), (64, 64)))
+    r1, r2 = raw_thread_study(repeats, ctx.pick((1024, 512), (64, 64)))  # 8 batches: 4 per thread
     speedup, raw_speedup = t1 / t2, r1 / r2
     sec.add(f"render_image of the 0.9c ball scene at {res_th[0]}x{res_th[1]}, {TILE}x{TILE} tiles (the default), threads=1 vs threads=2 "
             f"(min of {repeats} interleaved): {t1:.2f} s vs {t2:.2f} s, **speed-up {speedup:.2f}x**. The floor: raw "
