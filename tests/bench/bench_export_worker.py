@@ -4,22 +4,15 @@
 """
 
 import json
-import resource
 import sys
 import time
 import tracemalloc
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+ROOT = Path(__file__).resolve().parents[2]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "robustness")]
 
-
-def rss_mb():
-    """Peak resident memory of this process (VmHWM: unlike ru_maxrss it does not inherit the parent's
-    peak across fork + exec)."""
-    for line in open("/proc/self/status"):
-        if line.startswith("VmHWM:"):
-            return int(line.split()[1]) / 1024.0
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+from big_grid import build_grid_scene, rss_mb  # noqa: E402
 
 
 def main():
@@ -32,20 +25,7 @@ def main():
 
     restframe_addon.register()
     t0 = time.perf_counter()
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    scene.render.engine = 'RESTFRAME'
-    bpy.ops.mesh.primitive_grid_add(x_subdivisions=subdivisions, y_subdivisions=subdivisions, size=10.0)
-    grid = bpy.context.active_object
-    grid.restframe.velocity = (0.5, 0.0, 0.0)
-    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    cam.location = (0.0, -12.0, 8.0)
-    cam.rotation_euler = (0.9, 0.0, 0.0)
-    scene.collection.objects.link(cam)
-    scene.camera = cam
-    lamp = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", 'POINT'))
-    lamp.location = (2.0, -2.0, 5.0)
-    scene.collection.objects.link(lamp)
+    build_grid_scene(subdivisions, camera_location=(0.0, -12.0, 8.0))
     depsgraph = bpy.context.evaluated_depsgraph_get()
     depsgraph.update()
     build = time.perf_counter() - t0

@@ -15,6 +15,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
+from big_grid import build_grid_scene  # noqa: E402
+
 
 def main():
     parser = argparse.ArgumentParser()
@@ -27,20 +29,9 @@ def main():
     from restframe_addon import engine
 
     restframe_addon.register()
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    scene.render.engine = 'RESTFRAME'
+    scene = build_grid_scene(args.subdivisions)
     scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 1920, 1080, 100
     scene.restframe.samples = 16
-    bpy.ops.mesh.primitive_grid_add(x_subdivisions=args.subdivisions, y_subdivisions=args.subdivisions, size=10.0)
-    bpy.context.active_object.restframe.velocity = (0.5, 0.0, 0.0)
-    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    cam.location, cam.rotation_euler = (0.0, -9.0, 6.0), (0.9, 0.0, 0.0)
-    scene.collection.objects.link(cam)
-    scene.camera = cam
-    lamp = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", 'POINT'))
-    lamp.location = (2.0, -2.0, 5.0)
-    scene.collection.objects.link(lamp)
     state = {}
 
     def staged(name, function):

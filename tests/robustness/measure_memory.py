@@ -19,12 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-
-def rss_mb(field="VmHWM:"):
-    for line in open("/proc/self/status"):
-        if line.startswith(field):
-            return int(line.split()[1]) / 1024.0
-    return float("nan")
+from big_grid import build_grid_scene, rss_mb  # noqa: E402
 
 
 def main():
@@ -42,22 +37,10 @@ def main():
 
     restframe_addon.register()
     t0 = time.perf_counter()
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    scene.render.engine = 'RESTFRAME'
+    scene = build_grid_scene(args.subdivisions)
     scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 3840, 2160, 100
     scene.restframe.samples = args.samples
     scene.render.threads_mode, scene.render.threads = 'FIXED', 1
-    bpy.ops.mesh.primitive_grid_add(x_subdivisions=args.subdivisions, y_subdivisions=args.subdivisions, size=10.0)
-    grid = bpy.context.active_object
-    grid.restframe.velocity = (0.5, 0.0, 0.0)
-    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    cam.location, cam.rotation_euler = (0.0, -9.0, 6.0), (0.9, 0.0, 0.0)
-    scene.collection.objects.link(cam)
-    scene.camera = cam
-    lamp = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", 'POINT'))
-    lamp.location = (2.0, -2.0, 5.0)
-    scene.collection.objects.link(lamp)
     depsgraph = bpy.context.evaluated_depsgraph_get()
     print(f"scene built: {time.perf_counter() - t0:.1f} s, rss {rss_mb('VmRSS:'):.0f} MB, peak {rss_mb():.0f} MB",
           flush=True)
