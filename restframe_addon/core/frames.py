@@ -249,7 +249,8 @@ class FrameSet:
         self.geometry_slot = {k: i for i, k in enumerate(self.geometry)}  # frame index -> place in self.geometry
         grouped = {int(i) for g in self.groups for i in g.frames}
         self.ungrouped = [k for k in self.geometry if k not in grouped]
-        self._maps: dict[tuple, object] = {}  # frame maps and body lines, by frame pair
+        self._maps: dict[tuple[int, int], FrameMap] = {}
+        self._body_boxes: dict[int, tuple] = {}  # body_boxes per source frame
         self.cone_cache: dict = {}  # the tracer's culling cones, per (frame pair, observation event)
 
     def candidates(self, src: int, tau0, x0) -> list[int]:
@@ -265,6 +266,21 @@ class FrameSet:
             chosen.extend(int(k) for k in group.visible_from(tau_c, x_c, spread))
         return chosen
 
+    @cached_property
+    def _world_lines(self):
+        """Two events (t, x) of each geometry frame's body centre in S, (len(self.geometry), 2, 4),
+        and the half-extents of its box in its rest frame (a spinning body: the cube around its sphere)."""
+        lines, half = [], []
+        for k in self.geometry:
+            frame = self.frames[k]
+            spinning = frame.spin is not None
+            centre = frame.offset if spinning else frame.geometry.anchor + frame.offset
+            to_world = self.map(k, self.world)
+            lines.append([np.concatenate([np.atleast_1d(t), x]) for t, x in
+                          (to_world.events(np.array(0.0), centre), to_world.events(np.array(1.0), centre))])
+            half.append(np.full(3, frame.geometry.radius) if spinning else 0.5 * (frame.geometry.hi - frame.geometry.lo))
+        return np.array(lines).reshape(len(self.geometry), 2, 4), np.array(half).reshape(len(self.geometry), 3)
+
     def body_boxes(self, src: int):
         """(t, x, velocity, half), each (len(self.geometry), ...): for every geometry frame, an
         axis-aligned box with half-extents ``half`` that holds its body at every time of frame
@@ -274,31 +290,20 @@ class FrameSet:
         linear map I - c n n^T with 0 <= c < 1: each of its entries lies between its values at
         c = 0 and c = 1, which bounds the image box); a spinning body: the cube around its sphere.
         """
-        key = ("boxes", src)
-        cached = self._maps.get(key)
+        cached = self._body_boxes.get(src)
         if cached is None:
-            if "world lines" not in self._maps:  # each body's centre in S: two events of its world line
-                lines = []
-                for k in self.geometry:
-                    frame = self.frames[k]
-                    centre = frame.offset if frame.spin is not None else frame.geometry.anchor + frame.offset
-                    to_world = self.map(k, self.world)
-                    lines.append([np.concatenate([np.atleast_1d(t), x]) for t, x in
-                                  (to_world.events(np.array(0.0), centre), to_world.events(np.array(1.0), centre))])
-                self._maps["world lines"] = np.array(lines).reshape(len(self.geometry), 2, 4)
-            lines = self._maps["world lines"]
+            lines, rest_half = self._world_lines
             t, x = self.map(self.world, src).events(lines[..., 0], lines[..., 1:])
             velocity = (x[:, 1] - x[:, 0]) / (t[:, 1] - t[:, 0])[:, None]
-            half = np.array([np.full(3, self.frames[k].geometry.radius) if self.frames[k].spin is not None
-                             else 0.5 * (self.frames[k].geometry.hi - self.frames[k].geometry.lo) for k in self.geometry])
+            half = rest_half.copy()
             speed = np.linalg.norm(velocity, axis=1)
-            moving = (speed > 0.0) & np.array([self.frames[k].spin is None for k in self.geometry])
+            moving = (speed > 0.0) & np.array([self.frames[k].spin is None for k in self.geometry], dtype=bool)
             if moving.any():
                 n = velocity[moving] / speed[moving, None]
                 contracted = np.abs(np.eye(3) - n[:, :, None] * n[:, None, :])
                 half[moving] = np.einsum("kij,kj->ki", np.maximum(np.eye(3), contracted), half[moving])
             cached = (t[:, 0], x[:, 0], velocity, half)
-            self._maps[key] = cached
+            self._body_boxes[src] = cached
         return cached
 
     def map(self, a: int, b: int) -> FrameMap:
