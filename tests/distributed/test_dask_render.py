@@ -1,6 +1,7 @@
 """The Dask render path: frame ranges and still regions on a LocalCluster of two worker
 processes on loopback match single-process renders pixel for pixel; faults lose nothing."""
 
+import contextlib
 import os
 import shutil
 import signal
@@ -201,20 +202,26 @@ def test_shipped_blend_renders_where_the_path_is_not_visible(tiny_blend, referen
     assert "no such .blend file" in result["error"] and "/nonexistent/client/only/tiny.blend" in result["error"]
 
 
+@contextlib.contextmanager
+def outside_worker(command, cwd, env):
+    """A Dask worker process started by ``command`` (not by the cluster), stopped on leaving."""
+    worker = subprocess.Popen(command, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        yield worker
+    finally:
+        worker.terminate()
+        worker.wait(timeout=30)
+
+
 def test_worker_that_cannot_import_the_addon_is_a_clear_error(tiny_blend, tmp_path):
     from dask.distributed import LocalCluster
 
     with LocalCluster(n_workers=0, host="127.0.0.1", dashboard_address=":0", processes=True) as empty:
         env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-        worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", empty.scheduler_address,
-                                   "--nthreads", "1", "--no-dashboard"],
-                                  cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        try:
+        with outside_worker([sys.executable, "-m", "distributed.cli.dask_worker", empty.scheduler_address,
+                             "--nthreads", "1", "--no-dashboard"], tmp_path, env):
             result = run_cli(tiny_blend, "-o", tmp_path / "x.exr", "--frame", "1", "--scheduler",
                              empty.scheduler_address)
-        finally:
-            worker.terminate()
-            worker.wait(timeout=30)
     assert result.returncode == 1
     assert "1 of 1 Dask worker(s) cannot import the RESTframe add-on" in result.stderr
     assert "No module named 'restframe_addon'" in result.stderr
@@ -255,18 +262,12 @@ def test_blend_is_shipped_to_a_worker_that_cannot_see_it(tiny_blend, reference, 
     if probe.returncode != 0:
         pytest.skip(f"no private mount namespace here: {probe.stderr.decode().strip()}")
     with LocalCluster(n_workers=0, host="127.0.0.1", dashboard_address=":0", processes=True) as empty:
-        env = dict(os.environ, PYTHONPATH=ROOT)
-        worker = subprocess.Popen(
-            ["unshare", "--mount", "--propagation", "private", "sh", "-c",
-             f"mount -t tmpfs none '{folder}' && exec '{sys.executable}' -m distributed.cli.dask_worker "
-             f"{empty.scheduler_address} --nthreads 1 --no-dashboard"],
-            cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        try:
+        with outside_worker(["unshare", "--mount", "--propagation", "private", "sh", "-c",
+                             f"mount -t tmpfs none '{folder}' && exec '{sys.executable}' -m distributed.cli.dask_worker "
+                             f"{empty.scheduler_address} --nthreads 1 --no-dashboard"],
+                            tmp_path, dict(os.environ, PYTHONPATH=ROOT)):
             result = run_cli(tiny_blend, "-o", tmp_path / "f_#.exr", "--frames", "2", "--scheduler",
                              empty.scheduler_address)
-        finally:
-            worker.terminate()
-            worker.wait(timeout=30)
     from restframe_addon.distributed import file_digest
 
     shutil.rmtree(bundle_dir(file_digest(str(tiny_blend))), ignore_errors=True)  # the worker's copy
