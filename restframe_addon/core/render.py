@@ -106,8 +106,8 @@ class Renderer:
         ]
 
     # ------------------------------------------------------------------ rays
-    def _camera_rays(self, px, py, grid: bool = False):
-        origins, d, s_lo, s_hi, valid = self.camera_rays(px, py, grid)
+    def _camera_rays(self, px, py, grid: bool = False, keys=None):
+        origins, d, s_lo, s_hi, valid = self.camera_rays(px, py, grid, keys)
         tau = np.broadcast_to(self.camera_tau, (len(d),))  # read-only views: every ray starts at this time
         return tau, origins, d, s_lo, s_hi if valid.all() else np.where(valid, s_hi, -np.inf)
 
@@ -182,11 +182,12 @@ class Renderer:
             m = part.stop - part.start
             pix = np.repeat(pixel[part], count)
             smp = np.tile(np.arange(first, first + count), m)
-            if samples == 1:  # the one sample is the pixel-centre ray, already traced
+            if samples == 1 and not self.camera_rays.has_lens:  # the one sample is the pixel-centre ray, already traced
                 color, hit = self._sample(tuple(a[part] for a in centre), pix, smp, centre_hits.take(part))
             else:
                 ox, oy = sampling.stratified_offsets(pix, smp, samples)
-                rays = self._camera_rays(np.repeat(xs[part], count) + ox, np.repeat(ys[part], count) + oy)
+                rays = self._camera_rays(np.repeat(xs[part], count) + ox, np.repeat(ys[part], count) + oy,
+                                         keys=(pix, smp))
                 color, hit = self._sample(rays, pix, smp)
             rgb[part] += color.reshape(m, count, 3).sum(axis=1)
             coverage[part] += hit.reshape(m, count).sum(axis=1)
