@@ -15,6 +15,7 @@ from typing import Callable
 import bpy
 import numpy as np
 
+from .core import lens
 from .core.motion import Trajectory
 from .core.render import PASSES
 from .core.scene import Camera, Light, Material, Mesh, RenderSettings, Scene, Velocity
@@ -500,6 +501,35 @@ def _fitted_sensor(cam, aspect: float) -> tuple[float, float]:
     return (size, size / aspect) if fit == 'HORIZONTAL' else (size * aspect, size)
 
 
+def depth_of_field(camera_object) -> dict:
+    """The core Camera's lens fields from Blender's Depth of Field panel, as Cycles reads them:
+    aperture radius from the F-stop (half the focal length, in mm read as 1e-3 scene units,
+    over the F-stop; 1 / (2 F-stop) for an orthographic camera), the focus object's distance
+    along the view axis (its bone's, with a subtarget), blades below 3 a round aperture.
+    Nothing (a pinhole) without Depth of Field."""
+    cam = camera_object.data
+    dof = cam.dof
+    if not dof.use_dof:
+        return {}
+    focus = float(dof.focus_distance)
+    if dof.focus_object is not None:
+        target = dof.focus_object.matrix_world
+        bone = getattr(dof, "focus_subtarget", "")
+        if bone and dof.focus_object.pose is not None and bone in dof.focus_object.pose.bones:
+            target = target @ dof.focus_object.pose.bones[bone].matrix
+        view_axis = np.array(camera_object.matrix_world.col[2][:3])
+        offset = np.array(camera_object.matrix_world.translation) - np.array(target.translation)
+        focus = abs(float(offset @ view_axis)) / float(np.linalg.norm(view_axis))
+    blades = int(dof.aperture_blades)
+    return dict(
+        aperture_radius=lens.aperture_radius(dof.aperture_fstop, None if cam.type == 'ORTHO' else cam.lens),
+        focus_distance=max(focus, 1e-5),
+        aperture_blades=blades if blades >= 3 else 0,
+        aperture_rotation=float(dof.aperture_rotation),
+        aperture_ratio=float(dof.aperture_ratio),
+    )
+
+
 def export_camera(camera_object, scene) -> Camera:
     """Blender's camera as the core sees it; ``view_frame`` gives the exact image plane."""
     if camera_object is None:
@@ -520,6 +550,7 @@ def export_camera(camera_object, scene) -> Camera:
         sensor_size=_fitted_sensor(cam, aspect),
         velocity=object_velocity(camera_object),
         name=camera_object.name,
+        **depth_of_field(camera_object),
     )
     if cam.type == 'PANO':
         ptype = getattr(cam, "panorama_type", None) or getattr(getattr(cam, "cycles", None), "panorama_type", None)

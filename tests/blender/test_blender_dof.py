@@ -1,0 +1,192 @@
+"""Depth of field from Blender's camera matches Cycles at rest: the blur disc of a defocused small
+emitter (its size, its polygon and the polygon's turn, the anamorphic squeeze) and the sharp plane
+of focus, measured from both engines' images of the same bpy scene."""
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from blender_helpers import add_camera, render_rgba
+
+RES = 64
+LENS_MM, SENSOR_MM = 100.0, 36.0
+FOCAL_PIXELS = LENS_MM / SENSOR_MM * RES  # pixels per unit of tan(angle) (horizontal fit, square image)
+SAMPLES = 256
+
+
+def emissive(name, strength=1.0):
+    mat = bpy.data.materials.new(name)
+    if bpy.app.version < (5, 0, 0):
+        mat.use_nodes = True
+    nodes = mat.node_tree.nodes
+    nodes.remove(nodes["Principled BSDF"])
+    emission = nodes.new("ShaderNodeEmission")
+    emission.inputs["Strength"].default_value = strength
+    mat.node_tree.links.new(emission.outputs[0], nodes["Material Output"].inputs["Surface"])
+    return mat
+
+
+def black_world(scene):
+    scene.world = bpy.data.worlds.new("Black")
+    scene.world.color = (0.0, 0.0, 0.0)
+    if scene.world.node_tree is not None:
+        scene.world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
+
+
+def render(scene, tmp_path, engine, samples=SAMPLES):
+    """The red channel of an F12 render with either engine, row 0 at the bottom."""
+    scene.render.engine = engine
+    if engine == 'CYCLES':
+        scene.cycles.device = 'CPU'
+        scene.cycles.samples = samples
+        scene.cycles.use_adaptive_sampling = False
+        scene.cycles.use_denoising = False
+        scene.cycles.pixel_filter_type = 'BOX'  # one-pixel box, like RESTframe's stratified samples
+        scene.cycles.filter_width = 1.0
+        scene.cycles.max_bounces = 0
+        scene.cycles.seed = 3
+    else:
+        scene.restframe.samples = samples
+    return render_rgba(scene, tmp_path / f"{engine}.exr")[..., 0]
+
+
+def spot_scene(scene, depth, radius, **dof):
+    """A small emissive sphere at ``depth`` straight ahead of a camera with the given DOF settings."""
+    scene.render.resolution_x = scene.render.resolution_y = RES
+    black_world(scene)
+    camera = add_camera(scene, location=(0.0, 0.0, 0.0), rotation=(math.radians(90), 0.0, 0.0),
+                        lens=LENS_MM, sensor_width=SENSOR_MM, sensor_fit='HORIZONTAL', clip_start=0.01)
+    camera.data.dof.use_dof = True
+    for key, value in dof.items():
+        setattr(camera.data.dof, key, value)
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=radius, location=(0.0, depth, 0.0), segments=32, ring_count=16)
+    bpy.context.object.data.materials.append(emissive("Glow"))
+    return camera
+
+
+def moments(image):
+    """(flux, centroid x, y, covariance 2x2) of an image, pixels."""
+    h, w = image.shape
+    y, x = np.mgrid[0:h, 0:w] + 0.5
+    flux = image.sum()
+    cx, cy = (image * x).sum() / flux, (image * y).sum() / flux
+    dx, dy = x - cx, y - cy
+    cov = np.array([[(image * dx * dx).sum(), (image * dx * dy).sum()],
+                    [(image * dx * dy).sum(), (image * dy * dy).sum()]]) / flux
+    return flux, cx, cy, cov
+
+
+def blur_radius(pinhole, with_lens, polar_factor):
+    """Radius of the aperture image the lens convolved the pinhole image with (mean squared radii add;
+    a uniform disc has R^2 / 2, a regular hexagon 5 R^2 / 12)."""
+    spread = np.trace(moments(with_lens)[3]) - np.trace(moments(pinhole)[3])
+    return math.sqrt(spread / polar_factor)
+
+
+def corner_angle(image, corners):
+    """Angle (radians, image x right, y up) of a corner of an N-fold symmetric blur spot, from the
+    phase of its N-th angular harmonic (weighted toward the rim, where the polygon shows)."""
+    _, cx, cy, _ = moments(image)
+    h, w = image.shape
+    y, x = np.mgrid[0:h, 0:w] + 0.5
+    dx, dy = x - cx, y - cy
+    harmonic = (image * np.hypot(dx, dy) ** corners * np.exp(1j * corners * np.arctan2(dy, dx))).sum()
+    return np.angle(harmonic) / corners
+
+
+def outline(image):
+    """The blur spot's pixels: brighter than half its level inside, after a 3x3 box (the sampling noise)."""
+    padded = np.pad(image, 1)
+    smooth = sum(padded[1 + dy:1 + dy + image.shape[0], 1 + dx:1 + dx + image.shape[1]]
+                 for dy in (-1, 0, 1) for dx in (-1, 0, 1)) / 9
+    return smooth > 0.5 * np.median(smooth[smooth > 0.25 * smooth.max()])
+
+
+def test_hexagonal_bokeh_matches_cycles(scene, tmp_path):
+    """6 blades turned by 0.3 rad, F/1 at 100 mm, focused at 0.5 m, emitter at 2.5 m: the hexagon's
+    size (to 2%), its corners' direction and its outline equal Cycles'."""
+    rotation, fstop, focus, depth = 0.3, 1.0, 0.5, 2.5
+    camera = spot_scene(scene, depth, 0.04, focus_distance=focus, aperture_fstop=fstop,
+                        aperture_blades=6, aperture_rotation=rotation)
+    ours, cycles = render(scene, tmp_path, 'RESTFRAME', 1024), render(scene, tmp_path, 'CYCLES', 1024)
+    camera.data.dof.use_dof = False
+    ours_pinhole, cycles_pinhole = render(scene, tmp_path, 'RESTFRAME'), render(scene, tmp_path, 'CYCLES')
+    hexagon = (1 + 2 * math.cos(math.pi / 6) ** 2) / 6
+    radius_ours = blur_radius(ours_pinhole, ours, hexagon)
+    radius_cycles = blur_radius(cycles_pinhole, cycles, hexagon)
+    aperture = LENS_MM * 1e-3 / (2 * fstop)
+    expected = aperture * (1 / focus - 1 / depth) * FOCAL_PIXELS
+    print(f"hexagon circumradius: RESTframe {radius_ours:.3f} px, Cycles {radius_cycles:.3f} px, "
+          f"thin lens {expected:.3f} px")
+    assert radius_ours == pytest.approx(radius_cycles, rel=0.02)
+    assert radius_ours == pytest.approx(expected, rel=0.02)
+    turn_ours, turn_cycles = corner_angle(ours, 6), corner_angle(cycles, 6)
+    sixty = math.pi / 3
+    apart = (turn_ours - turn_cycles + sixty / 2) % sixty - sixty / 2
+    print(f"hexagon corner at {math.degrees(turn_ours):.2f} deg (RESTframe), {math.degrees(turn_cycles):.2f} deg (Cycles)")
+    assert abs(math.degrees(apart)) < 1.5
+    # behind the focus the spot is the aperture upright: a corner at rotation + 30 degrees
+    assert abs(math.degrees((turn_ours - (rotation + math.pi / 6) + sixty / 2) % sixty - sixty / 2)) < 1.5
+    differ = np.count_nonzero(outline(ours) != outline(cycles))
+    print(f"outline: {differ} of {np.count_nonzero(outline(cycles))} pixels differ")
+    assert differ <= 0.04 * np.count_nonzero(outline(cycles))
+
+
+def test_anamorphic_round_bokeh_with_a_focus_object_matches_cycles(scene, tmp_path):
+    """A round aperture squeezed by ratio 2, focused on an object off the axis (its distance along
+    the view axis counts): the ellipse's axes equal Cycles' (to 2%)."""
+    camera = spot_scene(scene, 0.4, 0.005, aperture_fstop=1.0, aperture_ratio=2.0)
+    focus = bpy.data.objects.new("Focus", None)
+    focus.location = (0.3, 1.5, -0.2)  # 1.5 m along the view axis
+    scene.collection.objects.link(focus)
+    camera.data.dof.focus_object = focus
+    ours, cycles = render(scene, tmp_path, 'RESTFRAME'), render(scene, tmp_path, 'CYCLES')
+    camera.data.dof.use_dof = False
+    ours_pinhole, cycles_pinhole = render(scene, tmp_path, 'RESTFRAME'), render(scene, tmp_path, 'CYCLES')
+    # semi-axes of a uniform ellipse: 2 sqrt(variance) along each
+    axes = {}
+    for name, blurred, pinhole in (("ours", ours, ours_pinhole), ("cycles", cycles, cycles_pinhole)):
+        cov = moments(blurred)[3] - moments(pinhole)[3]
+        axes[name] = 2 * np.sqrt(np.diag(cov))
+    aperture = LENS_MM * 1e-3 / (2 * 1.0)
+    expected_up = aperture * (1 / 0.4 - 1 / 1.5) * FOCAL_PIXELS
+    print(f"ellipse semi-axes (across, up): RESTframe {axes['ours']}, Cycles {axes['cycles']}, "
+          f"thin lens ({expected_up / 2:.3f}, {expected_up:.3f}) px")
+    np.testing.assert_allclose(axes["ours"], axes["cycles"], rtol=0.02)
+    np.testing.assert_allclose(axes["ours"], [expected_up / 2, expected_up], rtol=0.02)
+
+
+def edge_width(image):
+    """10-90% width (pixels) of a vertical bright-to-dark edge, from the rows' mean profile."""
+    profile = image.mean(axis=0)
+    profile = (profile - profile.min()) / (profile.max() - profile.min())
+    x = np.arange(len(profile)) + 0.5
+    falling = np.interp([0.9, 0.1], profile[::-1], x[::-1])
+    return abs(falling[1] - falling[0])
+
+
+def test_the_plane_of_focus_is_sharp(scene, tmp_path):
+    """An emissive card's edge at the focus distance is as sharp as without depth of field, in
+    both engines; focused 40% farther, the same F/1 lens blurs it over several pixels."""
+    scene.render.resolution_x = scene.render.resolution_y = RES
+    black_world(scene)
+    camera = add_camera(scene, location=(0.0, 0.0, 0.0), rotation=(math.radians(90), 0.0, 0.0),
+                        lens=LENS_MM, sensor_width=SENSOR_MM, sensor_fit='HORIZONTAL', clip_start=0.01)
+    dof = camera.data.dof
+    dof.focus_distance, dof.aperture_fstop = 0.5, 1.0
+    bpy.ops.mesh.primitive_plane_add(size=1.0, location=(-0.5 + 0.0013, 0.5, 0.0), rotation=(math.radians(90), 0, 0))
+    bpy.context.object.data.materials.append(emissive("Card"))
+    widths = {}
+    for use_dof in (True, False):
+        dof.use_dof = use_dof
+        for engine in ('RESTFRAME', 'CYCLES'):
+            widths[engine, use_dof] = edge_width(render(scene, tmp_path, engine, samples=64))
+    dof.use_dof, dof.focus_distance = True, 0.7
+    defocused = edge_width(render(scene, tmp_path, 'RESTFRAME', samples=64))
+    print("edge 10-90% width (px):", {f"{engine}{' DOF' if use else ''}": round(width, 3)
+                                      for (engine, use), width in widths.items()}, f"focused 40% off: {defocused:.3f}")
+    for engine in ('RESTFRAME', 'CYCLES'):
+        assert widths[engine, True] == pytest.approx(widths[engine, False], abs=0.05)
+    assert defocused > 3 * widths['RESTFRAME', False]
