@@ -73,3 +73,73 @@ def aperture_radius(fstop: float, focal_length: float | None) -> float:
     gets 1 / (2 F-stop)."""
     fstop = max(float(fstop), 1e-5)
     return (1.0 if focal_length is None else focal_length * 1e-3) / (2.0 * fstop)
+
+
+# ---------------------------------------------------------------------- shutter
+SHUTTER_DIMENSION = 12  # the sampling dimension of a camera sample's time
+ROLLING_SHUTTER_TYPES = ("NONE", "TOP")
+
+
+def shutter_fractions(xi, density):
+    """Where in the shutter interval (0 = open, 1 = closed) samples fall, from uniforms ``xi``, with
+    the density of the shutter curve: ``density`` holds its values at evenly spaced points of the
+    interval, linear in between (Blender's curve as Cycles tabulates it; None = flat).
+
+    The exact inverse of the piecewise-quadratic distribution function, not a table: on the
+    chosen segment the density is b + 2 a t, so the share r of the segment's light is reached at
+    a t^2 + b t = r, solved without cancellation as t = 2 r / (b + sqrt(b^2 + 4 a r)).
+    """
+    xi = np.asarray(xi, dtype=np.float64)
+    if density is None:
+        return xi
+    density = np.abs(np.asarray(density, dtype=np.float64))
+    step = 1.0 / (len(density) - 1)
+    cumulative = np.concatenate([[0.0], np.cumsum(0.5 * step * (density[1:] + density[:-1]))])
+    target = xi * cumulative[-1]
+    segment = np.clip(np.searchsorted(cumulative, target, side="right") - 1, 0, len(density) - 2)
+    remaining = np.maximum(target - cumulative[segment], 0.0)
+    b = density[segment]
+    a = (density[segment + 1] - b) / (2.0 * step)
+    root = b + np.sqrt(np.maximum(b * b + 4.0 * a * remaining, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        within = np.where(root > 0.0, 2.0 * remaining / root, 0.0)
+    return np.minimum((segment + np.clip(within / step, 0.0, 1.0)) * step, 1.0)
+
+
+def rolling_shutter_fractions(fractions, rows, height: int, duration: float):
+    """Cycles' rolling shutter ("TOP"): the rows are read from the top (row ``height - 1``, as
+    image rows count from the bottom) down; each row sees the share ``duration`` of the shutter
+    interval, its window starting ``1 - row / height`` of the way through the rest (duration 0:
+    every row at one instant, 1: no roll)."""
+    row_time = 1.0 - np.asarray(rows, dtype=np.float64) / height
+    return (np.asarray(fractions) - 0.5) * duration + (row_time - 0.5) * (1.0 - duration) + 0.5
+
+
+def shutter_times(camera, pixel, sample, resolution):
+    """Observation times (seconds on the camera's own clock, from the frame's observation event)
+    of camera samples keyed by (pixel, sample), over the camera's shutter interval."""
+    width, height = resolution
+    fractions = shutter_fractions(sampling.uniform(pixel, sample, SHUTTER_DIMENSION), camera.shutter_curve)
+    if camera.rolling_shutter_type == "TOP":
+        fractions = rolling_shutter_fractions(fractions, np.asarray(pixel) // width, height,
+                                              camera.rolling_shutter_duration)
+    opens, closes = camera.shutter_interval
+    return opens + fractions * (closes - opens)
+
+
+def shutter_problem(camera) -> str | None:
+    """What is wrong with the camera's shutter settings, or None."""
+    if camera.shutter_interval is None:
+        return None
+    opens, closes = camera.shutter_interval
+    if not (np.isfinite(opens) and np.isfinite(closes) and opens <= closes):
+        return f"{camera.name}: the shutter interval {camera.shutter_interval} is not an interval of time"
+    if camera.rolling_shutter_type not in ROLLING_SHUTTER_TYPES:
+        return f"{camera.name}: rolling shutter type {camera.rolling_shutter_type!r} is not one of {ROLLING_SHUTTER_TYPES}"
+    if not 0.0 <= camera.rolling_shutter_duration <= 1.0:
+        return f"{camera.name}: the rolling shutter duration must be between 0 and 1"
+    if camera.shutter_curve is not None:
+        curve = np.asarray(camera.shutter_curve, dtype=np.float64)
+        if curve.ndim != 1 or len(curve) < 2 or not np.all(np.isfinite(curve)) or not np.any(curve):
+            return "the motion-blur shutter curve must be finite and above zero somewhere (the shutter never opens)"
+    return None

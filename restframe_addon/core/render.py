@@ -3,7 +3,9 @@
 The observer is the camera's rest frame (S itself for a camera at rest).  Its
 observation event is the camera's position at world time ``tau_obs``; every
 primary ray starts there (orthographic rays start on the image plane, all at the
-same camera-frame time).  Tiles are independent and every random number is keyed
+same camera-frame time; with depth of field each sample starts at its aperture point,
+with motion blur at its own time of the camera's clock: docs/physics-camera.md).  The
+passes other than Combined are those of the pixel-centre ray at the observation event.  Tiles are independent and every random number is keyed
 by (pixel, sample), so any split into tiles, regions or machines gives the same
 image.  Memory is bounded by the tile size (and samples are batched).
 
@@ -20,7 +22,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from . import blas, rows, sampling
+from . import blas, lens, rows, sampling
 from .camera import CameraRays
 from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
 from .colour import RGBColour, SpectralColour
@@ -76,6 +78,7 @@ class Renderer:
         tau, _ = camera_boost.events(np.array(scene.tau_obs), world_event)
         self.camera_tau = float(tau)
         self.camera_rays = CameraRays(scene.camera, settings.resolution, shift_into_frame(camera_boost, position))
+        self.camera_samples_vary = self.camera_rays.has_lens or scene.camera.has_motion_blur
         self.passes = tuple(EXTRA_PASSES) if settings.passes is None else tuple(settings.passes)
         self.doppler_range = settings.doppler_range
         if settings.doppler_mode == "FACTOR" and self.doppler_range is None:
@@ -107,8 +110,15 @@ class Renderer:
 
     # ------------------------------------------------------------------ rays
     def _camera_rays(self, px, py, grid: bool = False, keys=None):
+        """Camera rays at image positions; with ``keys`` = (pixel ids, sample numbers) they are
+        camera samples: through the lens, and at their own shutter times with motion blur."""
         origins, d, s_lo, s_hi, valid = self.camera_rays(px, py, grid, keys)
-        tau = np.broadcast_to(self.camera_tau, (len(d),))  # read-only views: every ray starts at this time
+        camera = self.scene.camera
+        if keys is not None and camera.has_motion_blur:
+            # an inertial camera's rest-frame time runs with its own clock (tau = c t)
+            tau = self.camera_tau + self.scene.light_speed * lens.shutter_times(camera, *keys, self.settings.resolution)
+        else:
+            tau = np.broadcast_to(self.camera_tau, (len(d),))  # read-only views: every ray starts at this time
         return tau, origins, d, s_lo, s_hi if valid.all() else np.where(valid, s_hi, -np.inf)
 
     def centre_rays(self, rect):
@@ -182,7 +192,7 @@ class Renderer:
             m = part.stop - part.start
             pix = np.repeat(pixel[part], count)
             smp = np.tile(np.arange(first, first + count), m)
-            if samples == 1 and not self.camera_rays.has_lens:  # the one sample is the pixel-centre ray, already traced
+            if samples == 1 and not self.camera_samples_vary:  # the one sample is the pixel-centre ray, already traced
                 color, hit = self._sample(tuple(a[part] for a in centre), pix, smp, centre_hits.take(part))
             else:
                 ox, oy = sampling.stratified_offsets(pix, smp, samples)
@@ -305,6 +315,9 @@ def _validate(scene: Scene, settings: RenderSettings) -> None:
     unknown = set(settings.passes or ()) - set(EXTRA_PASSES)
     if unknown:
         raise RenderError(f"unknown passes {sorted(unknown)}: RESTframe fills {list(EXTRA_PASSES)} besides Combined")
+    shutter = lens.shutter_problem(scene.camera)
+    if shutter:
+        raise RenderError(shutter)
     if settings.doppler_mode not in DOPPLER_MODES:
         raise RenderError(f"Doppler display mode {settings.doppler_mode!r} is not one of {DOPPLER_MODES}")
 

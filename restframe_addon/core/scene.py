@@ -143,10 +143,19 @@ class Camera:
     aperture_blades: int = 0  # < 3: a round aperture
     aperture_rotation: float = 0.0  # radians
     aperture_ratio: float = 1.0  # anamorphic: the aperture is narrower across by this factor
+    # motion blur (core.lens): each sample observes at its own time of the camera's own clock
+    shutter_interval: tuple[float, float] | None = None  # seconds from the frame's observation event; None = an instant
+    shutter_curve: np.ndarray | None = None  # the shutter's openness at evenly spaced times of the interval; None = flat
+    rolling_shutter_type: str = "NONE"  # NONE, TOP (rows read out from the top down over the interval)
+    rolling_shutter_duration: float = 0.1  # the share of the interval each row is exposed (Cycles)
 
     @property
     def has_depth_of_field(self) -> bool:
         return self.aperture_radius > 0.0
+
+    @property
+    def has_motion_blur(self) -> bool:
+        return self.shutter_interval is not None
 
 
 @dataclass

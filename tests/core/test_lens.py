@@ -229,3 +229,114 @@ def test_moving_camera_focuses_in_its_own_rest_frame():
     blurred = spot_image(with_lens, far, radius=0.1)
     expected = aperture * (1 / focus - 1 / (2 * focus)) * FOCAL_PIXELS
     assert blur_radius(spot_image(camera, far, radius=0.1), blurred, 0) == pytest.approx(expected, rel=0.02)
+
+
+# ---------------------------------------------------------------------- shutter
+def test_shutter_times_follow_the_shutter_curve_density():
+    """Sampled fractions of the shutter interval have the curve's density (linear between its
+    points): bin counts against the curve's integral over each bin."""
+    curve = np.array([0.0, 1.0, 3.0, 3.0, 0.5, 2.0, 0.0])
+    xi = np.random.default_rng(3).random(N)
+    fractions = lens.shutter_fractions(xi, curve)
+    assert fractions.min() >= 0.0 and fractions.max() <= 1.0
+    edges = np.linspace(0.0, 1.0, 49)
+    fine = np.linspace(0.0, 1.0, 100_001)
+    density = np.interp(fine, np.linspace(0.0, 1.0, len(curve)), curve)
+    cdf = np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]) * np.diff(fine))])
+    expected = np.diff(np.interp(edges, fine, cdf / cdf[-1])) * N
+    counts, _ = np.histogram(fractions, bins=edges)
+    assert np.all(np.abs(counts - expected) < 4.5 * np.sqrt(expected) + 1)
+    # exact inverse: the distribution function of the sampled fraction is xi itself
+    np.testing.assert_allclose(np.interp(fractions, fine, cdf / cdf[-1]), xi, atol=1e-6)
+
+
+def test_flat_shutter_is_uniform_over_the_interval():
+    camera = Camera(matrix=np.eye(4), shutter_interval=(-0.02, 0.03))
+    pixel, sample = KEYS
+    times = lens.shutter_times(camera, pixel, sample, (4, 4))
+    assert times.min() >= -0.02 and times.max() <= 0.03
+    counts, _ = np.histogram(times, bins=10, range=(-0.02, 0.03))
+    assert np.all(np.abs(counts / (N / 10) - 1.0) < 0.03)
+
+
+@pytest.mark.parametrize("duration", [0.0, 0.1, 0.6, 1.0])
+def test_rolling_shutter_exposes_each_row_in_its_own_window(duration):
+    """Cycles' TOP rolling shutter: row y (of H, counted from the bottom) is exposed over the
+    fractions [(1 - y/H)(1 - d), (1 - y/H)(1 - d) + d] of the shutter interval, d the duration."""
+    width, height = 5, 8
+    camera = Camera(matrix=np.eye(4), shutter_interval=(0.0, 2.0), rolling_shutter_type="TOP",
+                    rolling_shutter_duration=duration)
+    for row in (0, 3, height - 1):
+        pixel = np.full(20_000, row * width + 2, dtype=np.int64)
+        times = lens.shutter_times(camera, pixel, np.arange(len(pixel)), (width, height)) / 2.0
+        opens = (1.0 - row / height) * (1.0 - duration)
+        assert times.min() >= opens - 1e-12 and times.max() <= opens + duration + 1e-12
+        assert np.mean(times) == pytest.approx(opens + duration / 2, abs=0.01 * max(duration, 0.01))
+        if duration:
+            assert times.max() - times.min() > 0.99 * duration
+
+
+def test_bad_shutter_settings_are_render_errors():
+    from restframe_addon.core.render import RenderError
+    for problem in (dict(shutter_interval=(0.1, -0.1)), dict(shutter_interval=(0.0, 0.1), shutter_curve=np.zeros(5)),
+                    dict(shutter_interval=(0.0, 0.1), rolling_shutter_type="BOTTOM")):
+        scene = Scene(camera=replace(look_at_camera((0, 0, 0), (0, 1, 0)), name="Cam", **problem))
+        with pytest.raises(RenderError, match="shutter"):
+            render_image(scene, RenderSettings(resolution=(4, 4), threads=1))
+
+
+# ---------------------------------------------------------------------- motion blur at 0.9c
+STREAK_RES = (161, 15)
+PATH_DISTANCE, PATH_START = 10.0, 9.0  # the emitter's path: y = 10, through x = 9 at camera time 0
+
+
+def apparent_x(t):
+    """Where on its path (x, at y = PATH_DISTANCE) a point moving at 0.9c along x, at x = PATH_START
+    at time 0, is seen from the origin at time t: the retarded position x_e = a - beta u, with
+    a = x(t) and u = t - t_e the light's travel time, the root of u^2 = (a - beta u)^2 + D^2."""
+    a = PATH_START + BETA * t
+    u = (-a * BETA + np.sqrt(a * a + (1 - BETA * BETA) * PATH_DISTANCE**2)) / (1 - BETA * BETA)
+    return a - BETA * u
+
+
+def streak_ends(profile):
+    """Sub-pixel columns where a streak's column profile falls to half its level near each end."""
+    lit = np.flatnonzero(profile > 0.02 * profile.max())
+    ends = []
+    for end, inward in ((lit[0], 1), (lit[-1], -1)):
+        plateau = profile[end + 4 * inward:end + 12 * inward:inward].mean()
+        i = end + 4 * inward
+        while profile[i - inward] >= 0.5 * plateau:
+            i -= inward
+        ends.append(i + 0.5 - inward * (profile[i] - 0.5 * plateau) / (profile[i] - profile[i - inward]))
+    return np.array(ends)
+
+
+@pytest.mark.parametrize("mover", ["emitter", "camera"])
+def test_streak_of_an_emitter_crossing_at_0_9c_is_its_apparent_motion_over_the_shutter(mover):
+    """A shutter open for 8 s of the camera's clock (c = 1 unit/s): the streak of a small emitter
+    crossing the view at 0.9c runs between its apparent (retarded) positions at the shutter's
+    opening and closing (apparent speed v / (1 - beta cos theta): twice as fast at the approaching
+    end as at the receding one).  The same seen from a camera moving at -0.9c past a static emitter (placed gamma times
+    farther out, where its camera-frame path is the same): the shutter times are the camera's
+    proper times, so the streak is the same."""
+    width, height = STREAK_RES
+    opens, closes = -4.0, 4.0
+    camera = replace(look_at_camera((0, 0, 0), (0, 1, 0), fov_half_tan=0.5, aspect=width / height),
+                     shutter_interval=(opens, closes))
+    if mover == "emitter":
+        centre, velocity = (PATH_START, PATH_DISTANCE, 0.0), Velocity((BETA, 0.0, 0.0))
+    else:  # at camera time 0 the static emitter sits, contracted by gamma, at PATH_START
+        centre, velocity = (PATH_START * GAMMA, PATH_DISTANCE, 0.0), Velocity()
+        camera = replace(camera, velocity=Velocity((-BETA, 0.0, 0.0)))
+    v, t = uv_sphere(centre, 0.1, 24, 12)
+    scene = Scene(camera=camera, meshes=[Mesh("emitter", v, t, velocity=velocity, pivot=centre)],
+                  materials=[Material(base_color=(0, 0, 0), emission=(1, 1, 1))], world_color=(0, 0, 0),
+                  light_speed=1.0)
+    image = render_image(scene, RenderSettings(resolution=STREAK_RES, samples=1024, threads=1, passes=(),
+                                               searchlight=False))["Combined"][..., 0]
+    seen = apparent_x(np.array([opens, closes]))
+    expected = (seen / PATH_DISTANCE / 0.5 + 1.0) * width / 2  # columns (the image spans tan = +-0.5)
+    measured = streak_ends(image.sum(axis=0).astype(np.float64))
+    np.testing.assert_allclose(measured, expected, atol=1.0)
+    assert measured[1] - measured[0] == pytest.approx(expected[1] - expected[0], rel=0.01)
