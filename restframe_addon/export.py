@@ -189,7 +189,7 @@ def object_trajectory(root, scene, camera_position, *, should_stop=lambda: False
 
     current = scene.frame_current + scene.frame_subframe
     first = min(float(scene.frame_start), current)
-    end = current + 1.0
+    end = current + 1.0 + max((shutter_frames(scene) or (0.0, 0.0))[1], 0.0)  # past the shutter's closing
     # how far back light can come from: the farthest sampled position, plus the body's size
     coarse = np.linspace(first, end, int(min(end - first, 2000)) + 2)
     size = float(max(root.dimensions)) if hasattr(root, "dimensions") else 0.0
@@ -530,6 +530,41 @@ def depth_of_field(camera_object) -> dict:
     )
 
 
+SHUTTER_CURVE_POINTS = 256  # the shutter curve tabulated as Cycles does (RAMP_TABLE_SIZE)
+_SHUTTER_OPENS = {'START': 0.0, 'CENTER': -0.5, 'END': -1.0}  # the frame's place in the shutter, in shutters
+
+
+def shutter_frames(scene) -> tuple[float, float] | None:
+    """The shutter interval in frames from the rendered frame (Blender's Motion Blur panel:
+    shutter length and position), or None without motion blur."""
+    render = scene.render
+    if not render.use_motion_blur or render.motion_blur_shutter <= 0.0:
+        return None
+    opens = _SHUTTER_OPENS[render.motion_blur_position] * render.motion_blur_shutter
+    return opens, opens + render.motion_blur_shutter
+
+
+def motion_blur(scene) -> dict:
+    """The core Camera's shutter fields: the interval in seconds of the camera's own clock, the
+    shutter curve's openness (None when flat) and the rolling shutter; nothing without motion blur."""
+    frames = shutter_frames(scene)
+    if frames is None:
+        return {}
+    seconds_per_frame = scene.render.fps_base / scene.render.fps
+    mapping = scene.render.motion_blur_shutter_curve
+    curve = np.array([mapping.evaluate(mapping.curves[0], x) for x in np.linspace(0.0, 1.0, SHUTTER_CURVE_POINTS)])
+    if not np.any(curve > 0.0):
+        raise ExportError("the motion blur shutter curve is zero everywhere (the shutter never opens): "
+                          "raise it in Motion Blur > Shutter Curve")
+    rf = scene.restframe
+    return dict(
+        shutter_interval=(frames[0] * seconds_per_frame, frames[1] * seconds_per_frame),
+        shutter_curve=None if np.all(curve == curve[0]) else curve,
+        rolling_shutter_type=rf.rolling_shutter_type,
+        rolling_shutter_duration=float(rf.rolling_shutter_duration),
+    )
+
+
 def export_camera(camera_object, scene) -> Camera:
     """Blender's camera as the core sees it; ``view_frame`` gives the exact image plane."""
     if camera_object is None:
@@ -551,6 +586,7 @@ def export_camera(camera_object, scene) -> Camera:
         velocity=object_velocity(camera_object),
         name=camera_object.name,
         **depth_of_field(camera_object),
+        **motion_blur(scene),
     )
     if cam.type == 'PANO':
         ptype = getattr(cam, "panorama_type", None) or getattr(getattr(cam, "cycles", None), "panorama_type", None)

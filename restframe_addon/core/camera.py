@@ -89,8 +89,9 @@ class CameraRays:
         return self.camera.has_depth_of_field
 
     def __call__(self, px, py, grid: bool = False, keys=None):
-        """Rays for image positions px, py; with ``keys`` = (pixel ids, sample numbers), one per
-        ray, and a camera with depth of field, each ray leaves its own aperture point."""
+        """Rays for image positions px, py; with ``keys`` = (pixel ids, sample numbers, samples
+        per pixel), one id and number per ray, and a camera with depth of field, each ray leaves
+        its own aperture point."""
         rays = self._pinhole(px, py, grid)
         if keys is None or not self.has_lens:
             return rays
@@ -137,7 +138,7 @@ class CameraRays:
         return (np.broadcast_to(self.position, (n, 3)), directions, camera.clip_start * per_depth,
                 camera.clip_end * per_depth, np.ones(n, dtype=bool))
 
-    def _through_lens(self, origins, directions, s_lo, s_hi, valid, pixel, sample):
+    def _through_lens(self, origins, directions, s_lo, s_hi, valid, pixel, sample, count):
         """The pinhole rays moved to their aperture points and aimed at the points where they
         meet the plane of focus (panoramas: the sphere of focus), as Cycles' thin lens.
 
@@ -146,7 +147,7 @@ class CameraRays:
         """
         camera = self.camera
         across, up, forward = self.rotation[:, 0], self.rotation[:, 1], -self.rotation[:, 2]
-        lens_x, lens_y = lens.aperture_offsets(camera, pixel, sample)
+        lens_x, lens_y = lens.aperture_offsets(camera, pixel, sample, count)
         focus = camera.focus_distance
         if camera.kind == "PANO":
             # Cycles' aperture basis for a panoramic ray: the view axis made perpendicular to the ray

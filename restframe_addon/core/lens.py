@@ -17,8 +17,31 @@ import numpy as np
 from . import sampling
 
 # sampling dimensions of a camera sample: 0-2 are the pixel jitter (sampling.stratified_offsets),
-# 1000 and above the lights (shading); the lens takes two of its own
-LENS_DIMENSIONS = (10, 11)
+# 1000 and above the lights (shading); the lens takes 10-12, the shutter 13-14
+LENS_DIMENSION = 10
+SHUTTER_DIMENSION = 13
+# strata steps (fractions of the strata count) unlike the pixel jitter's golden ratio, so that a
+# sample's place in the pixel, on the aperture and in the shutter do not move in step: the R2
+# sequence's 1/rho and 1/rho^2 (rho the plastic number)
+_LENS_SPREAD = 0.7548776662
+_SHUTTER_SPREAD = 0.5698402910
+
+
+def stratified_pair(pixel, sample, count: int, dimension: int):
+    """Two numbers in [0, 1) per camera sample keyed by (pixel, sample): sample k of a pixel's
+    ``count`` in its own cell of a ceil(sqrt(count))-square grid, jittered inside it (a single
+    sample: anywhere)."""
+    side = int(np.ceil(np.sqrt(count)))
+    cell = sampling.strata(pixel, sample, side * side, dimension, _LENS_SPREAD)
+    return ((cell % side + sampling.uniform(pixel, sample, dimension + 1)) / side,
+            (cell // side + sampling.uniform(pixel, sample, dimension + 2)) / side)
+
+
+def stratified_single(pixel, sample, count: int, dimension: int):
+    """One number in [0, 1) per camera sample: sample k of a pixel's ``count`` in its own of
+    ``count`` equal intervals, jittered inside it."""
+    interval = sampling.strata(pixel, sample, count, dimension, _SHUTTER_SPREAD)
+    return (interval + sampling.uniform(pixel, sample, dimension + 1)) / count
 
 
 def concentric_disc(u1, u2):
@@ -55,11 +78,11 @@ def regular_polygon(u1, u2, corners: int, rotation: float):
     return c * x - s * y, s * x + c * y
 
 
-def aperture_offsets(camera, pixel, sample):
+def aperture_offsets(camera, pixel, sample, count: int):
     """Aperture points (x across, y up the camera; scene units, camera rest frame) of camera
-    samples keyed by (pixel, sample): the disc or polygon of the camera's aperture."""
-    u1 = sampling.uniform(pixel, sample, LENS_DIMENSIONS[0])
-    u2 = sampling.uniform(pixel, sample, LENS_DIMENSIONS[1])
+    samples keyed by (pixel, sample), ``count`` per pixel: the disc or polygon of the camera's
+    aperture, stratified over each pixel's samples."""
+    u1, u2 = stratified_pair(pixel, sample, count, LENS_DIMENSION)
     if camera.aperture_blades >= 3:
         x, y = regular_polygon(u1, u2, int(camera.aperture_blades), camera.aperture_rotation)
     else:
@@ -76,7 +99,6 @@ def aperture_radius(fstop: float, focal_length: float | None) -> float:
 
 
 # ---------------------------------------------------------------------- shutter
-SHUTTER_DIMENSION = 12  # the sampling dimension of a camera sample's time
 ROLLING_SHUTTER_TYPES = ("NONE", "TOP")
 
 
@@ -115,11 +137,13 @@ def rolling_shutter_fractions(fractions, rows, height: int, duration: float):
     return (np.asarray(fractions) - 0.5) * duration + (row_time - 0.5) * (1.0 - duration) + 0.5
 
 
-def shutter_times(camera, pixel, sample, resolution):
+def shutter_times(camera, pixel, sample, count: int, resolution):
     """Observation times (seconds on the camera's own clock, from the frame's observation event)
-    of camera samples keyed by (pixel, sample), over the camera's shutter interval."""
+    of camera samples keyed by (pixel, sample), ``count`` per pixel (stratified over them), over
+    the camera's shutter interval."""
     width, height = resolution
-    fractions = shutter_fractions(sampling.uniform(pixel, sample, SHUTTER_DIMENSION), camera.shutter_curve)
+    xi = stratified_single(pixel, sample, count, SHUTTER_DIMENSION)
+    fractions = shutter_fractions(xi, camera.shutter_curve)
     if camera.rolling_shutter_type == "TOP":
         fractions = rolling_shutter_fractions(fractions, np.asarray(pixel) // width, height,
                                               camera.rolling_shutter_duration)

@@ -110,8 +110,9 @@ class Renderer:
 
     # ------------------------------------------------------------------ rays
     def _camera_rays(self, px, py, grid: bool = False, keys=None):
-        """Camera rays at image positions; with ``keys`` = (pixel ids, sample numbers) they are
-        camera samples: through the lens, and at their own shutter times with motion blur."""
+        """Camera rays at image positions; with ``keys`` = (pixel ids, sample numbers, samples per
+        pixel) they are camera samples: through the lens, and at their own shutter times with
+        motion blur."""
         origins, d, s_lo, s_hi, valid = self.camera_rays(px, py, grid, keys)
         camera = self.scene.camera
         if keys is not None and camera.has_motion_blur:
@@ -197,7 +198,7 @@ class Renderer:
             else:
                 ox, oy = sampling.stratified_offsets(pix, smp, samples)
                 rays = self._camera_rays(np.repeat(xs[part], count) + ox, np.repeat(ys[part], count) + oy,
-                                         keys=(pix, smp))
+                                         keys=(pix, smp, samples))
                 color, hit = self._sample(rays, pix, smp)
             rgb[part] += color.reshape(m, count, 3).sum(axis=1)
             coverage[part] += hit.reshape(m, count).sum(axis=1)

@@ -42,16 +42,24 @@ def stratified_offsets(pixel: np.ndarray, sample: np.ndarray, count: int):
         return half, half
     side = int(np.ceil(np.sqrt(count)))
     cells = side * side
-    step = _coprime_step(cells)
-    start = (uniform(pixel, np.zeros_like(sample), 0) * cells).astype(np.int64)
-    stratum = (sample.astype(np.int64) * step + start) % cells
+    stratum = strata(pixel, sample, cells, 0)
     jx = uniform(pixel, sample, 1)
     jy = uniform(pixel, sample, 2)
     return (stratum % side + jx) / side, (stratum // side + jy) / side
 
 
-def _coprime_step(cells: int) -> int:
-    step = max(int(round(cells * 0.6180339887)), 1)
+def strata(pixel: np.ndarray, sample: np.ndarray, cells: int, dimension: int, spread: float = 0.6180339887):
+    """Which of ``cells`` strata sample k of a pixel falls in: ``(k * step + start) mod cells``, the
+    start per pixel (from ``dimension``), the step coprime to ``cells`` near ``spread * cells``.
+    Each pixel visits every stratum once per ``cells`` samples; different spreads keep the strata
+    of different dimensions from moving in step."""
+    step = _coprime_step(cells, spread)
+    start = (uniform(pixel, np.zeros_like(sample), dimension) * cells).astype(np.int64)
+    return (sample.astype(np.int64) * step + start) % cells
+
+
+def _coprime_step(cells: int, spread: float) -> int:
+    step = max(int(round(cells * spread)), 1)
     while np.gcd(step, cells) != 1:
         step += 1
     return step

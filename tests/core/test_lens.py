@@ -14,7 +14,7 @@ from restframe_addon.core.render import render_image
 from restframe_addon.core.scene import Camera, Material, Mesh, RenderSettings, Scene, Velocity
 
 N = 200_000
-KEYS = (np.full(N, 7, dtype=np.int64), np.arange(N, dtype=np.int64))
+KEYS = (np.full(N, 7, dtype=np.int64), np.arange(N, dtype=np.int64), N)  # one pixel's N samples
 
 
 def polygon_harmonic(x, y, corners):
@@ -84,7 +84,7 @@ def test_lens_rays_of_one_image_point_meet_on_the_focus_and_leave_the_aperture(k
     rays = CameraRays(camera, (30, 20))
     n = 4000
     px, py = np.full(n, 21.3), np.full(n, 4.7)  # one image point, many samples
-    keys = (np.full(n, 3, dtype=np.int64), np.arange(n, dtype=np.int64))
+    keys = (np.full(n, 3, dtype=np.int64), np.arange(n, dtype=np.int64), n)
     o0, d0, lo0, hi0, _ = rays(px[:1], py[:1])
     origins, directions, lo, hi, valid = rays(px, py, keys=keys)
     assert valid.all()
@@ -111,7 +111,7 @@ def test_lens_rays_of_one_image_point_meet_on_the_focus_and_leave_the_aperture(k
 def test_without_aperture_the_keys_change_nothing(kind):
     rays = CameraRays(tilted_camera(kind), (30, 20))
     px, py = np.array([1.5, 17.25, 29.0]), np.array([0.5, 10.0, 19.75])
-    keys = (np.arange(3, dtype=np.int64), np.zeros(3, dtype=np.int64))
+    keys = (np.arange(3, dtype=np.int64), np.zeros(3, dtype=np.int64), 1)
     for plain, keyed in zip(rays(px, py), rays(px, py, keys=keys)):
         assert np.array_equal(plain, keyed)
 
@@ -252,8 +252,7 @@ def test_shutter_times_follow_the_shutter_curve_density():
 
 def test_flat_shutter_is_uniform_over_the_interval():
     camera = Camera(matrix=np.eye(4), shutter_interval=(-0.02, 0.03))
-    pixel, sample = KEYS
-    times = lens.shutter_times(camera, pixel, sample, (4, 4))
+    times = lens.shutter_times(camera, *KEYS, (4, 4))
     assert times.min() >= -0.02 and times.max() <= 0.03
     counts, _ = np.histogram(times, bins=10, range=(-0.02, 0.03))
     assert np.all(np.abs(counts / (N / 10) - 1.0) < 0.03)
@@ -268,7 +267,7 @@ def test_rolling_shutter_exposes_each_row_in_its_own_window(duration):
                     rolling_shutter_duration=duration)
     for row in (0, 3, height - 1):
         pixel = np.full(20_000, row * width + 2, dtype=np.int64)
-        times = lens.shutter_times(camera, pixel, np.arange(len(pixel)), (width, height)) / 2.0
+        times = lens.shutter_times(camera, pixel, np.arange(len(pixel)), len(pixel), (width, height)) / 2.0
         opens = (1.0 - row / height) * (1.0 - duration)
         assert times.min() >= opens - 1e-12 and times.max() <= opens + duration + 1e-12
         assert np.mean(times) == pytest.approx(opens + duration / 2, abs=0.01 * max(duration, 0.01))
