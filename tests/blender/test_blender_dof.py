@@ -190,3 +190,35 @@ def test_the_plane_of_focus_is_sharp(scene, tmp_path):
     for engine in ('RESTFRAME', 'CYCLES'):
         assert widths[engine, True] == pytest.approx(widths[engine, False], abs=0.05)
     assert defocused > 3 * widths['RESTFRAME', False]
+
+
+def test_equirectangular_depth_of_field_matches_cycles(scene, tmp_path):
+    """A panoramic camera blurs as Cycles' does: the aperture across each ray, focus on the sphere of
+    the focus distance; an emitter 17 degrees off the view axis blurs into the same ellipse of
+    the panorama (covariance to 3%), about A |1/f - 1/z| radians in radius."""
+    width, height = 128, 64
+    scene.render.resolution_x, scene.render.resolution_y = width, height
+    black_world(scene)
+    camera = add_camera(scene, location=(0.0, 0.0, 0.0), rotation=(math.radians(90), 0.0, 0.0), type='PANO',
+                        panorama_type='EQUIRECTANGULAR', longitude_min=-0.6, longitude_max=0.6,
+                        latitude_min=-0.3, latitude_max=0.3, lens=100.0, clip_start=0.01)
+    dof = camera.data.dof
+    dof.use_dof, dof.focus_distance, dof.aperture_fstop = True, 0.4, 1.0
+    depth, off_axis = 2.0, 0.3
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.04, location=(-depth * math.sin(off_axis), depth * math.cos(off_axis), 0.0),
+                                         segments=32, ring_count=16)
+    bpy.context.object.data.materials.append(emissive("Glow"))
+    images = {(engine, True): render(scene, tmp_path, engine) for engine in ('RESTFRAME', 'CYCLES')}
+    dof.use_dof = False
+    images.update({(engine, False): render(scene, tmp_path, engine) for engine in ('RESTFRAME', 'CYCLES')})
+    spread = {engine: moments(images[engine, True])[3] - moments(images[engine, False])[3]
+              for engine in ('RESTFRAME', 'CYCLES')}
+    radians_per_pixel = 1.2 / width
+    # a uniform disc of radius R: variance R^2 / 4 along each axis
+    radius = {engine: math.sqrt(2 * np.trace(cov)) * radians_per_pixel for engine, cov in spread.items()}
+    expected = LENS_MM * 1e-3 / 2 * (1 / 0.4 - 1 / depth)
+    print(f"panorama blur covariance (px^2): RESTframe {spread['RESTFRAME'].ravel()}, Cycles {spread['CYCLES'].ravel()}; "
+          f"radius RESTframe {radius['RESTFRAME']:.4f} rad, Cycles {radius['CYCLES']:.4f} rad, thin lens {expected:.4f} rad")
+    scale = np.trace(spread["CYCLES"])
+    assert np.abs(spread["RESTFRAME"] - spread["CYCLES"]).max() < 0.03 * scale
+    assert radius["RESTFRAME"] == pytest.approx(expected, rel=0.03)
