@@ -339,3 +339,37 @@ def test_streak_of_an_emitter_crossing_at_0_9c_is_its_apparent_motion_over_the_s
     measured = streak_ends(image.sum(axis=0).astype(np.float64))
     np.testing.assert_allclose(measured, expected, atol=1.0)
     assert measured[1] - measured[0] == pytest.approx(expected[1] - expected[0], rel=0.01)
+
+
+def retarded_position(start, velocity, t):
+    """Where a point at ``start`` at time 0, moving with ``velocity`` (units of c), is seen from the
+    origin at time t: the root t_e <= t of |start + velocity t_e|^2 = (t - t_e)^2."""
+    start, velocity = np.asarray(start, dtype=float), np.asarray(velocity, dtype=float)
+    a, b, c = velocity @ velocity - 1.0, 2.0 * (start @ velocity + t), start @ start - t * t
+    roots = (-b + np.array([1.0, -1.0]) * math.sqrt(b * b - 4.0 * a * c)) / (2.0 * a)
+    return start + velocity * roots[roots <= t].max()
+
+
+def test_an_approaching_emitter_streaks_superluminally_as_its_retarded_positions():
+    """An emitter at 0.9c, 25 degrees off head-on toward the camera, seen at the image centre 20
+    units away at camera time 0: over a 3 s shutter its streak runs between its retarded positions
+    at the shutter's ends, an apparent transverse speed of about 2c (beta sin / (1 - beta cos))."""
+    width, height = STREAK_RES
+    opens, closes = -1.5, 1.5
+    angle = math.radians(25.0)
+    velocity = BETA * np.array([math.sin(angle), -math.cos(angle), 0.0])
+    start = np.array([0.0, 20.0, 0.0]) + 20.0 * velocity  # there at time -20: seen at the centre at 0
+    camera = replace(look_at_camera((0, 0, 0), (0, 1, 0), fov_half_tan=0.5, aspect=width / height),
+                     shutter_interval=(opens, closes))
+    v, t = uv_sphere(start, 0.1, 24, 12)
+    scene = Scene(camera=camera, meshes=[Mesh("emitter", v, t, velocity=Velocity(tuple(velocity)), pivot=tuple(start))],
+                  materials=[Material(base_color=(0, 0, 0), emission=(1, 1, 1))], world_color=(0, 0, 0),
+                  light_speed=1.0)
+    image = render_image(scene, RenderSettings(resolution=STREAK_RES, samples=1024, threads=1, passes=(),
+                                               searchlight=False))["Combined"][..., 0]
+    seen = np.array([retarded_position(start, velocity, t) for t in (opens, closes)])
+    expected = (seen[:, 0] / seen[:, 1] / 0.5 + 1.0) * width / 2
+    measured = streak_ends(image.sum(axis=0).astype(np.float64))
+    np.testing.assert_allclose(measured, expected, atol=1.0)
+    transverse_speed = (seen[1, 0] - seen[0, 0]) / (closes - opens)
+    assert transverse_speed > 1.9  # faster than light across the view
