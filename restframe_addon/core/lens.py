@@ -20,11 +20,6 @@ from . import sampling
 # 1000 and above the lights (shading); the lens takes 10-12, the shutter 13-14
 LENS_DIMENSION = 10
 SHUTTER_DIMENSION = 13
-# strata steps (fractions of the strata count) unlike the pixel jitter's golden ratio, so that a
-# sample's place in the pixel, on the aperture and in the shutter do not move in step: the R2
-# sequence's 1/rho and 1/rho^2 (rho the plastic number)
-_LENS_SPREAD = 0.7548776662
-_SHUTTER_SPREAD = 0.5698402910
 
 
 def stratified_pair(pixel, sample, count: int, dimension: int):
@@ -32,7 +27,7 @@ def stratified_pair(pixel, sample, count: int, dimension: int):
     ``count`` in its own cell of a ceil(sqrt(count))-square grid, jittered inside it (a single
     sample: anywhere)."""
     side = int(np.ceil(np.sqrt(count)))
-    cell = sampling.strata(pixel, sample, side * side, dimension, _LENS_SPREAD)
+    cell = sampling.shuffled_strata(pixel, sample, side * side, dimension)
     return ((cell % side + sampling.uniform(pixel, sample, dimension + 1)) / side,
             (cell // side + sampling.uniform(pixel, sample, dimension + 2)) / side)
 
@@ -40,7 +35,7 @@ def stratified_pair(pixel, sample, count: int, dimension: int):
 def stratified_single(pixel, sample, count: int, dimension: int):
     """One number in [0, 1) per camera sample: sample k of a pixel's ``count`` in its own of
     ``count`` equal intervals, jittered inside it."""
-    interval = sampling.strata(pixel, sample, count, dimension, _SHUTTER_SPREAD)
+    interval = sampling.shuffled_strata(pixel, sample, count, dimension)
     return (interval + sampling.uniform(pixel, sample, dimension + 1)) / count
 
 

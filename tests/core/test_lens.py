@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from shapes import look_at_camera, uv_sphere
 
-from restframe_addon.core import lens
+from restframe_addon.core import lens, sampling
 from restframe_addon.core.camera import CameraRays
 from restframe_addon.core.render import render_image
 from restframe_addon.core.scene import Camera, Material, Mesh, RenderSettings, Scene, Velocity
@@ -373,3 +373,21 @@ def test_an_approaching_emitter_streaks_superluminally_as_its_retarded_positions
     np.testing.assert_allclose(measured, expected, atol=1.0)
     transverse_speed = (seen[1, 0] - seen[0, 0]) / (closes - opens)
     assert transverse_speed > 1.9  # faster than light across the view
+
+
+@pytest.mark.parametrize("cells", [1, 2, 3, 7, 16, 100, 1024, 1025])
+def test_shuffled_strata_are_a_permutation_per_pixel_unrelated_to_the_pixel_strata(cells):
+    """Each pixel's samples 0..cells-1 visit every stratum once, in an order of their own per
+    dimension: neither the pixel jitter's strata nor another dimension's predict it."""
+    pixels = np.arange(50, dtype=np.int64)
+    pixel, sample = np.repeat(pixels, cells), np.tile(np.arange(cells, dtype=np.int64), len(pixels))
+    lens_cells = sampling.shuffled_strata(pixel, sample, cells, lens.LENS_DIMENSION).reshape(len(pixels), cells)
+    assert np.all(np.sort(lens_cells, axis=1) == np.arange(cells))
+    if cells >= 100:
+        jitter_cells = sampling.strata(pixel, sample, cells, 0).reshape(len(pixels), cells)
+        other = sampling.shuffled_strata(pixel, sample, cells, lens.SHUTTER_DIMENSION).reshape(len(pixels), cells)
+        for a, b in ((lens_cells, jitter_cells), (lens_cells, other)):
+            r = np.array([np.corrcoef(x, y)[0, 1] for x, y in zip(a, b)])
+            assert np.abs(r).max() < 4.5 / math.sqrt(cells)  # as uncorrelated as random orders
+        # and the first differences are not one fixed step (unlike a linear order)
+        assert len(np.unique(np.diff(lens_cells[0]) % cells)) > cells // 4
