@@ -505,8 +505,7 @@ def depth_of_field(camera_object) -> dict:
     """The core Camera's lens fields from Blender's Depth of Field panel, as Cycles reads them:
     aperture radius from the F-stop (half the focal length, in mm read as 1e-3 scene units,
     over the F-stop; 1 / (2 F-stop) for an orthographic camera), the focus object's distance
-    along the view axis (its bone's, with a subtarget), blades below 3 a round aperture.
-    Nothing (a pinhole) without Depth of Field."""
+    along the view axis (its bone's, with a subtarget).  Nothing (a pinhole) without Depth of Field."""
     cam = camera_object.data
     dof = cam.dof
     if not dof.use_dof:
@@ -520,11 +519,10 @@ def depth_of_field(camera_object) -> dict:
         view_axis = np.array(camera_object.matrix_world.col[2][:3])
         offset = np.array(camera_object.matrix_world.translation) - np.array(target.translation)
         focus = abs(float(offset @ view_axis)) / float(np.linalg.norm(view_axis))
-    blades = int(dof.aperture_blades)
     return dict(
         aperture_radius=lens.aperture_radius(dof.aperture_fstop, None if cam.type == 'ORTHO' else cam.lens),
         focus_distance=max(focus, 1e-5),
-        aperture_blades=blades if blades >= 3 else 0,
+        aperture_blades=int(dof.aperture_blades),  # Blender's 0 (or the core's < 3): round
         aperture_rotation=float(dof.aperture_rotation),
         aperture_ratio=float(dof.aperture_ratio),
     )

@@ -146,8 +146,13 @@ def shutter_times(camera, pixel, sample, count: int, resolution):
     return opens + fractions * (closes - opens)
 
 
-def shutter_problem(camera) -> str | None:
-    """What is wrong with the camera's shutter settings, or None."""
+def settings_problem(camera) -> str | None:
+    """What is wrong with the camera's lens or shutter settings, or None."""
+    if not (np.isfinite(camera.aperture_radius) and camera.aperture_radius >= 0.0):
+        return f"{camera.name}: the aperture radius must be a length of 0 or more (got {camera.aperture_radius})"
+    if camera.has_depth_of_field and not (camera.focus_distance > 0.0 and camera.aperture_ratio > 0.0
+                                          and np.isfinite(camera.focus_distance) and np.isfinite(camera.aperture_ratio)):
+        return f"{camera.name}: depth of field needs a focus distance and an aperture ratio above 0"
     if camera.shutter_interval is None:
         return None
     opens, closes = camera.shutter_interval

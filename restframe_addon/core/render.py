@@ -316,9 +316,9 @@ def _validate(scene: Scene, settings: RenderSettings) -> None:
     unknown = set(settings.passes or ()) - set(EXTRA_PASSES)
     if unknown:
         raise RenderError(f"unknown passes {sorted(unknown)}: RESTframe fills {list(EXTRA_PASSES)} besides Combined")
-    shutter = lens.shutter_problem(scene.camera)
-    if shutter:
-        raise RenderError(shutter)
+    problem = lens.settings_problem(scene.camera)
+    if problem:
+        raise RenderError(problem)
     if settings.doppler_mode not in DOPPLER_MODES:
         raise RenderError(f"Doppler display mode {settings.doppler_mode!r} is not one of {DOPPLER_MODES}")
 

@@ -222,3 +222,31 @@ def test_equirectangular_depth_of_field_matches_cycles(scene, tmp_path):
     scale = np.trace(spread["CYCLES"])
     assert np.abs(spread["RESTFRAME"] - spread["CYCLES"]).max() < 0.03 * scale
     assert radius["RESTFRAME"] == pytest.approx(expected, rel=0.03)
+
+
+def test_depth_of_field_export_as_cycles_reads_it(scene):
+    """F-stop to aperture radius (focal length in mm as 1e-3 units; orthographic 1 / (2 F-stop)),
+    blades, rotation and ratio, a focus bone's distance along the view axis, nothing without DOF; the
+    camera's Depth of Field panels show for RESTframe."""
+    from blender_helpers import export_now
+    camera = add_camera(scene, location=(1.0, 2.0, 3.0), rotation=(0.4, 0.0, 0.3), lens=35.0)
+    assert export_now(scene)[0].camera.aperture_radius == 0.0
+    dof = camera.data.dof
+    dof.use_dof, dof.aperture_fstop, dof.aperture_blades, dof.aperture_rotation, dof.aperture_ratio = True, 2.0, 5, 0.5, 1.3
+    exported = export_now(scene)[0].camera
+    assert exported.aperture_radius == pytest.approx(0.035 / 4.0)
+    assert (exported.aperture_blades, exported.aperture_rotation, exported.aperture_ratio) == (5, pytest.approx(0.5), pytest.approx(1.3))
+    bpy.ops.object.armature_add(location=(0.0, 0.0, 0.0))
+    rig = bpy.context.object
+    rig.pose.bones[0].location = (0.0, 0.7, 0.0)  # pose the bone: its head moves
+    bpy.context.view_layer.update()
+    dof.focus_object, dof.focus_subtarget = rig, rig.pose.bones[0].name
+    head = np.array((rig.matrix_world @ rig.pose.bones[0].matrix).translation)
+    axis = np.array(camera.matrix_world.col[2][:3])
+    expected = abs(float((np.array(camera.matrix_world.translation) - head) @ axis))
+    assert export_now(scene)[0].camera.focus_distance == pytest.approx(expected, rel=1e-6)
+    assert expected != pytest.approx(abs(float((np.array(camera.matrix_world.translation) - np.array(rig.location)) @ axis)))
+    camera.data.type = 'ORTHO'
+    assert export_now(scene)[0].camera.aperture_radius == pytest.approx(0.25)
+    for panel in ("DATA_PT_camera_dof", "DATA_PT_camera_dof_aperture"):
+        assert 'RESTFRAME' in getattr(bpy.types, panel).COMPAT_ENGINES

@@ -174,12 +174,14 @@ def test_the_plane_of_focus_stays_sharp():
     assert spot_moments(sharp)[3] == pytest.approx(spot_moments(pinhole)[3], rel=0.02)
 
 
-def test_tiles_regions_and_threads_do_not_change_lens_samples():
+def test_tiles_regions_and_threads_do_not_change_lens_and_shutter_samples():
     camera = replace(look_at_camera((0, 0, 0), (0, 1, 0), fov_half_tan=0.3), aperture_radius=0.3,
-                     focus_distance=4.0, aperture_blades=7, aperture_rotation=0.2)
-    v, t = uv_sphere((0.2, 8.0, 0.1), 0.6, 24, 12)
-    scene = Scene(camera=camera, meshes=[Mesh("ball", v, t)],
-                  materials=[Material(emission=(0.5, 1.0, 2.0))], world_color=(0.1, 0.1, 0.1))
+                     focus_distance=4.0, aperture_blades=7, aperture_rotation=0.2, shutter_interval=(-1.0, 0.5),
+                     rolling_shutter_type="TOP", rolling_shutter_duration=0.3)
+    centre = (4.2, 8.0, 0.1)  # at 0.5c along x: seen near the axis at time 0 (c = 1 unit/s)
+    v, t = uv_sphere(centre, 0.6, 24, 12)
+    scene = Scene(camera=camera, meshes=[Mesh("ball", v, t, velocity=Velocity((0.5, 0.0, 0.0)), pivot=centre)],
+                  materials=[Material(emission=(0.5, 1.0, 2.0))], world_color=(0.1, 0.1, 0.1), light_speed=1.0)
     base = dict(resolution=(23, 17), samples=6, passes=())
     whole = render_image(scene, RenderSettings(**base, threads=1))["Combined"]
     tiled = render_image(scene, RenderSettings(**base, threads=2, tile_size=5))["Combined"]
@@ -190,6 +192,9 @@ def test_tiles_regions_and_threads_do_not_change_lens_samples():
     pinhole = render_image(replace(scene, camera=replace(camera, aperture_radius=0.0)),
                            RenderSettings(**{**base, "samples": 1}, threads=1))["Combined"]
     assert not np.array_equal(one_sample, pinhole)  # one sample per pixel goes through the lens too
+    instant = render_image(replace(scene, camera=replace(camera, shutter_interval=None)),
+                           RenderSettings(**base, threads=1))["Combined"]
+    assert not np.array_equal(whole, instant)  # and the shutter blurs the moving ball
 
 
 # ---------------------------------------------------------------------- a camera at 0.9c
@@ -275,13 +280,19 @@ def test_rolling_shutter_exposes_each_row_in_its_own_window(duration):
             assert times.max() - times.min() > 0.99 * duration
 
 
-def test_bad_shutter_settings_are_render_errors():
+@pytest.mark.parametrize("problem, message", [
+    (dict(shutter_interval=(0.1, -0.1)), "Cam: the shutter interval"),
+    (dict(shutter_interval=(0.0, 0.1), shutter_curve=np.zeros(5)), "shutter curve"),
+    (dict(shutter_interval=(0.0, 0.1), rolling_shutter_type="BOTTOM"), "Cam: rolling shutter type"),
+    (dict(aperture_radius=-0.1), "Cam: the aperture radius"),
+    (dict(aperture_radius=0.1, focus_distance=0.0), "Cam: depth of field needs"),
+    (dict(aperture_radius=0.1, aperture_ratio=0.0), "Cam: depth of field needs"),
+])
+def test_bad_lens_and_shutter_settings_are_render_errors(problem, message):
     from restframe_addon.core.render import RenderError
-    for problem in (dict(shutter_interval=(0.1, -0.1)), dict(shutter_interval=(0.0, 0.1), shutter_curve=np.zeros(5)),
-                    dict(shutter_interval=(0.0, 0.1), rolling_shutter_type="BOTTOM")):
-        scene = Scene(camera=replace(look_at_camera((0, 0, 0), (0, 1, 0)), name="Cam", **problem))
-        with pytest.raises(RenderError, match="shutter"):
-            render_image(scene, RenderSettings(resolution=(4, 4), threads=1))
+    scene = Scene(camera=replace(look_at_camera((0, 0, 0), (0, 1, 0)), name="Cam", **problem))
+    with pytest.raises(RenderError, match=message):
+        render_image(scene, RenderSettings(resolution=(4, 4), threads=1))
 
 
 # ---------------------------------------------------------------------- motion blur at 0.9c
