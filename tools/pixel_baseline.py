@@ -108,7 +108,7 @@ def main(argv=None) -> int:
     parser.add_argument("mode", choices=("save", "compare"))
     parser.add_argument("folder", type=Path)
     parser.add_argument("-k", action="append", default=[], help="only scenes whose name contains this (repeatable)")
-    parser.add_argument("--size", type=int, default=48, help="pixels on the longer side of the sample renders")
+    parser.add_argument("--size", type=int, default=64, help="pixels on the longer side of the sample renders")
     args = parser.parse_args(argv)
     chosen = {name: render for name, render in scenes(args.size).items()
               if not args.k or any(k in name for k in args.k)}
