@@ -20,6 +20,7 @@ power of D for spectral densities).  Values are in the frame they are evaluated 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import MappingProxyType
 
 import numpy as np
 
@@ -156,7 +157,7 @@ class Shader:
                  colour, max_bounces: int, searchlight: bool):
         self.frames = frames
         self.materials = materials
-        self.lights = lights
+        self.lights = tuple(lights)
         self.colour = colour
         self.max_bounces = max_bounces
         self.searchlight = searchlight
@@ -164,12 +165,13 @@ class Shader:
         # rounding (relative to its extent), the float64 rounding of far positions (a hundred
         # ulps), and, for the inertial segments of an accelerated body, twice the motion
         # tolerance by which neighbouring segments of the same body may disagree
-        self.epsilon = {}
+        epsilon = {}
         for k in frames.geometry:
             frame = frames.frames[k]
             reach = float(np.max(np.abs(frame.geometry.anchor))) + float(np.max(np.abs(frame.offset)))
             segment = 2.0 * frame.tolerance if frame.window is not None else 0.0
-            self.epsilon[k] = 1e-5 * frame.geometry.extent + 1e-14 * reach + segment
+            epsilon[k] = 1e-5 * frame.geometry.extent + 1e-14 * reach + segment
+        self.epsilon = MappingProxyType(epsilon)
 
     # ------------------------------------------------------------------ helpers
     def _power(self, doppler, exponent: int):
