@@ -105,6 +105,7 @@ def prepare(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bo
     Once ``should_stop()`` is true the build stops early; the result is then incomplete
     and must not be rendered.
     """
+    settings = dataclasses.replace(settings)  # its own copy: a caller changing theirs later changes no render
     prepared = _build(scene, settings, should_stop)
     doppler_range = settings.doppler_range
     if settings.doppler_mode == "FACTOR" and doppler_range is None:
