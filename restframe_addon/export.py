@@ -17,9 +17,9 @@ import numpy as np
 
 from .core import lens
 from .core.motion import Trajectory
-from .core.render import PASSES
+from .core import validation
+from .core.passes import PASSES
 from .core.scene import Camera, Light, Material, Mesh, RenderSettings, Scene, Velocity
-from .properties import speed_of
 
 
 class ExportError(ValueError):
@@ -40,23 +40,10 @@ def observation_time(scene) -> float:
 def object_velocity(obj) -> Velocity:
     """The object's ``restframe`` velocity, checked: raises ExportError naming the object."""
     rf = obj.restframe
-    beta = tuple(float(c) for c in rf.velocity)
-    gamma = float(rf.lorentz_factor)
-    if not all(math.isfinite(c) for c in beta):
-        raise ExportError(f"{obj.name}: the velocity {beta} is not a finite number")
-    if not math.isfinite(gamma):
-        raise ExportError(f"{obj.name}: the Lorentz factor {gamma} is not a finite number")
-    if gamma > 0.0:
-        if gamma < 1.0:
-            raise ExportError(f"{obj.name}: a Lorentz factor must be at least 1 (got {gamma:g}); 0 means unused")
-        if gamma > 1.0 and not any(beta):
-            raise ExportError(f"{obj.name}: a Lorentz factor above 1 needs a velocity to give the direction")
-    elif not speed_of(beta, 0.0)[0] < 1.0:
-        speed = math.sqrt(sum(c * c for c in beta))
-        raise ExportError(
-            f"{obj.name}: speed {speed:.7g} c is not below the speed of light; "
-            "use the Lorentz factor for speeds very close to c")
-    return Velocity(beta, gamma)
+    try:
+        return Velocity(*validation.check_velocity(rf.velocity, rf.lorentz_factor, obj.name))
+    except ValueError as error:
+        raise ExportError(str(error)) from None
 
 
 def _same_velocity(a, b) -> bool:
@@ -551,9 +538,10 @@ def motion_blur(scene) -> dict:
     seconds_per_frame = scene.render.fps_base / scene.render.fps
     mapping = scene.render.motion_blur_shutter_curve
     curve = np.array([mapping.evaluate(mapping.curves[0], x) for x in np.linspace(0.0, 1.0, SHUTTER_CURVE_POINTS)])
-    if not np.any(curve > 0.0):
-        raise ExportError("the motion blur shutter curve is zero everywhere (the shutter never opens): "
-                          "raise it in Motion Blur > Shutter Curve")
+    try:
+        validation.check_shutter_curve(curve)
+    except ValueError as error:
+        raise ExportError(str(error)) from None
     rf = scene.restframe
     return dict(
         shutter_interval=(frames[0] * seconds_per_frame, frames[1] * seconds_per_frame),
@@ -700,8 +688,10 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
     """
     scene = depsgraph.scene_eval
     rf = scene.restframe
-    if not (math.isfinite(rf.light_speed) and rf.light_speed > 0.0):
-        raise ExportError(f"the speed of light must be positive (got {rf.light_speed:g})")
+    try:
+        validation.check_light_speed(rf.light_speed)
+    except ValueError as error:
+        raise ExportError(str(error)) from None
     warned: set[str] = set()
 
     def warn_once(message: str) -> None:
@@ -753,8 +743,11 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
                 trajectories[key] = object_trajectory(root, scene, camera_position,
                                                       should_stop=should_stop, warn=warn_once)
             trajectory = trajectories[key]
-        elif any(spin) and not all(math.isfinite(w) for w in spin):
-            raise ExportError(f"{source.name}: the angular velocity {spin} is not a finite number")
+        elif any(spin):
+            try:
+                validation.check_angular_velocity(spin, source.name)
+            except ValueError as error:
+                raise ExportError(str(error)) from None
         mesh = obj.data
         key = (mesh.as_pointer(), tuple(slot.material.as_pointer() if slot.material else 0
                                         for slot in obj.material_slots))

@@ -94,9 +94,6 @@ def aperture_radius(fstop: float, focal_length: float | None) -> float:
 
 
 # ---------------------------------------------------------------------- shutter
-ROLLING_SHUTTER_TYPES = ("NONE", "TOP")
-
-
 def shutter_fractions(xi, density):
     """Where in the shutter interval (0 = open, 1 = closed) samples fall, from uniforms ``xi``, with
     the density of the shutter curve: ``density`` holds its values at evenly spaced points of the
@@ -144,26 +141,3 @@ def shutter_times(camera, pixel, sample, count: int, resolution):
                                               camera.rolling_shutter_duration)
     opens, closes = camera.shutter_interval
     return opens + fractions * (closes - opens)
-
-
-def settings_problem(camera) -> str | None:
-    """What is wrong with the camera's lens or shutter settings, or None."""
-    if not (np.isfinite(camera.aperture_radius) and camera.aperture_radius >= 0.0):
-        return f"{camera.name}: the aperture radius must be a length of 0 or more (got {camera.aperture_radius})"
-    if camera.has_depth_of_field and not (camera.focus_distance > 0.0 and camera.aperture_ratio > 0.0
-                                          and np.isfinite(camera.focus_distance) and np.isfinite(camera.aperture_ratio)):
-        return f"{camera.name}: depth of field needs a focus distance and an aperture ratio above 0"
-    if camera.shutter_interval is None:
-        return None
-    opens, closes = camera.shutter_interval
-    if not (np.isfinite(opens) and np.isfinite(closes) and opens <= closes):
-        return f"{camera.name}: the shutter interval {camera.shutter_interval} is not an interval of time"
-    if camera.rolling_shutter_type not in ROLLING_SHUTTER_TYPES:
-        return f"{camera.name}: rolling shutter type {camera.rolling_shutter_type!r} is not one of {ROLLING_SHUTTER_TYPES}"
-    if not 0.0 <= camera.rolling_shutter_duration <= 1.0:
-        return f"{camera.name}: the rolling shutter duration must be between 0 and 1"
-    if camera.shutter_curve is not None:
-        curve = np.asarray(camera.shutter_curve, dtype=np.float64)
-        if curve.ndim != 1 or len(curve) < 2 or not np.all(np.isfinite(curve)) or not np.any(curve):
-            return "the motion-blur shutter curve must be finite and above zero somewhere (the shutter never opens)"
-    return None

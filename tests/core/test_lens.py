@@ -282,7 +282,7 @@ def test_rolling_shutter_exposes_each_row_in_its_own_window(duration):
 
 @pytest.mark.parametrize("problem, message", [
     (dict(shutter_interval=(0.1, -0.1)), "Cam: the shutter interval"),
-    (dict(shutter_interval=(0.0, 0.1), shutter_curve=np.zeros(5)), "shutter curve"),
+    (dict(shutter_interval=(0.0, 0.1), shutter_curve=np.zeros(5)), "shutter curve is zero everywhere"),
     (dict(shutter_interval=(0.0, 0.1), rolling_shutter_type="BOTTOM"), "Cam: rolling shutter type"),
     (dict(aperture_radius=-0.1), "Cam: the aperture radius"),
     (dict(aperture_radius=0.1, focus_distance=0.0), "Cam: depth of field needs"),
