@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from blender_helpers import add_camera, add_plane, add_sun, render_exr, export_now
-from restframe_addon import export
+from restframe_addon import export, motion_query
+from restframe_addon.export.motion import SUBFRAMES
 
 FPS = 24
 
@@ -19,7 +20,7 @@ def key_linear_path(obj, start, beta, c, frames=(1, 25)):
         obj.location = tuple(np.asarray(start) + np.asarray(beta) * c * t)
         obj.keyframe_insert("location", frame=frame)
     action = obj.animation_data.action
-    fcurves = export._fcurves(action, getattr(obj.animation_data, "action_slot", None))
+    fcurves = motion_query.fcurves(action, getattr(obj.animation_data, "action_slot", None))
     for fc in fcurves:
         fc.extrapolation = 'LINEAR'
         for point in fc.keyframe_points:
@@ -70,7 +71,7 @@ def test_trajectory_samples_cover_the_light_travel_time_without_changing_the_fra
     np.testing.assert_allclose(mesh.pivot, plane.matrix_world.translation, atol=1e-12)
     # light from 12 units away takes 1.2 s = 28.8 frames: the samples start earlier than that
     assert traj.frames[0] <= 1 - 28.8 and traj.frames[-1] >= 7
-    assert np.all(np.diff(traj.frames) <= 1.0 / export.SUBFRAMES + 1e-9)
+    assert np.all(np.diff(traj.frames) <= 1.0 / SUBFRAMES + 1e-9)
     t = (traj.frames - scene.restframe.reference_frame) / FPS
     np.testing.assert_allclose(traj.tau, 10.0 * t)
     np.testing.assert_allclose(traj.position[:, 0], 0.5 * 10.0 * t, atol=1e-4)  # extrapolated linearly
@@ -166,7 +167,7 @@ def test_keyframed_emission_is_seen_on_the_emitters_own_clock(scene, tmp_path):
         strength.default_value = value
         strength.keyframe_insert("default_value", frame=frame)
     animation = mat.node_tree.animation_data
-    for fc in export._fcurves(animation.action, getattr(animation, "action_slot", None)):
+    for fc in motion_query.fcurves(animation.action, getattr(animation, "action_slot", None)):
         fc.extrapolation = 'LINEAR'
         for point in fc.keyframe_points:
             point.interpolation = 'LINEAR'

@@ -36,6 +36,7 @@ def test_zip_contents(extension_zip):
         names = archive.namelist()
         manifest = archive.read("blender_manifest.toml").decode()
     assert "__init__.py" in names and "restframe_addon/engine.py" in names and "restframe_addon/core/render.py" in names
+    assert "restframe_addon/export/scene.py" in names and "restframe_addon/motion_query.py" in names
     assert not [n for n in names if n.startswith(("tests/", "sample_blends/", "tools/", ".ci/", ".git"))]
     wheels = sorted(n for n in names if n.startswith("wheels/"))
     assert len(wheels) == 4
