@@ -61,8 +61,20 @@ def _local_locations(obj, curves: dict, frames: np.ndarray) -> np.ndarray:
     return out
 
 
-def object_trajectory(root, scene, camera_position, *, should_stop=lambda: False, warn=print) -> Trajectory:
+def body_radius(vertices: np.ndarray, triangles: np.ndarray, pivot) -> float:
+    """The largest distance of a vertex used by a triangle from the pivot, as the core measures it
+    (``frames._geometry``): the rigid body's radius, which sets how far its world line's corners are rounded."""
+    used = np.zeros(len(vertices), dtype=bool)
+    used[triangles] = True
+    return float(np.max(np.linalg.norm(vertices[used] - np.asarray(pivot, dtype=np.float64), axis=1)))
+
+
+def object_trajectory(root, scene, camera_position, radius: float, *, should_stop=lambda: False,
+                      warn=print) -> Trajectory:
     """The assembly pivot's world line from its location keys (Motion = Animation).
+
+    ``radius`` is the assembly's ``body_radius`` about the pivot (every mesh moving with it),
+    so the world line is built with its corners rounded for that body.
 
     Samples ``SUBFRAMES`` per frame from before the scene's start frame (early enough
     for light from any sampled position to reach the camera) up to just past the
@@ -116,7 +128,7 @@ def object_trajectory(root, scene, camera_position, *, should_stop=lambda: False
              f"{np.linalg.norm(here - evaluated):.3g} (constraints, drivers or parents?); "
              "Motion = Animation follows the keys")
     try:
-        return Trajectory(tau=tau, position=position, name=root.name, frames=frames)
+        return Trajectory(tau=tau, position=position, name=root.name, frames=frames, body_radius=radius)
     except ValueError as error:
         raise ExportError(str(error)) from error
 

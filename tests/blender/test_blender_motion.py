@@ -96,6 +96,42 @@ def test_parent_is_static_and_composed(scene):
     assert warnings == []
 
 
+def test_a_keyed_sharp_turn_is_rounded_for_the_whole_assembly_and_warned(scene, capfd):
+    """The world line is built for the body it carries: its corners are rounded for the
+    assembly's radius (a child included), and a turn too sharp for its samples is reported."""
+    scene.render.fps, scene.render.fps_base = FPS, 1.0
+    add_camera(scene, location=(0.0, 0.0, 12.0))
+    add_sun(scene)
+    body = add_plane(scene, "Turner", size=2.0)
+    for frame, location in ((1, (0.0, 0.0, 0.0)), (13, (3.0, 0.0, 0.0)), (25, (3.0, 3.0, 0.0))):
+        body.location = location  # 3 units in half a second at c = 10: 0.6 c along x, then along y
+        body.keyframe_insert("location", frame=frame)
+    for fc in motion_query.fcurves(body.animation_data.action, getattr(body.animation_data, "action_slot", None)):
+        for point in fc.keyframe_points:
+            point.interpolation = 'LINEAR'
+    arm = add_plane(scene, "Arm", size=1.0, location=(3.0, 0.0, 1.0))
+    arm.parent = body  # moves with the body (same Motion): its far corner sets the radius
+    body.restframe.motion = arm.restframe.motion = 'ANIMATION'
+    scene.frame_set(20)
+    out, _, warnings = export_now(scene)
+    turner, arm_mesh = sorted(out.meshes, key=lambda m: m.name, reverse=True)
+    traj = turner.trajectory
+    assert arm_mesh.trajectory is traj and arm_mesh.pivot == pytest.approx(turner.pivot)
+    radius = math.sqrt(3.5**2 + 0.5**2 + 1.0**2)  # the arm's corner (3.5, 0.5, 1) from the pivot
+    assert traj.body_radius == pytest.approx(radius, rel=1e-6)
+    # the 90 degree turn at frame 13 changes gamma*beta by 0.75*sqrt(2): it wants a corner of
+    # c*t = gamma * radius * |du| = 4.9 but the samples (1/8 frame = 0.052 apart) leave far less
+    at_turn = np.abs(traj.frames[1:-1] - 13.0) < 0.2
+    assert np.all(traj.half[at_turn] > 0.0) and traj.half[at_turn].max() == pytest.approx(0.5 * 10 / FPS / SUBFRAMES)
+    assert any(w.startswith("Turner: the turn at frame 13") and f"radius {radius:.3g}" in w and "too sharp" in w
+               for w in traj.warnings)
+    assert warnings == []  # the world line's own warnings reach the user once, from the render:
+    capfd.readouterr()
+    bpy.ops.render.render()
+    reported = capfd.readouterr().out
+    assert "Warning: RESTframe: Turner: the turn at frame 13" in reported and "too sharp" in reported
+
+
 def test_faster_than_light_animation_is_refused_naming_object_and_frames(scene):
     add_camera(scene, location=(0.0, 0.0, 12.0))
     plane = add_plane(scene, "Rocket")
