@@ -13,7 +13,7 @@ from .properties import speed_of
 
 
 def observation_time(scene) -> float:
-    """Seconds from the reference time to the rendered frame (``shared/physics.md``)."""
+    """Seconds from the reference time to the rendered frame (``docs/physics.md#units-and-clocks``)."""
     rf = scene.restframe
     return (scene.frame_current + scene.frame_subframe - rf.reference_frame) * scene.render.fps_base / scene.render.fps
 
@@ -49,7 +49,7 @@ def _same_velocity(a, b) -> bool:
 
 
 def assembly_root(obj):
-    """The topmost parent reached through parents with the same velocity (physics.md)."""
+    """The topmost parent reached through parents with the same velocity (``docs/physics.md#rest-shapes``)."""
     root = obj
     while root.parent is not None and _same_velocity(root.parent, root):
         root = root.parent
