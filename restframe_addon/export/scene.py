@@ -9,11 +9,11 @@ The user's data is never written: no ``to_mesh`` copies, no edits, no saves.
 
 from __future__ import annotations
 
-import math
 from typing import Callable
 
 import numpy as np
 
+from ..core import validation
 from ..core.scene import Light, Mesh, RenderSettings, Scene, Velocity
 from ..motion_query import assembly_root, has_animated_location, observation_time
 from .camera import export_camera
@@ -53,8 +53,10 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
     """
     scene = depsgraph.scene_eval
     rf = scene.restframe
-    if not (math.isfinite(rf.light_speed) and rf.light_speed > 0.0):
-        raise ExportError(f"the speed of light must be positive (got {rf.light_speed:g})")
+    try:
+        validation.check_light_speed(rf.light_speed)
+    except ValueError as error:
+        raise ExportError(str(error)) from None
     warned: set[str] = set()
 
     def warn_once(message: str) -> None:
@@ -104,8 +106,11 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
             root = assembly_root(source)
             body = root.original.as_pointer()
             roots.setdefault(body, root)
-        elif any(spin) and not all(math.isfinite(w) for w in spin):
-            raise ExportError(f"{source.name}: the angular velocity {spin} is not a finite number")
+        elif any(spin):
+            try:
+                validation.check_angular_velocity(spin, source.name)
+            except ValueError as error:
+                raise ExportError(str(error)) from None
         mesh = obj.data
         key = (mesh.as_pointer(), tuple(slot.material.as_pointer() if slot.material else 0
                                         for slot in obj.material_slots))

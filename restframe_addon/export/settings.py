@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..core.render import PASSES
+from ..core.passes import PASSES
 from ..core.scene import RenderSettings
 from .errors import ExportError
 
