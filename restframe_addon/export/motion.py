@@ -12,6 +12,7 @@ from ..core.scene import Velocity
 from ..motion_query import fcurves, has_animated_location
 from .errors import ExportCancelled, ExportError
 
+
 def object_velocity(obj) -> Velocity:
     """The object's ``restframe`` velocity, checked: raises ExportError naming the object."""
     rf = obj.restframe
@@ -19,6 +20,7 @@ def object_velocity(obj) -> Velocity:
         return Velocity(*validation.check_velocity(rf.velocity, rf.lorentz_factor, obj.name))
     except ValueError as error:
         raise ExportError(str(error)) from None
+
 
 SUBFRAMES = 8  # world-line samples per frame of animation
 MAX_SAMPLES = 20000  # per object: beyond this the samples thin out (long light-travel times)
@@ -63,11 +65,12 @@ def _local_locations(obj, curves: dict, frames: np.ndarray) -> np.ndarray:
 
 
 def body_radius(vertices: np.ndarray, triangles: np.ndarray, pivot) -> float:
-    """The largest distance of a vertex used by a triangle from the pivot, as the core measures it
-    (``frames._geometry``): the rigid body's radius, which sets how far its world line's corners are rounded."""
+    """The largest distance from the pivot of a (finite) vertex of the triangles: the rigid body's
+    radius, which sets how widely its world line's corners are rounded."""
     used = np.zeros(len(vertices), dtype=bool)
     used[triangles] = True
-    return float(np.max(np.linalg.norm(vertices[used] - np.asarray(pivot, dtype=np.float64), axis=1)))
+    distance = np.linalg.norm(vertices[used] - np.asarray(pivot, dtype=np.float64), axis=1)
+    return float(np.max(distance[np.isfinite(distance)], initial=0.0))
 
 
 def object_trajectory(root, scene, camera_position, radius: float, *, should_stop=lambda: False,
@@ -107,10 +110,9 @@ def object_trajectory(root, scene, camera_position, radius: float, *, should_sto
     current = scene.frame_current + scene.frame_subframe
     first = min(float(scene.frame_start), current)
     end = current + 1.0
-    # how far back light can come from: the farthest sampled position, plus the body's size
+    # how far back light can come from: the farthest sampled position, plus the body's radius
     coarse = np.linspace(first, end, int(min(end - first, 2000)) + 2)
-    size = float(max(root.dimensions)) if hasattr(root, "dimensions") else 0.0
-    reach = float(np.linalg.norm(world(coarse) - np.asarray(camera_position), axis=1).max()) + size
+    reach = float(np.linalg.norm(world(coarse) - np.asarray(camera_position), axis=1).max()) + radius
     start = first - math.ceil(2.0 * reach / c * fps) - 1.0
     if not math.isfinite(start):
         raise ExportError(f"{root.name}: the animated location is not a finite number")

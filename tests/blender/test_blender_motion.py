@@ -132,6 +132,22 @@ def test_a_keyed_sharp_turn_is_rounded_for_the_whole_assembly_and_warned(scene, 
     assert "Warning: RESTframe: Turner: the turn at frame 13" in reported and "too sharp" in reported
 
 
+def test_an_animated_body_with_a_nan_corner_gets_the_radius_of_its_finite_vertices(scene, tmp_path):
+    add_camera(scene, location=(0.0, 0.0, 12.0))
+    add_sun(scene)
+    mesh = bpy.data.meshes.new("Shard")
+    mesh.from_pydata([(0, 0, 0), (2, 0, 0), (0, 1, 0), (math.nan, 0, 0)], [], [(0, 1, 2), (0, 2, 3)])
+    shard = bpy.data.objects.new("Shard", mesh)
+    scene.collection.objects.link(shard)
+    key_linear_path(shard, (0, 0, 0), (0.5, 0, 0), scene.restframe.light_speed)
+    shard.restframe.motion = 'ANIMATION'
+    scene.frame_set(30)  # about the light travel time from the shard to the camera: seen near the origin
+    out, _, _ = export_now(scene)
+    assert out.meshes[0].trajectory.body_radius == 2.0
+    passes = render_exr(scene, tmp_path / "shard.exr")
+    assert np.all(np.isfinite(passes["Combined"])) and (passes["Doppler"] > 0).any()
+
+
 def test_faster_than_light_animation_is_refused_naming_object_and_frames(scene):
     add_camera(scene, location=(0.0, 0.0, 12.0))
     plane = add_plane(scene, "Rocket")
