@@ -1,6 +1,9 @@
 """Export of the evaluated depsgraph into the core's scene description."""
 
 import math
+import os
+import subprocess
+import sys
 
 import bpy
 import numpy as np
@@ -354,3 +357,12 @@ def test_cancel_stops_the_export(scene):
     with pytest.raises(export.ExportCancelled):
         export_now(scene, should_stop=stop_on_second_check)
     assert len(calls) == 2
+
+
+def test_the_ui_answers_motion_questions_without_the_exporter():
+    """ui.py asks motion_query (and the core's checks), never the export package."""
+    code = ("import sys, restframe_addon.ui; "
+            "print(sorted(m for m in sys.modules if m.startswith('restframe_addon.export')))")
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    result = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=True)
+    assert result.stdout.strip().splitlines()[-1] == "[]"
