@@ -128,7 +128,8 @@ def test_shutter_settings_export_on_the_camera_clock(scene):
 def test_shutter_curve_shapes_the_streak_as_in_cycles(scene, tmp_path):
     """Blender's Sharp shutter curve (open mostly mid-shutter): the streak's light is concentrated at
     its middle: the spread of its column profile (standard deviation) is that of the curve's density
-    times the streak's length (to 2%), as in Cycles (to 3%), well below the flat shutter's."""
+    times the streak's length (to 2%), as in Cycles (to 5%: Cycles' 256-entry inverse table gives
+    the Sharp curve a spread 2.6% narrower than its density), well below the flat shutter's."""
     def sphere():
         bpy.ops.mesh.primitive_uv_sphere_add(radius=0.02, segments=24, ring_count=12)
         return bpy.context.object
@@ -153,5 +154,5 @@ def test_shutter_curve_shapes_the_streak_as_in_cycles(scene, tmp_path):
     print(f"streak spread (px): RESTframe {spread['RESTFRAME']:.3f}, Cycles {spread['CYCLES']:.3f}, "
           f"from the curve {expected:.3f}, flat shutter {length / math.sqrt(12):.3f}")
     assert spread["RESTFRAME"] == pytest.approx(expected, rel=0.02)
-    assert spread["RESTFRAME"] == pytest.approx(spread["CYCLES"], rel=0.03)
+    assert spread["RESTFRAME"] == pytest.approx(spread["CYCLES"], rel=0.05)
     assert spread["RESTFRAME"] < 0.6 * length / math.sqrt(12)
