@@ -192,10 +192,11 @@ def test_the_plane_of_focus_is_sharp(scene, tmp_path):
     assert defocused > 3 * widths['RESTFRAME', False]
 
 
-def test_equirectangular_depth_of_field_matches_cycles(scene, tmp_path):
+@pytest.mark.parametrize("blades", [0, 5])
+def test_equirectangular_depth_of_field_matches_cycles(scene, tmp_path, blades):
     """A panoramic camera blurs as Cycles' does: the aperture across each ray, focus on the sphere of
-    the focus distance; an emitter 17 degrees off the view axis blurs into the same ellipse of
-    the panorama (covariance to 3%), about A |1/f - 1/z| radians in radius."""
+    the focus distance; an emitter 17 degrees off the view axis blurs into the same spot of the
+    panorama (covariance to 3%, a pentagon's corners turned alike), A |1/f - 1/z| radians in radius."""
     width, height = 128, 64
     scene.render.resolution_x, scene.render.resolution_y = width, height
     black_world(scene)
@@ -204,6 +205,7 @@ def test_equirectangular_depth_of_field_matches_cycles(scene, tmp_path):
                         latitude_min=-0.3, latitude_max=0.3, lens=100.0, clip_start=0.01)
     dof = camera.data.dof
     dof.use_dof, dof.focus_distance, dof.aperture_fstop = True, 0.4, 1.0
+    dof.aperture_blades, dof.aperture_rotation = blades, 0.2
     depth, off_axis = 2.0, 0.3
     bpy.ops.mesh.primitive_uv_sphere_add(radius=0.04, location=(-depth * math.sin(off_axis), depth * math.cos(off_axis), 0.0),
                                          segments=32, ring_count=16)
@@ -214,14 +216,20 @@ def test_equirectangular_depth_of_field_matches_cycles(scene, tmp_path):
     spread = {engine: moments(images[engine, True])[3] - moments(images[engine, False])[3]
               for engine in ('RESTFRAME', 'CYCLES')}
     radians_per_pixel = 1.2 / width
-    # a uniform disc of radius R: variance R^2 / 4 along each axis
-    radius = {engine: math.sqrt(2 * np.trace(cov)) * radians_per_pixel for engine, cov in spread.items()}
+    polar = 0.5 if blades < 3 else (1 + 2 * math.cos(math.pi / blades) ** 2) / 6  # mean squared radius / R^2
+    radius = {engine: math.sqrt(np.trace(cov) / polar) * radians_per_pixel for engine, cov in spread.items()}
     expected = LENS_MM * 1e-3 / 2 * (1 / 0.4 - 1 / depth)
     print(f"panorama blur covariance (px^2): RESTframe {spread['RESTFRAME'].ravel()}, Cycles {spread['CYCLES'].ravel()}; "
           f"radius RESTframe {radius['RESTFRAME']:.4f} rad, Cycles {radius['CYCLES']:.4f} rad, thin lens {expected:.4f} rad")
     scale = np.trace(spread["CYCLES"])
     assert np.abs(spread["RESTFRAME"] - spread["CYCLES"]).max() < 0.03 * scale
     assert radius["RESTFRAME"] == pytest.approx(expected, rel=0.03)
+    if blades:
+        turns = {engine: corner_angle(images[engine, True], blades) for engine in ('RESTFRAME', 'CYCLES')}
+        step = 2 * math.pi / blades
+        apart = (turns["RESTFRAME"] - turns["CYCLES"] + step / 2) % step - step / 2
+        print(f"pentagon corner: RESTframe {math.degrees(turns['RESTFRAME']):.2f} deg, Cycles {math.degrees(turns['CYCLES']):.2f} deg")
+        assert abs(math.degrees(apart)) < 2.0
 
 
 def test_depth_of_field_export_as_cycles_reads_it(scene):
