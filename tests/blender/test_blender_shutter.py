@@ -156,3 +156,38 @@ def test_shutter_curve_shapes_the_streak_as_in_cycles(scene, tmp_path):
     assert spread["RESTFRAME"] == pytest.approx(expected, rel=0.02)
     assert spread["RESTFRAME"] == pytest.approx(spread["CYCLES"], rel=0.05)
     assert spread["RESTFRAME"] < 0.6 * length / math.sqrt(12)
+
+
+def test_motion_blur_panels_draw_blenders_settings_and_ours(scene):
+    """The Motion Blur panel shows Blender's shutter and position and RESTframe's rolling shutter;
+    its Shutter Curve subpanel Blender's curve and presets."""
+    from types import SimpleNamespace
+
+    import test_blender_ui
+    from restframe_addon import ui
+
+    class Layout(test_blender_ui.Layout):
+        def _child(self, *args, **kwargs):
+            return Layout(self.record)
+
+        column = row = box = split = _child
+
+        def template_curve_mapping(self, data, name, **kwargs):
+            self.prop(data, name)
+
+        def operator(self, name, **kwargs):
+            self.record.setdefault("operators", []).append(name)
+            return SimpleNamespace()
+
+    def draw(panel_class):
+        record = {}
+        panel = SimpleNamespace(layout=Layout(record), bl_space_type='PROPERTIES')
+        assert panel_class.poll(test_blender_ui.context_for(scene))
+        panel_class.draw(panel, test_blender_ui.context_for(scene))
+        return record
+
+    shown = draw(ui.RESTFRAME_RENDER_PT_motion_blur)
+    assert {"motion_blur_position", "motion_blur_shutter", "rolling_shutter_type", "rolling_shutter_duration"} <= set(shown["props"])
+    assert any("camera's own clock" in text for text in shown["labels"])
+    curve = draw(ui.RESTFRAME_RENDER_PT_motion_blur_curve)
+    assert curve["props"] == ["motion_blur_shutter_curve"] and len(curve["operators"]) == 6
