@@ -43,7 +43,7 @@ class PreparedScene:
     materials: MaterialTable
     colour: RGBColour | SpectralColour
     shader: Shader
-    camera_tau: float  # camera-frame time of the observation event: every primary ray starts then (motion blur: around it)
+    camera_tau: float  # camera-frame time of the observation event: primary rays start then (motion blur: about it)
     camera_rays: CameraRays
     passes: tuple[str, ...]  # the passes to fill besides Combined
     doppler_range: tuple[float, float] | None  # FACTOR display: D shown as black .. white

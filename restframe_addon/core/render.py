@@ -3,11 +3,12 @@
 The observer is the camera's rest frame (S itself for a camera at rest).  Its
 observation event is the camera's position at world time ``tau_obs``; every
 primary ray starts there (orthographic rays start on the image plane, all at the
-same camera-frame time; with depth of field each sample starts at its aperture point,
-with motion blur at its own time of the camera's clock: docs/physics-camera.md).  The
-passes other than Combined are those of the pixel-centre ray at the observation event.  Tiles are independent and every random number is keyed
-by (pixel, sample), so any split into tiles, regions, threads or machines gives the
-same image.  Memory is bounded by the tile size (and samples are batched).
+same camera-frame time; with depth of field each sample starts at its aperture
+point, with motion blur at its own time of the camera's clock: see
+docs/physics-camera.md).  The passes other than Combined are those of the
+pixel-centre ray at the observation event.  Tiles are independent and every
+random number is keyed by (pixel, sample), so any split into tiles, regions,
+threads or machines gives the same image.  Memory is bounded by the tile size (and samples are batched).
 
 Pass arrays are float32 ``(h, w, C)`` with row 0 at the bottom (Blender's order).
 """
