@@ -258,3 +258,25 @@ def test_depth_of_field_export_as_cycles_reads_it(scene):
     assert export_now(scene)[0].camera.aperture_radius == pytest.approx(0.25)
     for panel in ("DATA_PT_camera_dof", "DATA_PT_camera_dof_aperture"):
         assert 'RESTFRAME' in getattr(bpy.types, panel).COMPAT_ENGINES
+
+
+def test_orthographic_depth_of_field_matches_cycles(scene, tmp_path):
+    """An orthographic camera at F/1 (aperture radius 1 / (2 F-stop) = 0.5 units, as Cycles) focused
+    at 2 m blurs an emitter at 3 m into a disc of radius A |1 - z/f| = 0.25 units, as Cycles does."""
+    scene.render.resolution_x = scene.render.resolution_y = RES
+    black_world(scene)
+    ortho_scale = 2.0
+    camera = add_camera(scene, location=(0.0, 0.0, 0.0), rotation=(math.radians(90), 0.0, 0.0), type='ORTHO',
+                        ortho_scale=ortho_scale, clip_start=0.01)
+    dof = camera.data.dof
+    dof.use_dof, dof.focus_distance, dof.aperture_fstop = True, 2.0, 1.0
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.03, location=(0.1, 3.0, -0.05), segments=32, ring_count=16)
+    bpy.context.object.data.materials.append(emissive("Glow"))
+    blurred = {engine: render(scene, tmp_path, engine, 1024) for engine in ('RESTFRAME', 'CYCLES')}
+    dof.use_dof = False
+    radius = {engine: blur_radius(render(scene, tmp_path, engine), blurred[engine], 0.5) for engine in blurred}
+    expected = 0.5 * abs(1 - 3.0 / 2.0) * RES / ortho_scale
+    print(f"orthographic blur radius: RESTframe {radius['RESTFRAME']:.3f} px, Cycles {radius['CYCLES']:.3f} px, "
+          f"thin lens {expected:.3f} px")
+    assert radius["RESTFRAME"] == pytest.approx(radius["CYCLES"], rel=0.02)
+    assert radius["RESTFRAME"] == pytest.approx(expected, rel=0.02)
