@@ -402,3 +402,35 @@ def test_shuffled_strata_are_a_permutation_per_pixel_unrelated_to_the_pixel_stra
             assert np.abs(r).max() < 4.5 / math.sqrt(cells)  # as uncorrelated as random orders
         # and the first differences are not one fixed step (unlike a linear order)
         assert len(np.unique(np.diff(lens_cells[0]) % cells)) > cells // 4
+
+
+def test_a_lens_and_a_rolling_shutter_through_every_code_path_give_the_same_bits_in_any_split():
+    """The prepared-scene test's busy scene (moving, spinning, animated, glass, mirror, three kinds of
+    lamps) seen through a moving camera's hexagonal lens and rolling shutter: odd tiles, two threads
+    and another process render the same bits as render_image."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from test_prepared import assemble, assert_same_passes, busy_scene
+
+    from restframe_addon.core.prepared import prepare
+    from restframe_addon.core.render import render_tile, render_tiles
+
+    scene = busy_scene(Velocity((0.0, 0.4, 0.0)))
+    scene = replace(scene, camera=replace(scene.camera, aperture_radius=0.2, focus_distance=7.0, aperture_blades=6,
+                                          shutter_interval=(-1.5, 0.5), shutter_curve=np.array([0.2, 1.0, 0.4]),
+                                          rolling_shutter_type="TOP", rolling_shutter_duration=0.4))
+    settings = RenderSettings(resolution=(24, 18), threads=1, samples=3, tile_size=16)
+    whole = render_image(scene, settings)
+    prepared = prepare(scene, settings)
+    rects = [(x, y, min(x + 7, 24), min(y + 5, 18)) for y in range(0, 18, 5) for x in range(0, 24, 7)]
+    assert_same_passes(assemble(prepared, [render_tile(prepared, rect) for rect in rects]), whole)
+    assert_same_passes(assemble(prepared, render_tiles(prepared, threads=2)), whole)
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        tile = pool.submit(render_tile, prepared, (0, 0, 24, 18)).result(timeout=120)
+    assert_same_passes(tile.passes, {name: data for name, data in whole.items()})
+    pinhole = render_image(replace(scene, camera=replace(scene.camera, aperture_radius=0.0, shutter_interval=None)),
+                           settings)
+    assert not np.array_equal(pinhole["Combined"], whole["Combined"])
+    assert_same_passes({k: v for k, v in pinhole.items() if k != "Combined"},
+                       {k: v for k, v in whole.items() if k != "Combined"})  # the passes stay the pinhole's
