@@ -282,7 +282,9 @@ def sample_dielectric(n, view, eta, alpha, u1, u2, u3, smooth):
     and Snell directions about n itself) over rough GGX glass.  Returns
     (light, pdf, weight, transmitted): pdf per unit solid angle (inf for smooth rays) and
     the scalar throughput weight f |cos_l| / pdf (1 for smooth glass: the Fresnel choice is
-    exact; G2 / G1(v) for rough glass).
+    exact; G2 / G1(v) for rough glass).  A rough sample sent by its microfacet to the wrong
+    side of the surface has pdf 0 and weight 0 (the path ends there), so the densities of
+    the valid samples, :func:`dielectric_eval`'s pdf, integrate to less than 1.
     """
     h = n.copy()
     rough = ~smooth
@@ -297,6 +299,10 @@ def sample_dielectric(n, view, eta, alpha, u1, u2, u3, smooth):
     weight = np.ones(len(n))
     if rough.any():
         value, pdf_r = dielectric_eval(n[rough], view[rough], light[rough], eta[rough], alpha[rough])
+        # a microfacet may send light to the wrong side of the surface: such samples are lost
+        # (weight 0), and the pdf of a valid direction is that of its own route only
+        wrong_side = transmit[rough] != (rows.dot(n[rough], light[rough]) < 0.0)
+        pdf_r[wrong_side] = 0.0
         pdf[rough] = pdf_r
         weight[rough] = np.where(pdf_r > 0.0, value / np.where(pdf_r > 0.0, pdf_r, 1.0), 0.0)
     return light, pdf, weight, transmit
