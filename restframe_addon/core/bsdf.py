@@ -23,12 +23,16 @@ Conventions, as in Cycles:
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from . import rows
 
 _MIN_COS = 1e-6  # keeps 1/cos finite for directions grazing the surface
 _TWO_PI = 2.0 * np.pi
+_ALBEDO_KNOTS = 33  # roughness and cos(view) knots of the albedo table (Cycles: 32 x 32)
+_ALBEDO_STRATA = 64  # stratified visible-normal samples per side and knot
 
 
 # ---------------------------------------------------------------------------- Fresnel
@@ -306,3 +310,96 @@ def sample_dielectric(n, view, eta, alpha, u1, u2, u3, smooth):
         pdf[rough] = pdf_r
         weight[rough] = np.where(pdf_r > 0.0, value / np.where(pdf_r > 0.0, pdf_r, 1.0), 0.0)
     return light, pdf, weight, transmit
+
+
+# ---------------------------------------------------------------------------- energy compensation
+def fresnel_average_schlick(f0, f90):
+    """Cosine-weighted hemispherical average 2 int F mu dmu of Schlick's Fresnel: f0 + (f90 - f0) / 21."""
+    return f0 + (np.asarray(f90)[:, None] - f0) / 21.0
+
+
+def fresnel_average_f82_tint(f0, tint):
+    """The same average of :func:`fresnel_f82_tint` (Cycles' ``fresnel_f82_Fss``)."""
+    f = 6.0 / 7.0
+    b = (f0 + (1.0 - f0) * f**5) * (7.0 / f**6) * (1.0 - tint)
+    return f0 + (1.0 - f0) / 21.0 - b / 126.0
+
+
+def fresnel_average_dielectric(eta):
+    """The same average of :func:`fresnel_dielectric`: below the critical cosine (eta > 1) F = 1
+    contributes mu_c^2 exactly, the rest by Gauss-Legendre."""
+    eta = np.asarray(eta, dtype=np.float64)
+    mu_c = np.sqrt(np.maximum(1.0 - 1.0 / eta**2, 0.0))[..., None]
+    x, w = np.polynomial.legendre.leggauss(48)
+    mu = mu_c + 0.5 * (x + 1.0) * (1.0 - mu_c)
+    values = fresnel_dielectric(mu, eta[..., None])
+    return mu_c[..., 0] ** 2 + (1.0 - mu_c[..., 0]) * np.sum(values * mu * w, axis=-1)
+
+
+@lru_cache(maxsize=1)
+def _albedo_tables():
+    """E(roughness, cos_v): the single-scattering albedo of GGX with F = 1 on a knot grid, and
+    E_avg(roughness) = 2 int E mu dmu.
+
+    E = integral over microfacet normals h of (v.h)+ D(h) G2(v, l) / cos_v, l = reflect(v, h)
+    above the surface.  The polar angle of h is integrated in s with tan(theta_h) = alpha
+    tan(pi s / 2) (Gauss-Legendre): it makes D(h) dOmega_h bounded and smooth, heavy GGX tail
+    included (a midpoint grid of the visible-normal sampler misses that tail).
+    """
+    knots = np.linspace(0.0, 1.0, _ALBEDO_KNOTS)
+    mu = np.maximum(knots, 1e-4)[:, None, None]
+    x, w_s = np.polynomial.legendre.leggauss(_ALBEDO_STRATA)
+    s = 0.5 * (x + 1.0)
+    w_s = 0.5 * w_s
+    phi = (np.arange(2 * _ALBEDO_STRATA) + 0.5) * (np.pi / _ALBEDO_STRATA)  # [0, 2 pi), midpoints
+    w_phi = np.pi / _ALBEDO_STRATA
+    t = np.tan(0.5 * np.pi * s)[None, :, None]
+    cos_phi = np.cos(phi)[None, None, :]
+    sin_v = np.sqrt(1.0 - mu * mu)
+    albedo = np.empty((len(knots), len(knots)))
+    for i, roughness in enumerate(knots):
+        alpha = max(roughness * roughness, 1e-4)
+        tan_h = alpha * t
+        cos_h = 1.0 / np.sqrt(1.0 + tan_h * tan_h)
+        sin_h = tan_h * cos_h
+        # D(h) sin(theta_h) dtheta_h / ds, simplified: bounded as s -> 1
+        measure = t / (2.0 * cos_h * (1.0 + t * t))
+        v_h = sin_v * sin_h * cos_phi + mu * cos_h  # view in the x-z plane
+        cos_l = 2.0 * v_h * cos_h - mu
+        g2 = 1.0 / (1.0 + ggx_lambda(mu, alpha) + ggx_lambda(np.maximum(cos_l, _MIN_COS), alpha))
+        integrand = np.where((v_h > 0.0) & (cos_l > 0.0), v_h * g2 / mu, 0.0) * measure
+        albedo[i] = np.einsum("msp,s->m", integrand, w_s) * w_phi
+    x, w = np.polynomial.legendre.leggauss(24)
+    nodes = 0.5 * (x + 1.0)
+    average = np.array([np.sum(np.interp(nodes, knots, row) * nodes * w) for row in albedo])
+    return knots, albedo, average
+
+
+def ggx_albedo(cos_v, alpha):
+    """Directional albedo E of the single-scattering GGX lobe with F = 1 (table, bilinear)."""
+    knots, albedo, _ = _albedo_tables()
+    r = np.clip(np.sqrt(alpha), 0.0, 1.0) * (len(knots) - 1)
+    m = np.clip(cos_v, 0.0, 1.0) * (len(knots) - 1)
+    r0 = np.minimum(np.floor(r).astype(np.int64), len(knots) - 2)
+    m0 = np.minimum(np.floor(m).astype(np.int64), len(knots) - 2)
+    fr, fm = r - r0, m - m0
+    return ((1 - fr) * ((1 - fm) * albedo[r0, m0] + fm * albedo[r0, m0 + 1])
+            + fr * ((1 - fm) * albedo[r0 + 1, m0] + fm * albedo[r0 + 1, m0 + 1]))
+
+
+def ggx_average_albedo(alpha):
+    """Cosine-weighted average albedo E_avg of the single-scattering GGX lobe with F = 1."""
+    knots, _, average = _albedo_tables()
+    return np.interp(np.sqrt(alpha), knots, average)
+
+
+def ggx_energy_compensation(cos_v, alpha, fresnel_average):
+    """Cycles' Multiscatter GGX factor (n, C) on a single-scattering GGX lobe seen from cos_v:
+    ``1 + F_ms (1 - E) / E`` with ``F_ms = F_avg E_avg / (1 - F_avg (1 - E_avg))`` (Kulla and Conty
+    2017); ``fresnel_average`` (n, C) is the lobe's hemispherical Fresnel average (the
+    ``fresnel_average_*`` functions).  With F = 1 it is 1 / E: the white furnace is exactly 1.
+    """
+    e = np.maximum(ggx_albedo(cos_v, alpha), 1e-6)[:, None]
+    e_avg = ggx_average_albedo(alpha)[:, None]
+    f_ms = fresnel_average * e_avg / (1.0 - fresnel_average * (1.0 - e_avg))
+    return 1.0 + f_ms * (1.0 - e) / e

@@ -341,3 +341,43 @@ def test_power_heuristic_weights_sum_to_one_and_handle_deltas():
     assert mis.power_heuristic(np.array([3.0]), inf)[0] == 0.0
     assert mis.power_heuristic(np.array([0.0]), np.array([0.0]))[0] == 0.0
     assert mis.power_heuristic(np.array([1e-300]), np.array([1e300]))[0] == 0.0
+
+
+# ---------------------------------------------------------------------------- energy compensation
+@pytest.mark.parametrize("alpha", (0.07, 0.35, 0.8))
+@pytest.mark.parametrize("theta_v", (0.3, 1.0, 1.35))
+def test_multiscatter_compensation_makes_the_white_furnace_one(alpha, theta_v):
+    """Single-scattering albedo (quadrature, off the table's knots) x Cycles' multiscatter factor
+    with F = 1 (F_ms = 1: factor 1 / E) is 1; the table E agrees with the quadrature to 1e-3."""
+    view_dir = direction(NORMAL, theta_v)
+    d, w, _, _ = sphere_grid(mirror(view_dir), 3000, 400)
+    m = len(d)
+    f = bsdf.ggx_reflection(rows_of(NORMAL, m), rows_of(view_dir, m), d, np.full(m, alpha), np.ones((m, 3)),
+                            np.ones(m))[:, 0]
+    albedo = np.sum(f * np.maximum(d @ NORMAL, 0.0) * w)
+    cos_v, a = np.array([math.cos(theta_v)]), np.array([alpha])
+    assert bsdf.ggx_albedo(cos_v, a)[0] == pytest.approx(albedo, abs=1e-3)
+    factor = bsdf.ggx_energy_compensation(cos_v, a, np.ones((1, 3)))
+    assert np.allclose(albedo * factor, 1.0, atol=1.5e-3)
+    assert np.allclose(bsdf.ggx_energy_compensation(cos_v, a, np.zeros((1, 3))), 1.0)  # black Fresnel: nothing
+
+
+def test_average_albedo_and_fresnel_averages_by_quadrature():
+    mu = (np.arange(20000) + 0.5) / 20000
+    for alpha in (0.1, 0.5, 1.0):
+        e = bsdf.ggx_albedo(mu, np.full(len(mu), alpha))
+        assert bsdf.ggx_average_albedo(np.array([alpha]))[0] == pytest.approx(2 * np.mean(e * mu), abs=1e-3)
+    f0 = np.array([[0.9, 0.6, 0.2]])
+    tint = np.array([[0.5, 0.8, 1.0]])
+
+    def average(values):  # 2 int F mu dmu, midpoint rule
+        return 2 * np.mean(values * mu[:, None], axis=0)
+
+    n = len(mu)
+    assert np.allclose(bsdf.fresnel_average_schlick(f0, np.array([0.7])),
+                       average(bsdf.fresnel_schlick(mu, np.repeat(f0, n, 0), np.full(n, 0.7))), atol=1e-7)
+    assert np.allclose(bsdf.fresnel_average_f82_tint(f0, tint),
+                       average(bsdf.fresnel_f82_tint(mu, np.repeat(f0, n, 0), np.repeat(tint, n, 0))), atol=1e-7)
+    for eta in (1 / 1.5, 1 / 1.2, 1.33):
+        exact = 2 * np.mean(bsdf.fresnel_dielectric(mu, np.full(n, eta)) * mu)
+        assert bsdf.fresnel_average_dielectric(np.array([eta]))[0] == pytest.approx(exact, abs=1e-5)
