@@ -230,8 +230,9 @@ def sample_ggx_reflection(n, view, alpha, u1, u2):
     light = reflect(view, h)
     cos_v = np.maximum(rows.dot(n, view), _MIN_COS)
     cos_l = rows.dot(n, light)
-    pdf = ggx_g1(cos_v, alpha) * ggx_ndf(rows.dot(n, h), alpha) / (4.0 * cos_v)
-    weight = np.where(cos_l > 0.0, ggx_g2(cos_v, cos_l, alpha) / ggx_g1(cos_v, alpha), 0.0)
+    masking = 1.0 + ggx_lambda(cos_v, alpha)  # 1 / G1(v)
+    pdf = ggx_ndf(rows.dot(n, h), alpha) / (4.0 * cos_v * masking)
+    weight = np.where(cos_l > 0.0, masking / (masking + ggx_lambda(np.maximum(cos_l, _MIN_COS), alpha)), 0.0)
     return light, pdf, weight
 
 
