@@ -19,6 +19,10 @@ Conventions, as in Cycles:
   lobe's value over its discrete probability.
 * Transmission follows Cycles: no ``1/eta^2`` radiance compression (it cancels for
   closed bodies, and Cycles leaves it out).
+* Multiscatter GGX (the Principled BSDF's default) as Cycles: the single-scattering lobe
+  times :func:`ggx_energy_compensation`, from a directional-albedo table computed here by
+  quadrature; a dielectric specular layer scales the diffuse lobe under it by
+  ``1 - ggx_dielectric_albedo``.
 """
 
 from __future__ import annotations
