@@ -591,7 +591,9 @@ def _add_rotation(frames, mesh, scene: Scene, settings: MotionSettings, warnings
     omega = np.asarray(mesh.angular_velocity, dtype=np.float64) / scene.light_speed  # rad per unit c*t
     if not np.all(np.isfinite(omega)):
         raise ValueError(f"{mesh.name}: the angular velocity is not a finite number")
-    rim = float(np.linalg.norm(omega)) * geometry.radius
+    # a body point moves at |omega x r|: its distance from the axis counts, not from the pivot
+    used = geometry.vertices[np.unique(geometry.triangles)]
+    rim = float(np.max(np.linalg.norm(np.cross(omega, used), axis=1)))
     if not rim < 1.0:
         raise ValueError(f"{mesh.name}: spinning this fast its rim would move at {rim:.6g} c; "
                          "slow the spin or raise the scene's speed of light")

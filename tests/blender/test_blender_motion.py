@@ -182,3 +182,24 @@ def test_keyframed_emission_is_seen_on_the_emitters_own_clock(scene, tmp_path):
         assert float(passes["Combined"][2, 2, 1]) == pytest.approx(1000.0 + 24.0 * clock, rel=1e-5)
         seen.append(clock)
     assert (seen[1] - seen[0]) / (12 / FPS) == pytest.approx(2.0, rel=1e-5)
+
+
+def test_spin_speed_is_measured_from_the_axis(scene, tmp_path):
+    """A pole 10 long and 0.2 thick spinning about its own length: its points are at most
+    0.1 sqrt 2 from the axis, so at 50.2 rad/s (c = 10) they move at 0.71 c although its ends are
+    5 from the pivot (25 c if measured from there).  About a crosswise axis the same spin is refused
+    with the true rim speed."""
+    add_camera(scene, location=(0.0, -20.0, 0.0), rotation=(math.radians(90), 0.0, 0.0))
+    add_sun(scene, rotation=(math.radians(60), 0.0, 0.0))
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    pole = bpy.context.object
+    pole.name = "Pole"
+    pole.scale = (0.2, 0.2, 10.0)
+    omega = 0.71 * 10.0 / (0.1 * math.sqrt(2.0))
+    pole.restframe.angular_velocity = (0.0, 0.0, omega)
+    passes = render_exr(scene, tmp_path / "pole.exr")
+    assert (passes["Doppler"] > 0).sum() >= 5
+    pole.restframe.angular_velocity = (omega, 0.0, 0.0)
+    rim = omega * math.hypot(5.0, 0.1) / 10.0
+    with pytest.raises(RuntimeError, match=f"Pole: spinning this fast its rim would move at {rim:.5g}"):
+        bpy.ops.render.render()
