@@ -203,3 +203,95 @@ def test_spin_speed_is_measured_from_the_axis(scene, tmp_path):
     rim = omega * math.hypot(5.0, 0.1) / 10.0
     with pytest.raises(RuntimeError, match=f"Pole: spinning this fast its rim would move at {rim:.5g}"):
         bpy.ops.render.render()
+
+
+def location_fcurves(obj):
+    animation = obj.animation_data
+    return motion_query.fcurves(animation.action, getattr(animation, "action_slot", None))
+
+
+def key_x(obj, keys, interpolation='BEZIER'):
+    for frame, x in keys:
+        obj.location.x = x
+        obj.keyframe_insert("location", index=0, frame=frame)
+    for fc in location_fcurves(obj):
+        for point in fc.keyframe_points:
+            point.interpolation = interpolation
+        fc.update()
+    obj.restframe.motion = 'ANIMATION'
+
+
+def speed_in_message(error) -> float:
+    import re
+    return float(re.search(r"moves at ([0-9.e+]+) c", str(error.value)).group(1))
+
+
+@pytest.mark.parametrize("interpolation", ['BEZIER', 'LINEAR'])
+def test_a_spike_shorter_than_one_sample_is_refused_with_its_true_speed(scene, interpolation):
+    """x goes 0 -> 2 -> 0 within a tenth of a frame (samples are 1/8 frame apart, so both
+    neighbouring samples see x = 0).  The refusal quotes the curve's true top speed, checked
+    against finite differences of Blender's own F-curve evaluation on a 1e-4-frame grid (of
+    single-precision frames, as Blender takes them)."""
+    scene.render.fps, scene.render.fps_base = FPS, 1.0
+    add_camera(scene)
+    spike = add_plane(scene, "Spike")
+    key_x(spike, [(1, 0.0), (10.0, 0.0), (10.05, 2.0), (10.1, 0.0), (20, 0.0)], interpolation)
+    scene.frame_set(15)
+    with pytest.raises(export.ExportError, match=r"Spike: .*not below the speed of light.*between frames") as error:
+        export_now(scene)
+    (fc,) = location_fcurves(spike)
+    frames = np.linspace(9.99, 10.11, 1201).astype(np.float32).astype(np.float64)
+    x = np.array([fc.evaluate(f) for f in frames])
+    reference = np.max(np.abs(np.diff(x) / np.diff(frames))) * FPS / scene.restframe.light_speed
+    assert reference > 50.0
+    assert speed_in_message(error) == pytest.approx(reference, rel=2e-3)
+
+
+def test_a_fast_bezier_bump_is_measured_by_its_derivative(scene):
+    """A smooth bump (auto-clamped Bezier keys 4 frames apart) whose top speed is 1.2 c while its
+    1/8-frame sample differences stay below it: the figure is the derivative's maximum."""
+    scene.render.fps, scene.render.fps_base = FPS, 1.0
+    c = scene.restframe.light_speed
+    add_camera(scene)
+    bump = add_plane(scene, "Bump")
+    # auto-clamped handles: top slope 1.5 x (rise / span) in the middle of the rising segment
+    rise = 1.2 * c / FPS * 4 / 1.5
+    key_x(bump, [(1, 0.0), (5, 0.0), (9, rise), (13, rise)])
+    scene.frame_set(15)
+    with pytest.raises(export.ExportError, match=r"Bump: ") as error:
+        export_now(scene)
+    assert speed_in_message(error) == pytest.approx(1.2, rel=1e-4)
+    (fc,) = location_fcurves(bump)
+    for key in fc.keyframe_points:  # the same bump 1 % slower is accepted
+        key.co.y *= 0.99 / 1.2
+        key.handle_left.y *= 0.99 / 1.2
+        key.handle_right.y *= 0.99 / 1.2
+    out, _, _ = export_now(scene)
+    assert out.meshes[0].trajectory is not None
+
+
+def test_a_constant_interpolation_jump_is_refused_as_a_teleport(scene):
+    add_camera(scene)
+    hopper = add_plane(scene, "Hopper")
+    key_x(hopper, [(1, 0.0), (8, 0.5), (20, 0.5)], 'CONSTANT')
+    scene.frame_set(15)
+    with pytest.raises(export.ExportError, match=r"Hopper: the keyed location jumps .* at frame 8: infinitely fast"):
+        export_now(scene)
+
+
+@pytest.mark.parametrize("broken", ["value", "handle", "vertex"])
+def test_non_finite_keys_or_vertices_name_the_object(scene, broken):
+    add_camera(scene)
+    probe = add_plane(scene, "Probe")
+    key_x(probe, [(1, 0.0), (10, 1.0)])
+    (fc,) = location_fcurves(probe)
+    if broken == "value":
+        fc.keyframe_points[1].co.y = math.nan
+    elif broken == "handle":
+        fc.keyframe_points[1].handle_left.y = math.inf
+    else:
+        probe.data.vertices[0].co.x = math.inf
+        probe.data.update()
+    scene.frame_set(5)
+    with pytest.raises(export.ExportError, match=r"^Probe: .*not (a )?finite number"):
+        export_now(scene)
