@@ -19,6 +19,7 @@ from ..core.scene import Light, Mesh, RenderSettings, Scene, Velocity
 from ..motion_query import assembly_root, has_animated_location, observation_time
 from .camera import export_camera
 from .errors import ExportCancelled, ExportError
+from .features import FeatureReport, object_features, uses_stereo
 from .lights import export_light, world_color
 from .materials import MaterialExporter
 from .meshes import MeshData, place, read_mesh
@@ -75,11 +76,19 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
     trajectories: dict[int, Trajectory] = {}  # assembly root -> its world line, shared by its meshes
     jumping: set[str] = set()
     camera_position = tuple(camera_object.matrix_world.translation)
+    unsupported = FeatureReport()
+    features_seen: set[int] = set()  # original objects already asked (instances share theirs)
+    view_layer = depsgraph.view_layer
+    if uses_stereo(scene):
+        unsupported.add(f"View layer '{view_layer.name}'", ["stereo"])
 
     for inst in depsgraph.object_instances:
         if should_stop():
             raise ExportCancelled()
         obj = inst.object
+        if obj.type in {'MESH', 'CURVES', 'VOLUME'} and obj.original.as_pointer() not in features_seen:
+            features_seen.add(obj.original.as_pointer())
+            unsupported.add(obj.name, object_features(obj, view_layer))
         if obj.type not in {'MESH', 'LIGHT'} or not inst.show_self:
             continue
         source, pivot = _instance_source(inst)
@@ -134,6 +143,8 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
             angular_velocity=spin if any(spin) and trajectory is None else None,
         ))
 
+    for message in unsupported.warnings():
+        warn_once(message)
     for name in sorted(jumping):
         warn_once(f"{name}: has a velocity and a keyframed location, so it jumps between frames "
                   "(set its Motion to Animation to follow the keyframed path)")
