@@ -58,6 +58,7 @@ class MaterialTable:
         self.transmission = np.clip([m.transmission for m in materials], 0.0, 1.0)
         self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
         self.textures = [m.base_color_texture for m in materials]
+        self.closest = [m.base_color_interpolation == "Closest" for m in materials]
         self.mirror = self.roughness < MIRROR_ROUGHNESS
         self.glass = self.transmission > 0.0
         self.traces_secondary = bool(np.any(self.mirror | self.glass))
@@ -83,7 +84,7 @@ class MaterialTable:
         return np.clip(index, 0, len(self.materials) - 1)
 
     def base_color(self, index, uv):
-        """Base colour per hit, with image textures looked up (bilinear, repeat) where present."""
+        """Base colour per hit, with image textures looked up (bilinear or closest, repeat) where present."""
         color = self.base[index]
         if uv is None:
             return color
@@ -92,12 +93,16 @@ class MaterialTable:
                 continue
             sel = np.flatnonzero(index == m)
             if len(sel):
-                color[sel] = _sample_texture(texture, uv[sel])
+                color[sel] = _sample_texture(texture, uv[sel], self.closest[m])
         return color
 
 
-def _sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
+def _sample_texture(texture: np.ndarray, uv: np.ndarray, closest: bool = False) -> np.ndarray:
     h, w = texture.shape[:2]
+    if closest:  # the pixel the UV falls in (Blender's Closest)
+        x = np.minimum(((uv[:, 0] % 1.0) * w).astype(np.int64), w - 1)
+        y = np.minimum(((uv[:, 1] % 1.0) * h).astype(np.int64), h - 1)
+        return texture[y, x, :3].astype(np.float64)
     x = (uv[:, 0] % 1.0) * w - 0.5
     y = (uv[:, 1] % 1.0) * h - 0.5
     x0 = np.floor(x).astype(np.int64)

@@ -67,6 +67,10 @@ def read_mesh(obj, mesh, materials: MaterialExporter, should_stop=lambda: False)
         corner_uvs = np.empty(len(mesh.loops) * 2, dtype=np.float32)
         layer.uv.foreach_get("vector", corner_uvs)
         uvs = corner_uvs.reshape(-1, 2)[corners].reshape(n_tri, 3, 2).astype(np.float64)
+        for index, affine in materials.uv_transforms.items():  # Mapping nodes, UDIM layouts
+            sel = global_materials == index
+            if np.any(sel):
+                uvs[sel] = uvs[sel] @ affine[:, :2].T + affine[:, 2]
 
     check()
     return MeshData(vertices.reshape(-1, 3).astype(np.float64), triangles.reshape(-1, 3),
