@@ -104,7 +104,7 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
             if animated or any(spin):
                 warn_once(f"{source.name}: lights move only at a constant velocity "
                           "(Motion = Animation and Angular Velocity are ignored)")
-            lights.append(export_light(obj, matrix, velocity, pivot))
+            lights.append(export_light(obj, matrix, velocity, pivot, warn_once))
             continue
         trajectory = None
         if animated:
