@@ -7,35 +7,23 @@ UI does not import the exporter to answer them.
 
 from __future__ import annotations
 
-import math
-
-from .properties import speed_of
+from .core import validation
 
 
 def observation_time(scene) -> float:
-    """Seconds from the reference time to the rendered frame (``shared/physics.md``)."""
+    """Seconds from the reference time to the rendered frame (``docs/physics.md#units-and-clocks``)."""
     rf = scene.restframe
     return (scene.frame_current + scene.frame_subframe - rf.reference_frame) * scene.render.fps_base / scene.render.fps
 
 
 def velocity_problem(obj) -> str | None:
-    """What is wrong with the object's ``restframe`` velocity settings, or None if they are usable."""
+    """What is wrong with the object's ``restframe`` velocity settings (the message of
+    ``core.validation``, without the object's name), or None if they are usable."""
     rf = obj.restframe
-    beta = tuple(float(c) for c in rf.velocity)
-    gamma = float(rf.lorentz_factor)
-    if not all(math.isfinite(c) for c in beta):
-        return f"the velocity {beta} is not a finite number"
-    if not math.isfinite(gamma):
-        return f"the Lorentz factor {gamma} is not a finite number"
-    if gamma > 0.0:
-        if gamma < 1.0:
-            return f"a Lorentz factor must be at least 1 (got {gamma:g}); 0 means unused"
-        if gamma > 1.0 and not any(beta):
-            return "a Lorentz factor above 1 needs a velocity to give the direction"
-    elif not speed_of(beta, 0.0)[0] < 1.0:
-        speed = math.sqrt(sum(c * c for c in beta))
-        return (f"speed {speed:.7g} c is not below the speed of light; "
-                "use the Lorentz factor for speeds very close to c")
+    try:
+        validation.check_velocity(rf.velocity, rf.lorentz_factor, obj.name)
+    except ValueError as error:
+        return str(error).removeprefix(f"{obj.name}: ")
     return None
 
 
@@ -49,7 +37,7 @@ def _same_velocity(a, b) -> bool:
 
 
 def assembly_root(obj):
-    """The topmost parent reached through parents with the same velocity (physics.md)."""
+    """The topmost parent reached through parents with the same velocity (``docs/physics.md#rest-shapes``)."""
     root = obj
     while root.parent is not None and _same_velocity(root.parent, root):
         root = root.parent

@@ -3,7 +3,7 @@
 The Blender layer (``restframe_addon.export``) fills these from the evaluated
 depsgraph; tests and scripts can build them directly.  All positions are Blender
 world coordinates at the rendered frame, i.e. the shape each object has *in its
-own rest frame* (see ``shared/physics.md``: the artist models rest shapes).
+own rest frame* (see ``docs/physics.md#rest-shapes``: the artist models rest shapes).
 """
 
 from __future__ import annotations
@@ -175,4 +175,4 @@ class RenderSettings:
     threads: int = 0  # 0 = all cores
     doppler_range: tuple[float, float] | None = None  # FACTOR display: None = the frame's own range
     doppler_levels: int = 0  # FACTOR display: quantise to N grey levels (0 = continuous)
-    passes: tuple[str, ...] | None = None  # passes to fill besides Combined (render.EXTRA_PASSES names); None = all
+    passes: tuple[str, ...] | None = None  # passes to fill besides Combined (passes.EXTRA_PASSES names); None = all

@@ -155,7 +155,7 @@ class MaterialExporter:
         """(seconds of the emitter's own clock, strengths) from the strength's F-curve, or None.
 
         The camera sees an emitter's animation at the emitter's clock reading of each seen
-        event (shared/physics.md, optical clocks): Blender frame f is clock time
+        event (docs/physics.md#optical-clocks): Blender frame f is clock time
         (f - reference_frame) * fps_base / fps.  Sampled over the keys and the scene's frame
         range, twice widened; beyond that the first and last values hold.
         """

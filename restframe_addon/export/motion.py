@@ -8,18 +8,19 @@ import numpy as np
 
 from ..core.motion import Trajectory
 from ..core.scene import Velocity
-from ..motion_query import fcurves, has_animated_location, velocity_problem
+from ..core import validation
+from ..motion_query import fcurves, has_animated_location
 from .errors import ExportCancelled, ExportError
 from .keyed_speed import KeyedCurve, fastest, is_finite, non_finite_key
 
 
 def object_velocity(obj) -> Velocity:
     """The object's ``restframe`` velocity, checked: raises ExportError naming the object."""
-    problem = velocity_problem(obj)
-    if problem is not None:
-        raise ExportError(f"{obj.name}: {problem}")
     rf = obj.restframe
-    return Velocity(tuple(float(c) for c in rf.velocity), float(rf.lorentz_factor))
+    try:
+        return Velocity(*validation.check_velocity(rf.velocity, rf.lorentz_factor, obj.name))
+    except ValueError as error:
+        raise ExportError(str(error)) from None
 
 SUBFRAMES = 8  # world-line samples per frame of animation
 MAX_SAMPLES = 20000  # per object: beyond this the samples thin out (long light-travel times)

@@ -14,6 +14,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..core import validation
 from ..core.motion import Trajectory
 from ..core.scene import Light, Mesh, RenderSettings, Scene, Velocity
 from ..motion_query import assembly_root, has_animated_location, observation_time
@@ -46,7 +47,7 @@ def _instancer_key(inst, levels_up: int = 0):
 def _instance_source(inst, moving_instancers: dict):
     """The object whose velocity an instance takes, and where its assembly pivot is.
 
-    The innermost motion counts, as for parents (physics.md: a child with its own velocity is
+    The innermost motion counts, as for parents (docs/physics.md#rest-shapes: a child with its own velocity is
     its own assembly, moving with that velocity in S): an instanced object's own velocity, else
     that of the nearest instancer with one (a collection instance inside an instanced collection,
     from ``moving_instancers``), else the top-level instancer's (collection instance empty,
@@ -81,8 +82,10 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
     """
     scene = depsgraph.scene_eval
     rf = scene.restframe
-    if not (math.isfinite(rf.light_speed) and rf.light_speed > 0.0):
-        raise ExportError(f"the speed of light must be positive (got {rf.light_speed:g})")
+    try:
+        validation.check_light_speed(rf.light_speed)
+    except ValueError as error:
+        raise ExportError(str(error)) from None
     warned: set[str] = set()
 
     def warn_once(message: str) -> None:
@@ -150,8 +153,11 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
                 trajectories[key] = object_trajectory(root, scene, camera_position,
                                                       should_stop=should_stop, warn=warn_once)
             trajectory = trajectories[key]
-        elif any(spin) and not all(math.isfinite(w) for w in spin):
-            raise ExportError(f"{source.name}: the angular velocity {spin} is not a finite number")
+        elif any(spin):
+            try:
+                validation.check_angular_velocity(spin, source.name)
+            except ValueError as error:
+                raise ExportError(str(error)) from None
         mesh = obj.data
         key = (mesh.as_pointer(), tuple(slot.material.as_pointer() if slot.material else 0
                                         for slot in obj.material_slots))

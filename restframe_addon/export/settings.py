@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.render import PASSES
+from ..core.passes import PASSES
 from ..core.scene import RenderSettings
 from .errors import ExportError
 
