@@ -6,10 +6,10 @@ the textured plane divided by its own image of the same plane in plain white, so
 texture lookup is compared, not the lighting.
 """
 
-import math
 
 import bpy
 import numpy as np
+import OpenEXR
 import pytest
 
 from blender_helpers import add_camera, render_rgba
@@ -76,19 +76,18 @@ def albedo(scene, tmp_path, engine, mat, tex, name="t"):
 
 
 def pixel_image(name, pixels, path=None):
-    """An image of the given linear RGB pixels (h, w, 3), row 0 at the bottom; saved as a float EXR
-    at ``path`` and loaded from there when given (so it is a file on disk, like a user's)."""
+    """An image of the given linear RGB pixels (h, w, 3), row 0 at the bottom: in memory, or written
+    as a float EXR file at ``path`` (by OpenEXR itself, so that no Blender colour handling is involved)."""
     h, w = pixels.shape[:2]
+    if path is not None:
+        rgb = np.ascontiguousarray(pixels[::-1], dtype=np.float32)  # EXR rows run top-down
+        with OpenEXR.File({"type": OpenEXR.scanlineimage}, {"RGB": rgb}) as exr:
+            exr.write(str(path))
+        return None
     image = bpy.data.images.new(name, w, h, float_buffer=True)
     rgba = np.concatenate([pixels, np.ones((h, w, 1))], axis=2).astype(np.float32)
     image.pixels.foreach_set(rgba.ravel())  # a float image: linear, as given
-    if path is None:
-        return image
-    image.filepath_raw = str(path)
-    image.file_format = 'OPEN_EXR'
-    image.save()
-    bpy.data.images.remove(image)
-    return None
+    return image
 
 
 def checker(seed, h=4, w=4):
@@ -192,13 +191,13 @@ def test_a_texture_is_converted_once_across_frames_and_again_when_it_changes(sce
 
     first = texture()
     assert first.dtype == np.float32 and not first.flags.writeable
-    np.testing.assert_allclose(first, checker(5, 8, 8), rtol=1e-3)  # (a half-float EXR)
+    np.testing.assert_allclose(first, checker(5, 8, 8), rtol=1e-6)
     scene.frame_set(2)
     assert texture() is first
     pixel_image("Grid2", checker(6, 16, 16), path)  # the file is replaced
     image.reload()
     second = texture()
     assert second is not first and second.shape == (16, 16, 3)
-    np.testing.assert_allclose(second, checker(6, 16, 16), rtol=1e-3)
+    np.testing.assert_allclose(second, checker(6, 16, 16), rtol=1e-6)
     image.colorspace_settings.name = "Non-Color"
     assert texture() is not second
