@@ -10,7 +10,7 @@ from ..core.scene import Light, Velocity
 from .materials import output_node, upstream
 
 
-def node_emission(data, warn: Callable[[str], None]) -> tuple[np.ndarray, float]:
+def node_emission(data, name: str, warn: Callable[[str], None]) -> tuple[np.ndarray, float]:
     """(colour, strength) of the Emission node in a light's node tree, which Cycles multiplies
     into the light's own colour and power; (white, 1) without nodes, black when nothing feeds
     the Light Output."""
@@ -24,18 +24,18 @@ def node_emission(data, warn: Callable[[str], None]) -> tuple[np.ndarray, float]
     if node is None:
         return np.zeros(3), 0.0
     if node.type != 'EMISSION':
-        warn(f"Light '{data.name}': shader '{node.bl_label}' in its node tree is not supported, ignored")
+        warn(f"Light '{name}': shader '{node.bl_label}' in its node tree is not supported, ignored")
         return np.ones(3), 1.0
     color, strength = node.inputs["Color"], node.inputs["Strength"]
     if upstream(color) is not None or upstream(strength) is not None:
-        warn(f"Light '{data.name}': links into its Emission node are not supported, using their values")
+        warn(f"Light '{name}': links into its Emission node are not supported, using their values")
     return np.asarray(color.default_value[:3], dtype=np.float64), float(strength.default_value)
 
 
 def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Callable[[str], None] = print) -> Light:
     data = obj.data
     rotation = matrix[:3, :3] / np.linalg.norm(matrix[:3, :3], axis=0)
-    tint, strength = node_emission(data, warn)
+    tint, strength = node_emission(data, obj.name, warn)
     light = Light(
         name=obj.name,
         kind=data.type,

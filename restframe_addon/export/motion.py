@@ -170,7 +170,7 @@ def _refuse_light_speed(name: str, keyed: dict, parent_matrix: np.ndarray, frame
     fast = np.linalg.norm(velocity(probes), axis=1) >= 1.0
     edges = np.flatnonzero(np.diff(np.concatenate([[0], fast.astype(np.int8), [0]])))
     spans = [(probes[a], probes[b - 1]) for a, b in zip(edges[::2], edges[1::2])] or [(frame, frame)]
-    listed = ", ".join(f"{a:.4g}-{b:.4g}" for a, b in spans[:5]) + (
+    listed = ", ".join(f"{a:.6g}-{b:.6g}" for a, b in spans[:5]) + (
         f" and {len(spans) - 5} more" if len(spans) > 5 else "")
     raise ExportError(f"{name}: the animation moves at {speed:.6g} c (at frame {frame:.6g}), not below the speed "
                       f"of light, between frames {listed}: slow it down or raise the scene's speed of light")

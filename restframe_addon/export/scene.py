@@ -119,7 +119,7 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
         if obj.type in {'MESH', 'CURVES', 'VOLUME'} and obj.original.as_pointer() not in features_seen:
             features_seen.add(obj.original.as_pointer())
             unsupported.add(obj.name, object_features(obj, view_layer))
-        if inst.is_instance and obj.instance_type != 'NONE' and _moves(obj):
+        if inst.is_instance and (obj.instance_type != 'NONE' or len(obj.particle_systems)) and _moves(obj):
             if obj.restframe.is_animated:
                 warn_once(f"{obj.name}: Motion = Animation of an instancer inside an instanced collection is "
                           "not supported: its instances move with the instancers around it")
