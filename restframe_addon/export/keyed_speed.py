@@ -13,6 +13,7 @@ through its ``keyframe_points``, ``modifiers``, ``extrapolation`` and ``evaluate
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Callable
 
 import numpy as np
@@ -27,9 +28,9 @@ class KeyedCurve:
 
     key_frame: np.ndarray  # (K,)
     key_value: np.ndarray  # (K,)
-    handle_right: np.ndarray  # (K, 2) of each key (frame, value), shortened as Blender does
-    handle_left: np.ndarray  # (K, 2)
-    interpolation: list  # per key: how the segment starting there is interpolated
+    handle_left: np.ndarray  # (K, 2) of each key (frame, value), as stored
+    handle_right: np.ndarray  # (K, 2)
+    interpolation: np.ndarray  # (K,) per key: how the segment starting there is interpolated
     evaluate: Callable[[float], float]
     exact: bool  # False with F-curve modifiers: Blender's evaluation is differentiated numerically
 
@@ -39,101 +40,124 @@ class KeyedCurve:
         co = np.array([tuple(p.co) for p in points], dtype=np.float64).reshape(-1, 2)
         left = np.array([tuple(p.handle_left) for p in points], dtype=np.float64).reshape(-1, 2)
         right = np.array([tuple(p.handle_right) for p in points], dtype=np.float64).reshape(-1, 2)
+        modes = np.array([p.interpolation for p in points], dtype=object)
         order = np.argsort(co[:, 0], kind="stable")
-        co, left, right = co[order], left[order], right[order]
-        curve = cls(co[:, 0], co[:, 1], right.copy(), left.copy(), [points[i].interpolation for i in order],
-                    fc.evaluate, exact=not any(not m.mute for m in fc.modifiers))
-        curve._shorten_overlapping_handles()
-        return curve
+        return cls(co[order, 0], co[order, 1], left[order], right[order], modes[order],
+                   fc.evaluate, exact=not any(not m.mute for m in fc.modifiers))
 
-    def _shorten_overlapping_handles(self) -> None:
-        """Blender scales a segment's two handles down together when their time extents add up to
-        more than the segment, so that time stays monotonic along it."""
-        for i in range(len(self.key_frame) - 1):
-            span = self.key_frame[i + 1] - self.key_frame[i]
-            out = np.array([self.key_frame[i], self.key_value[i]]) - self.handle_right[i]
-            into = np.array([self.key_frame[i + 1], self.key_value[i + 1]]) - self.handle_left[i + 1]
-            reach = abs(out[0]) + abs(into[0])
-            if reach > span > 0.0:
-                scale = span / reach
-                self.handle_right[i] = np.array([self.key_frame[i], self.key_value[i]]) - scale * out
-                self.handle_left[i + 1] = np.array([self.key_frame[i + 1], self.key_value[i + 1]]) - scale * into
+    @cached_property
+    def control(self) -> np.ndarray:
+        """(S, 4, 2) Bezier control points of every segment, each handle scaled down (about its key)
+        to the segment's time span where it reaches further, as Blender does: time then never runs
+        backwards along a segment (it may stand still, where both handles span the whole segment)."""
+        keys = np.column_stack([self.key_frame, self.key_value])
+        start, end = keys[:-1], keys[1:]
+        out, into = self.handle_right[:-1] - start, self.handle_left[1:] - end
+        span = (end[:, 0] - start[:, 0])[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out_scale = np.where(np.abs(out[:, :1]) > span, span / np.abs(out[:, :1]), 1.0)
+            into_scale = np.where(np.abs(into[:, :1]) > span, span / np.abs(into[:, :1]), 1.0)
+        return np.stack([start, start + out_scale * out, end + into_scale * into, end], axis=1)
 
-    def bezier(self, i: int) -> np.ndarray:
-        """The four control points (4, 2) of segment i."""
-        return np.array([(self.key_frame[i], self.key_value[i]), self.handle_right[i],
-                         self.handle_left[i + 1], (self.key_frame[i + 1], self.key_value[i + 1])])
+    def vertical(self) -> list[float]:
+        """Frames where a Bezier segment's time stands still while its value moves (a vertical
+        tangent: infinitely fast), e.g. handles as long as the segment, or without time extent."""
+        bezier = np.flatnonzero((self.interpolation[:-1] == 'BEZIER') & (np.diff(self.key_frame) > 0.0))
+        if len(bezier) == 0:
+            return []
+        control = self.control[bezier]
+        x, y = control[:, :, 0], control[:, :, 1]
+        a, b, c = x[:, 1] - x[:, 0], x[:, 2] - x[:, 1], x[:, 3] - x[:, 2]  # dx/dt / 3 = a s^2 + 2 b s t + c t^2
+        curvature = a - 2 * b + c
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inner = np.where(curvature > 0.0, (a - b) / curvature, 0.0)
+        out = []
+        for t in (np.zeros(len(bezier)), np.ones(len(bezier)), np.clip(inner, 0.0, 1.0)):
+            still = _cubic_slope(x, t) <= 1e-6 * (x[:, 3] - x[:, 0])
+            moving = np.abs(_cubic_slope(y, t)) > 0.0
+            out.extend(float(f) for f in _cubic(x, t)[still & moving])
+        return sorted(set(out))
 
     def jumps(self) -> list[float]:
         """Frames where the curve jumps (a CONSTANT segment into a different value, or two keys on one frame)."""
-        out = []
-        for i in range(len(self.key_frame) - 1):
-            same_frame = self.key_frame[i + 1] <= self.key_frame[i]
-            if (self.interpolation[i] == 'CONSTANT' or same_frame) and self.key_value[i + 1] != self.key_value[i]:
-                out.append(float(self.key_frame[i + 1]))
-        return out
+        step = (self.interpolation[:-1] == 'CONSTANT') | (np.diff(self.key_frame) <= 0.0)
+        jump = step & (np.diff(self.key_value) != 0.0)
+        return [float(f) for f in self.key_frame[1:][jump]]
 
     def probe_frames(self) -> np.ndarray:
-        """Frames at which the derivative should be looked at: keys, and dense points on Bezier segments."""
-        frames = [self.key_frame]
+        """Frames at which the derivative should be looked at: keys, and dense points on Bezier
+        segments (uniform in their parameter, so dense where time runs slowly along them) and on
+        easing segments."""
         t = np.linspace(0.0, 1.0, BEZIER_SAMPLES + 1)
-        for i in range(len(self.key_frame) - 1):
-            if self.interpolation[i] == 'BEZIER':
-                frames.append(_cubic(self.bezier(i)[:, 0], t))
-            elif self.interpolation[i] != 'LINEAR':
-                frames.append(np.linspace(self.key_frame[i], self.key_frame[i + 1], BEZIER_SAMPLES + 1))
-        return np.concatenate(frames)
+        modes = self.interpolation[:-1]
+        bezier = self.control[modes == 'BEZIER'][:, :, 0]  # (n, 4) time coordinates
+        eased = ~np.isin(modes, ('BEZIER', 'LINEAR', 'CONSTANT'))
+        a, b = self.key_frame[:-1][eased], self.key_frame[1:][eased]
+        return np.concatenate([self.key_frame, _cubic(bezier[:, None, :], t[None, :]).ravel(),
+                               (a[:, None] + (b - a)[:, None] * t[None, :]).ravel()])
 
     def derivative(self, frames: np.ndarray) -> np.ndarray:
         """d value / d frame at each frame (inside CONSTANT segments 0; jumps are in ``jumps``)."""
         frames = np.asarray(frames, dtype=np.float64)
-        out = np.empty(len(frames))
         k = self.key_frame
         segment = np.searchsorted(k, frames, side="right") - 1
-        numeric = np.full(len(frames), not self.exact) | (segment < 0) | (segment >= len(k) - 1)  # extrapolation
-        for i in np.unique(segment[~numeric]):
-            sel = np.flatnonzero((segment == i) & ~numeric)
-            mode = self.interpolation[i]
-            if mode == 'CONSTANT' or k[i + 1] <= k[i]:
-                out[sel] = 0.0
-            elif mode == 'LINEAR':
-                out[sel] = (self.key_value[i + 1] - self.key_value[i]) / (k[i + 1] - k[i])
-            elif mode == 'BEZIER':
-                out[sel] = _bezier_slope(self.bezier(i), frames[sel])
-            else:
-                numeric[sel] = True
+        inside = (segment >= 0) & (segment < len(k) - 1) & self.exact  # else extrapolation or modifiers
+        seg = np.clip(segment, 0, max(len(k) - 2, 0))
+        mode = self.interpolation[:-1][seg] if len(k) > 1 else np.full(len(frames), 'CONSTANT', dtype=object)
+        span = np.diff(k)[seg] if len(k) > 1 else np.zeros(len(frames))
+        out = np.zeros(len(frames))
+        linear = inside & (mode == 'LINEAR') & (span > 0.0)
+        out[linear] = np.diff(self.key_value)[seg[linear]] / span[linear]
+        bezier = inside & (mode == 'BEZIER') & (span > 0.0)
+        if np.any(bezier):
+            out[bezier] = _bezier_slope(self.control[seg[bezier]], frames[bezier])
+        numeric = ~inside | (inside & ~np.isin(mode, ('BEZIER', 'LINEAR', 'CONSTANT')))
         if np.any(numeric):
-            out[numeric] = self._central_difference(frames[numeric])
+            out[numeric] = self._difference(frames[numeric], segment[numeric])
         return out
 
-    def _central_difference(self, frames: np.ndarray) -> np.ndarray:
-        h = 1e-4 * max(1.0, float(np.ptp(self.key_frame)) / max(len(self.key_frame), 1))
+    def _difference(self, frames: np.ndarray, segment: np.ndarray) -> np.ndarray:
+        """Differences of Blender's evaluation over a small step kept inside each frame's segment
+        (one-sided at its keys, so a key's kink is not averaged), for easing modes,
+        extrapolation and F-curve modifiers."""
+        # Blender evaluates at single-precision frames: steps well above their resolution
+        h = np.maximum(1e-3, 1e-5 * np.abs(frames))
+        k = self.key_frame
+        lo = np.where(segment >= 0, k[np.clip(segment, 0, len(k) - 1)], -np.inf)
+        hi = np.where(segment < len(k) - 1, k[np.clip(segment + 1, 0, len(k) - 1)], np.inf)
+        if not self.exact:  # modifiers change the curve everywhere: no kinks to respect
+            lo, hi = np.full(len(frames), -np.inf), np.full(len(frames), np.inf)
+        a, b = np.maximum(frames - h, lo), np.minimum(frames + h, hi)
         evaluate = self.evaluate
-        ahead = np.fromiter((evaluate(f + h) for f in frames), dtype=np.float64, count=len(frames))
-        behind = np.fromiter((evaluate(f - h) for f in frames), dtype=np.float64, count=len(frames))
-        return (ahead - behind) / (2.0 * h)
+        ahead = np.fromiter((evaluate(f) for f in b), dtype=np.float64, count=len(frames))
+        behind = np.fromiter((evaluate(f) for f in a), dtype=np.float64, count=len(frames))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(b > a, (ahead - behind) / (b - a), 0.0)
 
 
 def _cubic(points: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Cubic Bezier with control values ``points[..., 0:4]`` at parameters t (broadcast)."""
     s = 1.0 - t
-    return s**3 * points[0] + 3 * s * s * t * points[1] + 3 * s * t * t * points[2] + t**3 * points[3]
+    return (s**3 * points[..., 0] + 3 * s * s * t * points[..., 1] + 3 * s * t * t * points[..., 2]
+            + t**3 * points[..., 3])
 
 
 def _cubic_slope(points: np.ndarray, t: np.ndarray) -> np.ndarray:
     s = 1.0 - t
-    return 3 * (s * s * (points[1] - points[0]) + 2 * s * t * (points[2] - points[1]) + t * t * (points[3] - points[2]))
+    return 3 * (s * s * (points[..., 1] - points[..., 0]) + 2 * s * t * (points[..., 2] - points[..., 1])
+                + t * t * (points[..., 3] - points[..., 2]))
 
 
 def _bezier_slope(control: np.ndarray, frames: np.ndarray) -> np.ndarray:
-    """dy/dx of a Bezier segment at given x (its time coordinate rises monotonically in t)."""
-    x = control[:, 0]
+    """dy/dx of Bezier segments (n, 4, 2) at given x (n,) (time rises monotonically in t)."""
+    x, y = control[:, :, 0], control[:, :, 1]
     lo, hi = np.zeros(len(frames)), np.ones(len(frames))
     for _ in range(_BISECTIONS):
         mid = 0.5 * (lo + hi)
         below = _cubic(x, mid) < frames
         lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
     t = 0.5 * (lo + hi)
-    dx, dy = _cubic_slope(x, t), _cubic_slope(control[:, 1], t)
+    dx, dy = _cubic_slope(x, t), _cubic_slope(y, t)
     with np.errstate(divide="ignore", invalid="ignore"):
         slope = dy / dx
     # a handle without time extent: the tangent there is vertical unless the value also rests

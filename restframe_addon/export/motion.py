@@ -154,6 +154,11 @@ def _refuse_light_speed(name: str, keyed: dict, parent_matrix: np.ndarray, frame
                           "use Linear or Bezier interpolation")
     if not keyed:
         return
+    vertical = sorted({f for curve in keyed.values() for f in curve.vertical() if lo <= f <= hi})
+    if vertical:
+        raise ExportError(f"{name}: the keyed location's Bezier handles make it stand still in time while it moves "
+                          f"at frame {', '.join(f'{f:.6g}' for f in vertical[:5])}: infinitely fast, not below the "
+                          "speed of light; shorten the handles")
     linear = parent_matrix[:3, :3]
 
     def velocity(at):  # in units of c

@@ -295,3 +295,51 @@ def test_non_finite_keys_or_vertices_name_the_object(scene, broken):
     scene.frame_set(5)
     with pytest.raises(export.ExportError, match=r"^Probe: .*not (a )?finite number"):
         export_now(scene)
+
+
+@pytest.mark.parametrize("interpolation, handles", [
+    ('BEZIER', "long"),  # outgoing handles reaching past the next key: Blender shortens them
+    ('BEZIER', "auto"),
+    ('SINE', "auto"),
+    ('BACK', "auto"),
+    ('ELASTIC', "auto"),
+])
+def test_keyed_curve_derivative_matches_blenders_own_evaluation(scene, interpolation, handles):
+    """The per-segment derivative's maximum equals that of finite differences of Blender's own
+    F-curve evaluation on a fine grid (1/2000 frame), for uneven keys and odd handles."""
+    from restframe_addon.export.keyed_speed import KeyedCurve, fastest
+
+    obj = add_plane(scene, "Curve")
+    key_x(obj, [(1, 0.0), (4, 3.0), (4.5, -1.0), (9, 2.0), (10, 2.0)], interpolation)
+    (fc,) = location_fcurves(obj)
+    if handles == "long":
+        for point in fc.keyframe_points:
+            point.handle_left_type = point.handle_right_type = 'FREE'
+            point.handle_left = (point.co.x - 0.1, point.co.y - 0.2)
+            point.handle_right = (point.co.x + 3.0, point.co.y + 2.0)
+        fc.update()
+    curve = KeyedCurve.from_fcurve(fc)
+    assert curve.vertical() == []
+    frames = np.linspace(1.0, 10.0, 18001).astype(np.float32).astype(np.float64)
+    values = np.array([fc.evaluate(f) for f in frames])
+    reference = np.max(np.abs(np.diff(values) / np.diff(frames)))
+    probes = np.unique(np.concatenate([frames[::100], curve.probe_frames()]))
+    top, _ = fastest(lambda at: curve.derivative(at)[:, None], probes[(probes >= 1.0) & (probes <= 10.0)])
+    assert top == pytest.approx(reference, rel=5e-3)
+
+
+def test_bezier_handles_that_stop_time_are_refused_as_infinitely_fast(scene):
+    """Both handles of a segment as long as the segment: Blender's curve stands still in time at
+    its middle while the value moves (a vertical tangent)."""
+    add_camera(scene)
+    obj = add_plane(scene, "Flick")
+    key_x(obj, [(1, 0.0), (5, 0.0), (6, 0.1), (12, 0.1)])
+    (fc,) = location_fcurves(obj)
+    middle, after = fc.keyframe_points[1], fc.keyframe_points[2]
+    middle.handle_right_type = after.handle_left_type = 'FREE'
+    middle.handle_right = (7.0, 0.0)
+    after.handle_left = (4.0, 0.1)
+    fc.update()
+    scene.frame_set(10)
+    with pytest.raises(export.ExportError, match=r"Flick: .*stand still in time while it moves at frame 5.5"):
+        export_now(scene)
