@@ -3,11 +3,12 @@
 A world line sampled a few times per frame averages the speed over each sample interval, so
 a spike shorter than one sample, or a CONSTANT-interpolation jump (a teleport), passes as
 slow.  Here each F-curve's derivative is worked out per key segment: Bezier segments from
-their control points (each handle clamped to its segment's time span, as Blender does;
-where time stands still while the value moves, a vertical tangent is infinitely fast), linear ones from their slope, CONSTANT ones jump at the next key (infinitely fast if
-the value changes); easing modes, extrapolation and F-curve modifiers by central
-differences of Blender's own evaluation.  Nothing here imports bpy: an F-curve is read
-through its ``keyframe_points``, ``modifiers``, ``extrapolation`` and ``evaluate``.
+their control points (each handle clamped to its segment's time span, as Blender does; where
+time stands still while the value moves, the vertical tangent is infinitely fast), linear ones
+from their slope, CONSTANT ones jump at the next key (infinitely fast if the value changes);
+easing modes, extrapolation and F-curve modifiers by differences of Blender's own evaluation.
+Nothing here imports bpy: an F-curve is read through its ``keyframe_points``, ``modifiers``
+and ``evaluate``.
 """
 
 from __future__ import annotations
