@@ -7,24 +7,11 @@ UI does not import the exporter to answer them.
 
 from __future__ import annotations
 
-from .core import validation
-
 
 def observation_time(scene) -> float:
     """Seconds from the reference time to the rendered frame (``docs/physics.md#units-and-clocks``)."""
     rf = scene.restframe
     return (scene.frame_current + scene.frame_subframe - rf.reference_frame) * scene.render.fps_base / scene.render.fps
-
-
-def velocity_problem(obj) -> str | None:
-    """What is wrong with the object's ``restframe`` velocity settings (the message of
-    ``core.validation``, without the object's name), or None if they are usable."""
-    rf = obj.restframe
-    try:
-        validation.check_velocity(rf.velocity, rf.lorentz_factor, obj.name)
-    except ValueError as error:
-        return str(error).removeprefix(f"{obj.name}: ")
-    return None
 
 
 def _same_velocity(a, b) -> bool:

@@ -11,6 +11,7 @@ import bpy
 from bpy.types import Panel
 
 from . import motion_query
+from .core import validation
 from .properties import speed_of
 
 ENGINE = 'RESTFRAME'
@@ -184,9 +185,10 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
 
         box = layout.box()
         col = box.column(align=True)
-        problem = motion_query.velocity_problem(obj)
-        if problem is not None:
-            col.label(text=problem, icon='ERROR')
+        try:
+            validation.check_velocity(rf.velocity, rf.lorentz_factor, obj.name)
+        except ValueError as error:
+            col.label(text=str(error).partition(": ")[2], icon='ERROR')
         else:
             beta, gamma, rapidity = speed_of(rf.velocity, rf.lorentz_factor)  # double precision
             if gamma > 1e3:  # show how far below c, which a decimal fraction would hide

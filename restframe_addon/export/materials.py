@@ -97,20 +97,21 @@ class MaterialExporter:
         out = Material(name=mat.name)
         output = output_node(mat)
         node = upstream(output.inputs["Surface"]) if output is not None else None
+        if node is None and output is not None:  # a node tree with nothing on Surface renders black
+            out.base_color, out.specular_ior_level = (0.0, 0.0, 0.0), 0.0
+            return out, None
         if node is None:
             out.base_color = tuple(mat.diffuse_color[:3])
             out.metallic, out.roughness = float(mat.metallic), float(mat.roughness)
-            if output is not None:  # a node tree with nothing on Surface renders black in Blender
-                out.base_color = (0.0, 0.0, 0.0)
             return out, None
         uv_transform = None
         if node.type == 'BSDF_PRINCIPLED':
             uv_transform = self._principled(mat, node, out)
-        elif node.type == 'EMISSION':
-            out.base_color = (0.0, 0.0, 0.0)
+        elif node.type == 'EMISSION':  # emits, reflects nothing
+            out.base_color, out.specular_ior_level = (0.0, 0.0, 0.0), 0.0
             out.emission = self._emission(mat, node.inputs["Color"], node.inputs["Strength"], out)
-        elif node.type == 'BSDF_DIFFUSE':
-            out.base_color = self._color(mat, node.inputs["Color"])
+        elif node.type == 'BSDF_DIFFUSE':  # Lambert, without the Principled BSDF's specular layer
+            out.base_color, out.specular_ior_level = self._color(mat, node.inputs["Color"]), 0.0
             out.roughness = 1.0
         else:
             self.warn(f"Material '{mat.name}': shader '{node.bl_label}' is not supported, "

@@ -6,12 +6,13 @@ import math
 
 import numpy as np
 
+from ..core import validation
 from ..core.motion import Trajectory
 from ..core.scene import Velocity
-from ..core import validation
 from ..motion_query import fcurves, has_animated_location
 from .errors import ExportCancelled, ExportError
 from .keyed_speed import KeyedCurve, fastest, is_finite, non_finite_key
+
 
 
 def object_velocity(obj) -> Velocity:
@@ -21,6 +22,7 @@ def object_velocity(obj) -> Velocity:
         return Velocity(*validation.check_velocity(rf.velocity, rf.lorentz_factor, obj.name))
     except ValueError as error:
         raise ExportError(str(error)) from None
+
 
 SUBFRAMES = 8  # world-line samples per frame of animation
 MAX_SAMPLES = 20000  # per object: beyond this the samples thin out (long light-travel times)
@@ -64,8 +66,21 @@ def _local_locations(obj, curves: dict, frames: np.ndarray) -> np.ndarray:
     return out
 
 
-def object_trajectory(root, scene, camera_position, *, should_stop=lambda: False, warn=print) -> Trajectory:
+def body_radius(vertices: np.ndarray, triangles: np.ndarray, pivot) -> float:
+    """The largest distance from the pivot of a (finite) vertex of the triangles: the rigid body's
+    radius, which sets how widely its world line's corners are rounded."""
+    used = np.zeros(len(vertices), dtype=bool)
+    used[triangles] = True
+    distance = np.linalg.norm(vertices[used] - np.asarray(pivot, dtype=np.float64), axis=1)
+    return float(np.max(distance[is_finite(distance)], initial=0.0))
+
+
+def object_trajectory(root, scene, camera_position, radius: float, *, should_stop=lambda: False,
+                      warn=print) -> Trajectory:
     """The assembly pivot's world line from its location keys (Motion = Animation).
+
+    ``radius`` is the assembly's ``body_radius`` about the pivot (every mesh moving with it),
+    so the world line is built with its corners rounded for that body.
 
     Samples ``SUBFRAMES`` per frame from before the scene's start frame (early enough
     for light from any sampled position to reach the camera) up to just past the
@@ -96,10 +111,6 @@ def object_trajectory(root, scene, camera_position, *, should_stop=lambda: False
         if frame is not None:
             raise ExportError(f"{root.name}: the {path}[{index}] key at frame {frame:g} is not a finite number "
                               "(NaN or inf): Motion = Animation cannot follow it")
-    size = float(max(root.dimensions)) if hasattr(root, "dimensions") else 0.0
-    if not is_finite(size):
-        raise ExportError(f"{root.name}: its geometry has coordinates that are not finite numbers (NaN or inf): "
-                          "Motion = Animation needs its size")
 
     def world(frames):
         local = _local_locations(root, curves, frames)
@@ -108,12 +119,12 @@ def object_trajectory(root, scene, camera_position, *, should_stop=lambda: False
     current = scene.frame_current + scene.frame_subframe
     first = min(float(scene.frame_start), current)
     end = current + 1.0
-    # how far back light can come from: the farthest sampled position, plus the body's size
+    # how far back light can come from: the farthest sampled position, plus the body's radius
     coarse = np.linspace(first, end, int(min(end - first, 2000)) + 2)
     seen = world(coarse)
     if not np.all(is_finite(seen)):
         raise ExportError(f"{root.name}: the animated location is not a finite number")
-    reach = float(np.linalg.norm(seen - np.asarray(camera_position), axis=1).max()) + size
+    reach = float(np.linalg.norm(seen - np.asarray(camera_position), axis=1).max()) + radius
     start = first - math.ceil(2.0 * reach / c * fps) - 1.0
     if not math.isfinite(start):
         raise ExportError(f"{root.name}: the animated location is not a finite number")
@@ -135,7 +146,7 @@ def object_trajectory(root, scene, camera_position, *, should_stop=lambda: False
              f"{np.linalg.norm(here - evaluated):.3g} (constraints, drivers or parents?); "
              "Motion = Animation follows the keys")
     try:
-        return Trajectory(tau=tau, position=position, name=root.name, frames=frames)
+        return Trajectory(tau=tau, position=position, name=root.name, frames=frames, body_radius=radius)
     except ValueError as error:
         raise ExportError(str(error)) from error
 

@@ -9,13 +9,11 @@ The user's data is never written: no ``to_mesh`` copies, no edits, no saves.
 
 from __future__ import annotations
 
-import math
 from typing import Callable
 
 import numpy as np
 
 from ..core import validation
-from ..core.motion import Trajectory
 from ..core.scene import Light, Mesh, RenderSettings, Scene, Velocity
 from ..motion_query import assembly_root, has_animated_location, observation_time
 from .camera import export_camera
@@ -24,7 +22,7 @@ from .features import FeatureReport, object_features, uses_stereo
 from .lights import export_light, world_color
 from .materials import MaterialExporter
 from .meshes import MeshData, place, read_mesh
-from .motion import object_trajectory, object_velocity
+from .motion import body_radius, object_trajectory, object_velocity
 from .settings import render_settings
 
 
@@ -99,10 +97,11 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
         camera_object = camera_object.evaluated_get(depsgraph)
     camera = export_camera(camera_object, scene)
     materials = MaterialExporter(warn_once, scene)
-    meshes: list[Mesh] = []
+    bodies: list[tuple[int | None, dict]] = []  # (assembly key of an animated body, Mesh fields) per mesh
     lights: list[Light] = []
     cache: dict[tuple, MeshData | None] = {}
-    trajectories: dict[int, Trajectory] = {}  # assembly root -> its world line, shared by its meshes
+    roots: dict[int, object] = {}  # animated assembly key -> its root, whose keys give the world line
+    radii: dict[int, float] = {}  # animated assembly key -> body_radius over all its meshes
     jumping: set[str] = set()
     camera_position = tuple(camera_object.matrix_world.translation)
     unsupported = FeatureReport()
@@ -143,16 +142,13 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
                           "(Motion = Animation and Angular Velocity are ignored)")
             lights.append(export_light(obj, matrix, velocity, pivot, warn_once))
             continue
-        trajectory = None
+        body = None
         if animated:
             if any(spin):
                 warn_once(f"{source.name}: Angular Velocity is ignored with Motion = Animation")
             root = assembly_root(source)
-            key = root.original.as_pointer()
-            if key not in trajectories:
-                trajectories[key] = object_trajectory(root, scene, camera_position,
-                                                      should_stop=should_stop, warn=warn_once)
-            trajectory = trajectories[key]
+            body = root.original.as_pointer()
+            roots.setdefault(body, root)
         elif any(spin):
             try:
                 validation.check_angular_velocity(spin, source.name)
@@ -169,7 +165,9 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
         if should_stop():
             raise ExportCancelled()
         vertices, normals = place(data, matrix)
-        meshes.append(Mesh(
+        if body is not None:
+            radii[body] = max(radii.get(body, 0.0), body_radius(vertices, data.triangles, pivot))
+        bodies.append((body, dict(
             name=name,
             vertices=vertices,
             triangles=data.triangles,
@@ -179,10 +177,14 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
             corner_normals=normals,
             corner_uvs=data.uvs,
             object_index=int(obj.pass_index),
-            trajectory=trajectory,
-            angular_velocity=spin if any(spin) and trajectory is None else None,
-        ))
+            angular_velocity=spin if any(spin) and body is None else None,
+        )))
 
+    # each world line is built once its whole body is known, so its corners are rounded for that body
+    trajectories = {body: object_trajectory(root, scene, camera_position, radii.get(body, 0.0),
+                                            should_stop=should_stop, warn=warn_once)
+                    for body, root in roots.items()}
+    meshes = [Mesh(**fields, trajectory=trajectories.get(body)) for body, fields in bodies]
     for message in unsupported.warnings():
         warn_once(message)
     for name in sorted(jumping):

@@ -1,6 +1,9 @@
 """Export of the evaluated depsgraph into the core's scene description."""
 
 import math
+import os
+import subprocess
+import sys
 
 import bpy
 import numpy as np
@@ -427,3 +430,12 @@ def test_nested_instances_render_like_the_same_plain_objects(scene, tmp_path):
     plain = render_exr(scene, tmp_path / "plain.exr")["Doppler"]
     assert np.count_nonzero(plain) > 100 and len(np.unique(plain.round(4))) > 3
     np.testing.assert_allclose(nested, plain, rtol=1e-9, atol=0)
+
+
+def test_the_ui_answers_motion_questions_without_the_exporter():
+    """ui.py asks motion_query (and the core's checks), never the export package."""
+    code = ("import sys, restframe_addon.ui; "
+            "print(sorted(m for m in sys.modules if m.startswith('restframe_addon.export')))")
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    result = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=True)
+    assert result.stdout.strip().splitlines()[-1] == "[]"
