@@ -94,12 +94,13 @@ def object_trajectory(root, scene, camera_position, radius: float, *, should_sto
     ``radius`` is the assembly's ``body_radius`` about the pivot (every mesh moving with it),
     so the world line is built with its corners rounded for that body.
 
-    Samples ``SUBFRAMES`` per frame from before the scene's start frame (early enough
-    for light from any sampled position to reach the camera) up to just past the
-    rendered frame; the F-curves are evaluated directly, so the scene's current frame
+    Samples ``SUBFRAMES`` per frame, and every key, from before the scene's start frame
+    (early enough for light from any sampled position to reach the camera) up to just past
+    the rendered frame; the F-curves are evaluated directly, so the scene's current frame
     never changes.  Supported: the object's own location/delta location keys; a parent
     is taken as static at its pose of the rendered frame.  Raises ExportError (naming
-    the object and frames) when the motion reaches c, ExportCancelled on Esc.
+    the object and frames) when the keyed curves, differentiated per segment, reach c
+    anywhere (``_refuse_light_speed``), ExportCancelled on Esc.
     """
     rf = scene.restframe
     c = rf.light_speed
