@@ -5,7 +5,7 @@
     python -m restframe_addon render FILE.blend -o OUT.exr --frame N --regions 16 --workers 2
 
 The .blend is opened read-only in spirit: settings are changed in memory for the
-render (engine, output format) and the file is never saved.  Each frame depends
+render (engine, output format, Persistent Data) and the file is never saved.  Each frame depends
 only on its own time, so frame ranges can be split across machines freely.
 The output format follows OUT's extension (``.exr`` = multilayer EXR with every
 pass); with no extension the scene's own output settings are used.
@@ -253,6 +253,9 @@ def render_command(args) -> int:
         return distributed_command(args, scene, out, ext, frames)
     if args.region is not None:
         set_region(scene, parse_region(args.region))
+    # Blender's Persistent Data, in memory only: the engine is kept from frame to frame and
+    # traces unchanged rest-frame geometry without building it again (the same pixels)
+    scene.render.use_persistent_data = not args.no_persistent_data
     for frame in frames:
         started = time.monotonic()
         path = output_path(out, frame, len(frames) > 1)
@@ -279,6 +282,9 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--region", metavar="X0,Y0,X1,Y1",
                         help="render only this pixel rectangle (origin bottom left, X1/Y1 exclusive) as a "
                         "cropped image: Blender's render border")
+    render.add_argument("--no-persistent-data", action="store_true",
+                        help="build every frame's rest frames afresh (default: the frames of one command reuse "
+                        "the geometry of bodies unchanged in their rest frames, as with Blender's Persistent Data)")
     dask = render.add_argument_group("Dask (render on a cluster; needs dask[distributed])")
     dask.add_argument("--scheduler", metavar="ADDRESS",
                       help="Dask scheduler to send frames to, e.g. tcp://farm:8786")

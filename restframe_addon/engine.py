@@ -17,6 +17,7 @@ import bpy
 
 from . import export
 from .core.passes import BY_NAME
+from .core.persistent import GeometryCache
 from .core.prepared import prepare
 from .core.render import render_tiles
 from .core.validation import RenderError
@@ -48,6 +49,17 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
     # Blender 5.0 needs the full signature, or the engine fails silently (empty image).
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
+        # Blender keeps one engine for the frames of an animation (and later F12s) while the
+        # scene's Persistent Data is on: unchanged rest-frame geometry is then built only once
+        self.geometry_cache = GeometryCache()
+
+    def _persistent_data(self, depsgraph) -> GeometryCache | None:
+        """The geometry kept from earlier renders, if the scene's Persistent Data is on (else it is
+        dropped, and every render builds afresh)."""
+        if depsgraph.scene.render.use_persistent_data:
+            return self.geometry_cache
+        self.geometry_cache.clear()
+        return None
 
     def should_stop(self) -> bool:
         """Esc pressed: checked between exported objects and between tiles."""
@@ -57,7 +69,7 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         for name, channel_ids, channel_type in list_render_passes(scene, renderlayer):
             self.register_pass(scene, renderlayer, name, len(channel_ids), channel_ids, channel_type)
 
-    def _prepare(self, scene, settings):
+    def _prepare(self, scene, settings, geometry_cache=None):
         """``prepare(...)`` in a worker thread, polled for Esc every 50 ms.
 
         The build checks Esc between pieces of 2**14 triangles, but polling needs the GIL,
@@ -70,7 +82,7 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
 
         def work():
             try:
-                box["prepared"] = prepare(scene, settings, cancelled.is_set)
+                box["prepared"] = prepare(scene, settings, cancelled.is_set, geometry_cache)
             except BaseException as error:  # handed to the main thread
                 box["error"] = error
 
@@ -107,7 +119,7 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
             if self.should_stop():
                 return
             self.update_stats("", "RESTframe | Building rest frames")
-            prepared = self._prepare(scene, settings)
+            prepared = self._prepare(scene, settings, self._persistent_data(depsgraph))
             if prepared is None:
                 return
         except export.ExportCancelled:

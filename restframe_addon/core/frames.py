@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
+from typing import TYPE_CHECKING
 
 import numpy as np
 from embreex import rtcore, rtcore_scene
@@ -27,6 +28,9 @@ from embreex.mesh_construction import TriangleMesh
 from . import motion, rows, validation
 from .lorentz import Boost
 from .scene import REST, Scene, Velocity
+
+if TYPE_CHECKING:
+    from .persistent import GeometryCache
 
 
 class FrameMap:
@@ -324,12 +328,21 @@ class MotionSettings:
     tolerance: float = 1e-3  # scene units: largest displacement of any body point from its true motion
 
 
-def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: MotionSettings | None = None) -> FrameSet:
+def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: MotionSettings | None = None,
+                 geometry_cache: "GeometryCache | None" = None) -> FrameSet:
     """Group the scene by velocity and build one embreex scene per moving or static frame.
 
+    With a ``geometry_cache`` (persistent data across frames), geometry whose parts are
+    unchanged since the cache's last frame is taken from it instead of built again.
     Raises ValueError (naming the object) for invalid velocities or motions.
     """
     motion_settings = motion_settings or MotionSettings()
+
+    def build(parts: list[dict]) -> Geometry | None:
+        if geometry_cache is None:
+            return _geometry(parts, should_stop)
+        return geometry_cache.geometry(parts, lambda: _geometry(parts, should_stop))
+
     frames: list[RestFrame] = []
     by_key: dict[tuple, RestFrame] = {}
     warnings: list[str] = []
@@ -368,14 +381,16 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
     for index, parts in inertial.items():
         if should_stop():
             break
-        frames[index].geometry = _geometry(parts, should_stop)
+        frames[index].geometry = build(parts)
     for kind, meshes in special.values():
         if should_stop():
             break
         if kind == "animated":
-            _add_segments(frames, meshes, scene, motion_settings, warnings, groups, should_stop)
+            _add_segments(frames, meshes, scene, motion_settings, warnings, groups, build)
         else:
-            _add_rotation(frames, meshes[0], scene, motion_settings, warnings, should_stop)
+            _add_rotation(frames, meshes[0], scene, motion_settings, warnings, build)
+    if geometry_cache is not None and not should_stop():
+        geometry_cache.finish_frame()
     return FrameSet(frames, world, camera, light_frames, warnings, groups)
 
 
@@ -520,15 +535,15 @@ def _flat_normals(part: dict) -> np.ndarray:
     return np.repeat(n[:, None, :], 3, axis=1)
 
 
-def _add_segments(frames, meshes, scene: Scene, settings: MotionSettings, warnings, groups, should_stop) -> None:
+def _add_segments(frames, meshes, scene: Scene, settings: MotionSettings, warnings, groups, build) -> None:
     """An animated assembly: one frame per inertial segment of its pivot's world line (none once
-    ``should_stop()`` is true)."""
+    ``build``, parts -> Geometry, returns None: cancelled)."""
     trajectory = meshes[0].trajectory
     pivot = np.asarray(meshes[0].pivot, dtype=np.float64)
     parts = [p for p in (_mesh_part(m, Boost.identity(), warnings, relative_to=pivot) for m in meshes) if p is not None]
     if not parts:
         return
-    geometry = _geometry(parts, should_stop)
+    geometry = build(parts)
     if geometry is None:  # cancelled
         return
     if geometry.radius > trajectory.body_radius:  # built for a smaller body: round the corners for this one
@@ -575,9 +590,9 @@ def _slice(boost: Boost, tau, position, beta, slack: float) -> Slice:
     return Slice(float(t), x, u / u0, slack)
 
 
-def _add_rotation(frames, mesh, scene: Scene, settings: MotionSettings, warnings, should_stop) -> None:
+def _add_rotation(frames, mesh, scene: Scene, settings: MotionSettings, warnings, build) -> None:
     """A body spinning at constant angular velocity about its pivot, in its (inertial) axis frame
-    (none once ``should_stop()`` is true).
+    (none once ``build``, parts -> Geometry, returns None: cancelled).
 
     It shows its Blender pose at its own clock's zero; the tracer poses it per ray.
     """
@@ -586,7 +601,7 @@ def _add_rotation(frames, mesh, scene: Scene, settings: MotionSettings, warnings
     part = _mesh_part(mesh, boost, warnings, relative_to=pivot)
     if part is None:
         return
-    geometry = _geometry([part], should_stop)
+    geometry = build([part])
     if geometry is None:  # cancelled
         return
     omega = np.asarray(mesh.angular_velocity, dtype=np.float64) / scene.light_speed  # rad per unit c*t

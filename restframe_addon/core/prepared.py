@@ -23,6 +23,7 @@ from .camera import CameraRays
 from .colour import RGBColour, SpectralColour
 from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
 from .passes import EXTRA_PASSES, ray_doppler
+from .persistent import GeometryCache
 from .scene import RenderSettings, Scene
 from .shading import MaterialTable, PreparedLight, Shader, prepare_lights
 from .tracer import TraceCache, trace_nearest
@@ -111,15 +112,17 @@ class PreparedScene:
         return self.rays(np.arange(x0, x1) + 0.5, np.arange(y0, y1) + 0.5, grid=True)
 
 
-def prepare(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bool] = lambda: False) -> PreparedScene:
+def prepare(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bool] = lambda: False,
+            geometry_cache: GeometryCache | None = None) -> PreparedScene:
     """Check, build and measure a scene for rendering.
 
     Raises RenderError (naming the object) for scenes and settings that cannot be rendered.
     Once ``should_stop()`` is true the build stops early; the result is then incomplete
-    and must not be rendered.
+    and must not be rendered.  ``geometry_cache``: the rest-frame geometry of earlier frames,
+    reused where unchanged (:mod:`.persistent`; the same pixels as a fresh build).
     """
     settings = dataclasses.replace(settings)  # its own copy: a caller changing theirs later changes no render
-    prepared = _build(scene, settings, should_stop)
+    prepared = _build(scene, settings, should_stop, geometry_cache)
     doppler_range = settings.doppler_range
     if settings.doppler_mode == "FACTOR" and doppler_range is None:
         doppler_range = _measure_doppler_range(prepared, should_stop)
@@ -134,11 +137,12 @@ def _rebuild(scene: Scene, settings: RenderSettings, doppler_range, exposure: fl
     return dataclasses.replace(_build(scene, settings), doppler_range=doppler_range, exposure=exposure)
 
 
-def _build(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bool] = lambda: False) -> PreparedScene:
+def _build(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bool] = lambda: False,
+           geometry_cache: GeometryCache | None = None) -> PreparedScene:
     """Everything but the pre-passes (Doppler range as given, exposure 1)."""
     check_render(scene, settings, EXTRA_PASSES)
     try:
-        frames = build_frames(scene, should_stop, MotionSettings(settings.motion_tolerance))
+        frames = build_frames(scene, should_stop, MotionSettings(settings.motion_tolerance), geometry_cache)
         lights = tuple(prepare_lights(scene, frames))
     except ValueError as error:
         raise RenderError(str(error)) from error
