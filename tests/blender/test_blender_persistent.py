@@ -1,0 +1,104 @@
+"""Persistent Data (issue 20): with the scene's Persistent Data on, Blender keeps the engine from
+frame to frame and bodies unchanged in their rest frames are not built again; the command line
+does that for its frames by default.  The pixels are those of fresh renders."""
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from blender_helpers import add_camera, add_plane, add_sun, read_exr, render_exr
+from restframe_addon.__main__ import main
+from restframe_addon.core import frames as frames_module
+
+FRAMES = (1, 2, 3)
+
+
+@pytest.fixture
+def builds(monkeypatch):
+    """Geometry builds (embree scenes made) so far."""
+    built = []
+    geometry = frames_module._geometry
+
+    def counted(parts, *args, **kwargs):
+        built.append(len(parts))
+        return geometry(parts, *args, **kwargs)
+
+    monkeypatch.setattr(frames_module, "_geometry", counted)
+    return built
+
+
+@pytest.fixture
+def animation(scene):
+    """A floor at rest and a red plate at 0.6c seen from above: the plate moves 0.25 units a frame
+    (frames 1..3 see it near where it was placed: its light takes 0.8 s to the camera)."""
+    scene.render.fps, scene.render.fps_base = 24, 1.0
+    scene.restframe.reference_frame = -18
+    add_camera(scene, (0.0, 0.0, 8.0))
+    add_sun(scene, rotation=(math.radians(25), 0.0, 0.0))
+    add_plane(scene, "Floor", size=12.0, location=(0.0, 0.0, -1.0))
+    plate = add_plane(scene, "Plate", size=2.0, location=(-1.0, 0.0, 0.0), velocity=(0.6, 0.0, 0.0))
+    red = bpy.data.materials.new("Red")
+    if bpy.app.version < (5, 0, 0):
+        red.use_nodes = True
+    red.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (0.9, 0.1, 0.1, 1.0)
+    plate.data.materials.append(red)
+    return scene
+
+
+def render_frames(scene, tmp_path, builds, persistent, edit=lambda frame: None):
+    """Render FRAMES as F12 renders; (passes, builds) per frame."""
+    scene.render.use_persistent_data = persistent
+    out = []
+    for frame in FRAMES:
+        edit(frame)
+        scene.frame_set(frame)
+        before = len(builds)
+        passes = render_exr(scene, tmp_path / f"{persistent}_{frame}.exr")
+        out.append((passes, len(builds) - before))
+    return out
+
+
+def assert_same_pixels(a, b):
+    assert a.keys() == b.keys()
+    for name in a:
+        assert np.array_equal(a[name], b[name]), name
+
+
+def test_persistent_data_builds_unchanged_bodies_once_with_the_same_pixels(animation, tmp_path, builds):
+    kept = render_frames(animation, tmp_path, builds, persistent=True)
+    fresh = render_frames(animation, tmp_path, builds, persistent=False)
+    assert [count for _, count in kept] == [2, 0, 0]
+    assert [count for _, count in fresh] == [2, 2, 2]
+    for (a, _), (b, _) in zip(kept, fresh):
+        assert_same_pixels(a, b)
+    assert not np.array_equal(kept[0][0]["Combined"], kept[-1][0]["Combined"])  # the plate moves
+
+
+def test_a_mesh_edited_between_frames_is_built_again_alone(animation, tmp_path, builds):
+    plate = animation.objects["Plate"].data
+
+    def stretch(frame):  # each frame the plate is longer: a deforming body
+        plate.vertices[1].co.x = plate.vertices[2].co.x = 1.0 + 0.3 * frame
+        plate.update()
+
+    kept = render_frames(animation, tmp_path, builds, persistent=True, edit=stretch)
+    fresh = render_frames(animation, tmp_path, builds, persistent=False, edit=stretch)
+    assert [count for _, count in kept] == [2, 1, 1]  # the floor is reused
+    for (a, _), (b, _) in zip(kept, fresh):
+        assert_same_pixels(a, b)
+
+
+def test_the_command_line_reuses_the_geometry_of_its_frames(animation, tmp_path, builds):
+    blend = tmp_path / "animation.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    counts = {}
+    for option in ((), ("--no-persistent-data",)):
+        before = len(builds)
+        assert main(["render", str(blend), "-o", str(tmp_path / f"cli{len(option)}_#.exr"), "--frames", "1-3",
+                     *option]) == 0
+        counts[option] = len(builds) - before
+    assert counts == {(): 2, ("--no-persistent-data",): 6}
+    for frame in FRAMES:
+        assert_same_pixels(read_exr(tmp_path / f"cli0_{frame}.exr"), read_exr(tmp_path / f"cli1_{frame}.exr"))
