@@ -1,4 +1,10 @@
-"""Meshes: evaluated loop triangles, materials, corner normals and UVs read in bulk, placed per instance."""
+"""Meshes: evaluated loop triangles, materials, corner normals and UVs read in bulk, placed per instance.
+
+Positions, corner vertices and material indices are read from their attributes, whose
+``foreach_get`` copies contiguous storage; the same values through ``mesh.vertices``,
+``mesh.loops`` or the loop triangles' ``vertices``/``material_index`` go element by element
+(261k triangles: 1 ms against 20-120 ms each).  Only the triangles' corners have no such path.
+"""
 
 from __future__ import annotations
 
@@ -35,24 +41,30 @@ def read_mesh(obj, mesh, materials: MaterialExporter, should_stop=lambda: False)
         return None
     check()
     vertices = np.empty(n_vert * 3, dtype=np.float32)
-    mesh.vertices.foreach_get("co", vertices)
+    mesh.attributes["position"].data.foreach_get("vector", vertices)
     check()
-    triangles = np.empty(n_tri * 3, dtype=np.int32)
-    tris.foreach_get("vertices", triangles)
+    corners = np.empty(n_tri * 3, dtype=np.int32)
+    tris.foreach_get("loops", corners)
+    corner_vertex = np.empty(len(mesh.loops), dtype=np.int32)
+    mesh.attributes[".corner_vert"].data.foreach_get("value", corner_vertex)
+    triangles = corner_vertex[corners]
     check()
-    slot_of_tri = np.empty(n_tri, dtype=np.int32)
-    tris.foreach_get("material_index", slot_of_tri)
+    slot_of_tri = np.zeros(n_tri, dtype=np.int32)
+    material_index = mesh.attributes.get("material_index")  # absent while every face uses the first slot
+    if material_index is not None:
+        face_of_tri = np.empty(n_tri, dtype=np.int32)
+        mesh.loop_triangle_polygons.foreach_get("value", face_of_tri)
+        slot_of_face = np.empty(len(mesh.polygons), dtype=np.int32)
+        material_index.data.foreach_get("value", slot_of_face)
+        slot_of_tri = slot_of_face[face_of_tri]
 
     slots = [slot.material for slot in obj.material_slots] or [None]
     lookup = np.array([materials.index_of(m) for m in slots], dtype=np.int32)
     global_materials = lookup[np.clip(slot_of_tri, 0, len(lookup) - 1)]
 
-    corners = None
     normals = None
     check()
     if mesh.normals_domain != 'FACE':  # flat meshes: the tracer's geometric normals are exact
-        corners = np.empty(n_tri * 3, dtype=np.int32)
-        tris.foreach_get("loops", corners)
         corner_normals = np.empty(len(mesh.loops) * 3, dtype=np.float32)
         check()
         mesh.corner_normals.foreach_get("vector", corner_normals)
@@ -62,9 +74,6 @@ def read_mesh(obj, mesh, materials: MaterialExporter, should_stop=lambda: False)
     uvs = None
     layer = next((uv for uv in mesh.uv_layers if uv.active_render), None)
     if layer is not None and any(materials.materials[i].base_color_texture is not None for i in np.unique(lookup)):
-        if corners is None:
-            corners = np.empty(n_tri * 3, dtype=np.int32)
-            tris.foreach_get("loops", corners)
         corner_uvs = np.empty(len(mesh.loops) * 2, dtype=np.float32)
         layer.uv.foreach_get("vector", corner_uvs)
         uvs = corner_uvs.reshape(-1, 2)[corners].reshape(n_tri, 3, 2).astype(np.float64)

@@ -102,3 +102,33 @@ def test_the_command_line_reuses_the_geometry_of_its_frames(animation, tmp_path,
     assert counts == {(): 2, ("--no-persistent-data",): 6}
     for frame in FRAMES:
         assert_same_pixels(read_exr(tmp_path / f"cli0_{frame}.exr"), read_exr(tmp_path / f"cli1_{frame}.exr"))
+
+
+def test_the_exporter_reads_the_triangles_and_materials_blender_lists(scene):
+    """read_mesh takes its arrays from attributes (contiguous storage): the same values as the
+    loop triangles' own per-element fields, for quads and n-gons, several materials, a modifier."""
+    from restframe_addon.export.materials import MaterialExporter
+    from restframe_addon.export.meshes import read_mesh
+
+    mesh = bpy.data.meshes.new("Mixed")
+    mesh.from_pydata([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0), (2.5, 0.5, 0), (2, 1, 0.3),
+                      (1.5, 1.4, 0.1)], [], [(0, 1, 2, 3), (1, 4, 5, 6, 7, 2), (0, 3, 2)])
+    obj = bpy.data.objects.new("Mixed", mesh)
+    scene.collection.objects.link(obj)
+    for name in ("A", "B", "C"):
+        mesh.materials.append(bpy.data.materials.new(name))
+    mesh.polygons[1].material_index = 2
+    mesh.polygons[2].material_index = 1
+    obj.modifiers.new("Subdivide", 'SUBSURF').levels = 1
+    evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    materials = MaterialExporter(lambda message: None, scene)
+    data = read_mesh(evaluated, evaluated.data, materials)
+
+    tris = evaluated.data.loop_triangles
+    vertices = np.array([v.co for v in evaluated.data.vertices])
+    assert np.array_equal(data.vertices, vertices.astype(np.float32).astype(np.float64))
+    assert np.array_equal(data.triangles, np.array([t.vertices for t in tris]))
+    slots = np.array([t.material_index for t in tris])
+    assert set(slots) == {0, 1, 2}
+    by_slot = np.array([materials.index_of(slot.material) for slot in evaluated.material_slots])
+    assert len(set(by_slot)) == 3 and np.array_equal(data.materials, by_slot[slots])
