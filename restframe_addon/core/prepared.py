@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 from typing import Callable
 
@@ -31,6 +33,7 @@ from .validation import RenderError, check_render
 
 _EXPOSURE_PREVIEW = 48  # pixels on the longer side of the exposure-normalisation preview
 _LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+_UNPICKLING_CACHE: ContextVar[GeometryCache | None] = ContextVar("restframe_unpickling_cache", default=None)
 
 
 @dataclass(frozen=True, eq=False)
@@ -132,9 +135,23 @@ def prepare(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bo
     return dataclasses.replace(prepared, doppler_range=doppler_range, exposure=exposure)
 
 
+@contextmanager
+def unpickling_with(geometry_cache: GeometryCache):
+    """Prepared scenes unpickled inside this block rebuild their rest frames through the cache of
+    the block's owner (a worker process that renders frame after frame): unchanged geometry is not
+    built again there either."""
+    token = _UNPICKLING_CACHE.set(geometry_cache)
+    try:
+        yield
+    finally:
+        _UNPICKLING_CACHE.reset(token)
+
+
 def _rebuild(scene: Scene, settings: RenderSettings, doppler_range, exposure: float) -> PreparedScene:
-    """A prepared scene from its pickled parts: built again, the pre-passes' values kept."""
-    return dataclasses.replace(_build(scene, settings), doppler_range=doppler_range, exposure=exposure)
+    """A prepared scene from its pickled parts: built again (see :func:`unpickling_with`), the
+    pre-passes' values kept."""
+    prepared = _build(scene, settings, geometry_cache=_UNPICKLING_CACHE.get())
+    return dataclasses.replace(prepared, doppler_range=doppler_range, exposure=exposure)
 
 
 def _build(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bool] = lambda: False,
