@@ -329,7 +329,7 @@ class MotionSettings:
 
 
 def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: MotionSettings | None = None,
-                 geometry_cache: "GeometryCache | None" = None) -> FrameSet:
+                 geometry_cache: GeometryCache | None = None) -> FrameSet:
     """Group the scene by velocity and build one embreex scene per moving or static frame.
 
     With a ``geometry_cache`` (persistent data across frames), geometry whose parts are
