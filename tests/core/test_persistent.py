@@ -38,8 +38,10 @@ def render(prepared):
 
 
 def at(scene, tau_obs, **changes):
-    """The scene at another frame's time, with some meshes replaced (name -> Mesh changes)."""
-    meshes = [dataclasses.replace(m, **changes.get(m.name, {})) for m in scene.meshes]
+    """The scene at another frame's time, its meshes read anew (new arrays, as each frame's export
+    makes) with some fields changed (mesh name -> Mesh fields)."""
+    meshes = [dataclasses.replace(m, **{"vertices": m.vertices.copy(), "triangles": m.triangles.copy(),
+                                         **changes.get(m.name, {})}) for m in scene.meshes]
     return dataclasses.replace(scene, tau_obs=tau_obs, meshes=meshes)
 
 
