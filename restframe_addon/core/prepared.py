@@ -24,7 +24,8 @@ from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
 from .passes import EXTRA_PASSES, ray_doppler
 from .scene import RenderSettings, Scene
 from .shading import MaterialTable, PreparedLight, Shader, prepare_lights
-from .tracer import TraceCache, trace_nearest
+from .scene import RAY_CAMERA
+from .tracer import TraceCache
 from .validation import RenderError, check_render
 
 _EXPOSURE_PREVIEW = 48  # pixels on the longer side of the exposure-normalisation preview
@@ -157,7 +158,9 @@ def _measure_doppler_range(prepared: PreparedScene, should_stop) -> tuple[float,
         if should_stop():
             break
         rays = prepared.centre_rays(rect)
-        hits = trace_nearest(frames, frames.camera, *rays, cache=cache)
+        _, _, pixel = prepared.pixel_grid(rect)
+        hits = prepared.shader.trace(frames.camera, *rays, RAY_CAMERA, pixel, np.zeros_like(pixel), 0, cache,
+                                     for_passes=True)
         doppler = ray_doppler(frames, hits)[hits.frame >= 0]
         if len(doppler):
             lo, hi = min(lo, doppler.min()), max(hi, doppler.max())

@@ -23,8 +23,8 @@ import numpy as np
 from . import blas, sampling
 from .passes import ALL_PASSES, EXTRA_PASSES, PASSES, pixel_passes, ray_doppler  # noqa: F401 (PASSES: public name)
 from .prepared import PreparedScene, prepare
-from .scene import RenderSettings, Scene
-from .tracer import TraceCache, trace_nearest
+from .scene import RAY_CAMERA, RenderSettings, Scene
+from .tracer import TraceCache
 from .validation import DOPPLER_MODES, RenderError  # noqa: F401 (public names of this module)
 
 _MAX_VALUES = 3 << 16  # ray colour values per batch: bounds memory whatever the tile size, samples and wavelengths
@@ -56,12 +56,15 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     h, w = y1 - y0, x1 - x0
     xs, ys, pixel = prepared.pixel_grid(rect)
     n = len(pixel)
+    shader = prepared.shader
     centre = prepared.centre_rays(rect)
-    centre_hits = trace_nearest(frames, frames.camera, *centre, cache=cache)
+    centre_hits = shader.trace(frames.camera, *centre, RAY_CAMERA, pixel, np.zeros_like(pixel), 0, cache,
+                               for_passes=True)
     passes = pixel_passes(frames, prepared.scene.light_speed, prepared.passes, centre, centre_hits)
     samples = max(int(settings.samples), 1)
     rgb = np.zeros((n, 3))
-    coverage = np.zeros(n)
+    coverage = np.zeros(n)  # the share of samples that hit a surface (holdouts included)
+    held = np.zeros(n)  # the share of samples that hit a holdout
     complete = True
     for index, (part, first, count) in enumerate(_batches(n, samples, prepared.colour.channels)):
         if index and should_stop():  # Esc between sample batches of a long tile
@@ -70,24 +73,32 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
         m = part.stop - part.start
         pix = np.repeat(pixel[part], count)
         smp = np.tile(np.arange(first, first + count), m)
-        if samples == 1:  # the one sample is the pixel-centre ray, already traced
-            rays, hits = tuple(a[part] for a in centre), centre_hits.take(part)
+        if samples == 1:  # the one sample is the pixel-centre ray
+            rays = tuple(a[part] for a in centre)
+            # already traced, unless cut-outs pass it by chance (the passes' trace used a threshold)
+            hits = (shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache)
+                    if prepared.materials.cuts_out else centre_hits.take(part))
         else:
             ox, oy = sampling.stratified_offsets(pix, smp, samples)
             rays = prepared.rays(np.repeat(xs[part], count) + ox, np.repeat(ys[part], count) + oy)
-            hits = trace_nearest(frames, frames.camera, *rays, cache=cache)
-        color, hit = _sample(prepared, rays, hits, pix, smp, cache)
+            hits = shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache)
+        color, hit, hole = _sample(prepared, rays, hits, pix, smp, cache)
         rgb[part] += color.reshape(m, count, 3).sum(axis=1)
         coverage[part] += hit.reshape(m, count).sum(axis=1)
+        if hole is not None:
+            held[part] += hole.reshape(m, count).sum(axis=1)
     rgb *= prepared.exposure / samples
     coverage /= samples
-    alpha = coverage if settings.film_transparent else np.ones(n)
+    held /= samples
+    # holdouts are holes in the image whether or not the film is transparent (as in Cycles)
+    alpha = coverage - held if settings.film_transparent else 1.0 - held
     passes["Combined"] = np.concatenate([rgb, alpha[:, None]], axis=1)
     return Tile(x0, y0, x1, y1, {k: v.reshape(h, w, -1).astype(np.float32) for k, v in passes.items()}, complete)
 
 
 def _sample(prepared: PreparedScene, rays, hits, pixel, sample, cache: TraceCache):
-    """Colour of camera samples (already traced: ``hits``) and whether they hit anything."""
+    """Colour of camera samples (already traced: ``hits``), whether they hit anything and whether
+    a holdout (None: the scene has none; a holdout's colour is 0)."""
     settings = prepared.settings
     if settings.doppler_mode == "FACTOR":
         hit = hits.frame >= 0
@@ -102,7 +113,11 @@ def _sample(prepared: PreparedScene, rays, hits, pixel, sample, cache: TraceCach
         rgb[~hit] = 0.0
     elif settings.doppler_mode == "FACTOR":
         rgb[~hit] = prepared.scene.world_color
-    return rgb, hit
+    if not prepared.frames.has_holdout:
+        return rgb, hit, None
+    hole = prepared.shader.held_out(hits)
+    rgb[hole] = 0.0
+    return rgb, hit, hole
 
 
 def _doppler_grey(prepared: PreparedScene, doppler):

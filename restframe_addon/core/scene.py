@@ -40,6 +40,15 @@ class Velocity:
 
 REST = Velocity()
 
+# Ray types: the bits of ``Mesh.visibility`` (Blender's Object > Visibility > Ray Visibility).  A
+# surface a ray type does not see is passed through by those rays, as if absent for them.
+RAY_CAMERA = 1  # camera rays (and their continuations through cut-outs)
+RAY_DIFFUSE = 2  # diffuse bounces (the path tracer's)
+RAY_GLOSSY = 4  # mirror and glossy reflections
+RAY_TRANSMISSION = 8  # refraction through glass
+RAY_SHADOW = 16  # shadow rays toward lights
+RAY_ALL = RAY_CAMERA | RAY_DIFFUSE | RAY_GLOSSY | RAY_TRANSMISSION | RAY_SHADOW
+
 
 @dataclass
 class Material:
@@ -57,6 +66,12 @@ class Material:
     # clock reading of each seen event (optical clocks); linear between keys, constant beyond
     emission_curve: tuple[np.ndarray, np.ndarray] | None = None
     base_color_texture: np.ndarray | None = None  # (H, W, 3) scene-linear, row 0 = bottom (Blender order)
+    # Principled Alpha (cut-outs): the chance a ray stops at the surface; 1 = opaque
+    alpha: float = 1.0
+    alpha_texture: np.ndarray | None = None  # (H, W, 1) alpha from an image (times ``alpha``), row 0 = bottom
+    # a tangent-space normal map (Normal Map node): the image's colour (H, W, 3), Non-Color, row 0 = bottom
+    normal_texture: np.ndarray | None = None
+    normal_strength: float = 1.0
 
 
 @dataclass
@@ -79,6 +94,8 @@ class Mesh:
     object_index: int = 0  # Blender's pass_index, for the IndexOB pass
     trajectory: "Trajectory | None" = None  # animated pivot world line (replaces velocity); see core.motion
     angular_velocity: tuple[float, float, float] | None = None  # rad/s about the pivot, world axes, in the velocity frame
+    visibility: int = RAY_ALL  # the ray types that see it (RAY_* bits)
+    holdout: bool = False  # seen by the camera as a hole in the image (colour and alpha 0), still occluding
 
 
 @dataclass

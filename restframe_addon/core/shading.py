@@ -27,8 +27,8 @@ import numpy as np
 from . import rows, sampling, spectral
 from .frames import FrameSet, shift_into_frame
 from .passes import facing_normals, hit_doppler, hit_times
-from .scene import Light, Material, Scene
-from .tracer import TraceCache, frames_hit, occluded, trace_nearest
+from .scene import RAY_CAMERA, RAY_GLOSSY, RAY_TRANSMISSION, Light, Material, Scene
+from .tracer import Hits, TraceCache, frames_hit, occluded, trace_nearest
 
 MIRROR_ROUGHNESS = 0.05  # smoother surfaces reflect by traced mirror rays, rougher ones by GGX highlights
 _MIN_ALPHA = 1e-3
@@ -37,6 +37,14 @@ _MIN_ALPHA = 1e-3
 # (irradiance P / (4 pi r^2) head-on); an area light of power P emits radiance P / (pi A);
 # a sun of strength S gives irradiance S on a surface facing it.
 _POINT_INTENSITY_PER_WATT = 1.0 / (4.0 * np.pi)
+
+# Cycles' default view-layer Alpha Threshold: the passes (depth, normal, index) see surfaces
+# at least this opaque, the colour sees every surface with the chance of its alpha
+PASS_ALPHA_THRESHOLD = 0.5
+# sampler dimensions of the cut-out decisions (one more per surface passed): camera and bounce rays,
+# then shadow rays of each light
+_CUTOUT_DIMENSION = 20_000
+_CUTOUT_SHADOW_DIMENSION = 40_000
 
 
 class MaterialTable:
@@ -60,6 +68,12 @@ class MaterialTable:
         self.transmission = np.clip([m.transmission for m in materials], 0.0, 1.0)
         self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
         self.textures = [m.base_color_texture for m in materials]
+        self.alpha = np.clip([m.alpha for m in materials], 0.0, 1.0)
+        self.alpha_textures = [m.alpha_texture for m in materials]
+        self.cuts_out = bool(np.any(self.alpha < 1.0)) or any(t is not None for t in self.alpha_textures)
+        self.normal_textures = [m.normal_texture for m in materials]
+        self.normal_strength = np.maximum([m.normal_strength for m in materials], 0.0)
+        self.normal_mapped = any(t is not None for t in self.normal_textures)
         self.mirror = self.roughness < MIRROR_ROUGHNESS
         self.glass = self.transmission > 0.0
         self.traces_secondary = bool(np.any(self.mirror | self.glass))
@@ -68,7 +82,7 @@ class MaterialTable:
         # Specular IOR Level scales the whole dielectric lobe (0 = none), grazing reflection included
         self.f0_dielectric = np.minimum(_dielectric_f0(self.ior) * self.specular_scale, 1.0) * (1.0 - self.metallic)
         self.f90 = np.minimum(self.specular_scale, 1.0) * (1.0 - self.metallic) + self.metallic
-        self.alpha = np.maximum(self.roughness**2, _MIN_ALPHA)
+        self.ggx_alpha = np.maximum(self.roughness**2, _MIN_ALPHA)
         # rough surfaces with a specular lobe get GGX highlights (Specular IOR Level 0, not metallic: none)
         self.glossy = ~self.mirror & ((self.f90 > 0.0) | (self.f0_dielectric > 0.0) | (self.metallic > 0.0))
 
@@ -96,6 +110,29 @@ class MaterialTable:
             if len(sel):
                 color[sel] = _sample_texture(texture, uv[sel])
         return color
+
+    def opacity(self, index, uv):
+        """Principled Alpha per hit (the alpha image looked up where there is one, UVs or not)."""
+        alpha = self.alpha[index]
+        for m, texture in enumerate(self.alpha_textures):
+            if texture is None:
+                continue
+            sel = np.flatnonzero(index == m)
+            if len(sel):
+                alpha[sel] = alpha[sel] * (_sample_texture(texture, uv[sel])[:, 0] if uv is not None else 1.0)
+        return alpha
+
+    def tangent_normals(self, index, uv):
+        """The normal map's tangent-space normal per hit (Blender's colour * 2 - 1), NaN where the
+        material has none."""
+        normal = np.full((len(index), 3), np.nan)
+        for m, texture in enumerate(self.normal_textures):
+            if texture is None:
+                continue
+            sel = np.flatnonzero(index == m)
+            if len(sel):
+                normal[sel] = 2.0 * _sample_texture(texture, uv[sel]) - 1.0
+        return normal
 
 
 def _sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -161,17 +198,8 @@ class Shader:
         self.colour = colour
         self.max_bounces = max_bounces
         self.searchlight = searchlight
-        # how far secondary and shadow rays start off a surface: above the float32 geometry's
-        # rounding (relative to its extent), the float64 rounding of far positions (a hundred
-        # ulps), and, for the inertial segments of an accelerated body, twice the motion
-        # tolerance by which neighbouring segments of the same body may disagree
-        epsilon = {}
-        for k in frames.geometry:
-            frame = frames.frames[k]
-            reach = float(np.max(np.abs(frame.geometry.anchor))) + float(np.max(np.abs(frame.offset)))
-            segment = 2.0 * frame.tolerance if frame.window is not None else 0.0
-            epsilon[k] = 1e-5 * frame.geometry.extent + 1e-14 * reach + segment
-        self.epsilon = MappingProxyType(epsilon)
+        # how far secondary and shadow rays start off a surface (RestFrame.surface_offset)
+        self.epsilon = MappingProxyType({k: float(frames.surface_offsets[k]) for k in frames.geometry})
 
     # ------------------------------------------------------------------ helpers
     def _power(self, doppler, exponent: int):
@@ -182,16 +210,17 @@ class Shader:
 
     # ------------------------------------------------------------------ rays
     def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, depth: int, pixel, sample, lam, hits=None,
-                 cache: TraceCache | None = None):
+                 cache: TraceCache | None = None, ray: int = RAY_CAMERA):
         """Radiance arriving at events (tau0, x0) of frame src from backward directions d,
         at the wavelengths ``lam`` of frame src (None in RGB mode); ``hits`` if already traced;
-        ``cache``: the calling thread's :class:`~.tracer.TraceCache` (None: keep nothing).
+        ``cache``: the calling thread's :class:`~.tracer.TraceCache` (None: keep nothing);
+        ``ray``: the rays' type (``RAY_*``).  Holdout surfaces give 0 (they end the path).
 
         Returns (values (n, C), hits) -- the hits of this ray bundle, for the passes.
         """
         n = len(d)
         if hits is None:
-            hits = trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi, cache)
+            hits = self.trace(src, tau0, x0, d, s_lo, s_hi, ray, pixel, sample, depth, cache)
         values = np.empty((n, self.colour.channels))
         miss = np.flatnonzero(hits.frame < 0)
         if len(miss):
@@ -202,8 +231,12 @@ class Shader:
                 doppler = 1.0 / to_world.rays(d[miss])[1]
                 world = self.colour.world(self.colour.shift(_rows(lam, miss), doppler), len(miss))
                 values[miss] = rows.scale(world, self._power(doppler, 4))
+        held = self.held_out(hits)
+        values[held] = 0.0
         for k in frames_hit(hits):
-            sel = np.flatnonzero(hits.frame == k)
+            sel = np.flatnonzero((hits.frame == k) & ~held)
+            if len(sel) == 0:
+                continue
             fmap = self.frames.map(src, int(k))
             d_k, w = hits.d_frame[sel], hits.w[sel]
             tau_hit = hit_times(hits, sel)
@@ -219,6 +252,54 @@ class Shader:
             values[sel] = rows.scale(local, self._power(doppler, 4))
         return values, hits
 
+    # ------------------------------------------------------------------ tracing
+    def trace(self, src: int, tau0, x0, d, s_lo, s_hi, ray: int, pixel, sample, depth: int,
+              cache: TraceCache | None = None, for_passes: bool = False) -> Hits:
+        """The surfaces rays of type ``ray`` stop at: hidden ones passed, cut-outs passed with the
+        chance 1 - alpha (keyed by pixel, sample and depth), or, ``for_passes``, where alpha is
+        below :data:`PASS_ALPHA_THRESHOLD`."""
+        if not self.materials.cuts_out:
+            see_through = None
+        elif for_passes:
+            see_through = lambda hits, rays, layer: self.hit_opacity(hits) < PASS_ALPHA_THRESHOLD
+        else:
+            see_through = self.cutouts(pixel, sample, _CUTOUT_DIMENSION + 1000 * depth + 300 * ray.bit_length())
+        return trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi, cache, ray, see_through)
+
+    def cutouts(self, pixel, sample, dimension: int):
+        """A ``see_through`` test for the tracer: the rays of these pixels and samples pass a
+        surface where its alpha is at most a uniform number (sampler ``dimension`` + the
+        surfaces passed so far); None without cut-outs."""
+        if not self.materials.cuts_out:
+            return None
+
+        def see_through(hits, rays, layer):
+            return self.hit_opacity(hits) <= sampling.uniform(pixel[rays], sample[rays], dimension + layer)
+        return see_through
+
+    def hit_opacity(self, hits: Hits) -> np.ndarray:
+        """Principled Alpha at hits (every ray hit something)."""
+        alpha = np.ones(len(hits.frame))
+        for k in frames_hit(hits):
+            sel = np.flatnonzero(hits.frame == k)
+            frame = self.frames.frames[k]
+            prim = hits.prim[sel]
+            material = self.materials.clamp(frame.geometry.tri_material[prim])
+            alpha[sel] = self.materials.opacity(material, hit_uv(frame, prim, hits.u[sel], hits.v[sel]))
+        return alpha
+
+    def held_out(self, hits: Hits) -> np.ndarray:
+        """Whether each hit is on a holdout surface (a hole in the image)."""
+        held = np.zeros(len(hits.frame), dtype=bool)
+        if not self.frames.has_holdout:
+            return held
+        for k in frames_hit(hits):
+            holdout = self.frames.frames[k].geometry.tri_holdout
+            if holdout is not None:
+                sel = np.flatnonzero(hits.frame == k)
+                held[sel] = holdout[hits.prim[sel]]
+        return held
+
     def surface_info(self, k: int, prim, u, v, d_k, tau_hit=None):
         """Position, facing geometric and shading normals, and material index at hits of frame k."""
         frame = self.frames.frames[k]
@@ -229,11 +310,9 @@ class Shader:
     def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample, lam, cache):
         frame = self.frames.frames[k]
         position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau)
-        uv = None
-        if frame.geometry.corner_uvs is not None:
-            cuv = frame.geometry.corner_uvs[prim]
-            uu, vv = u[:, None], v[:, None]
-            uv = (1.0 - uu - vv) * cuv[:, 0] + uu * cuv[:, 1] + vv * cuv[:, 2]
+        uv = hit_uv(frame, prim, u, v)
+        if self.materials.normal_mapped and uv is not None:
+            ns = self._normal_mapped(frame, prim, mat, uv, ng, ns, back, d_k, tau)
         base = self.colour.base_color(mat, uv, lam)
         values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
         if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
@@ -245,6 +324,31 @@ class Shader:
                                       cache)
         return values
 
+    def _normal_mapped(self, frame, prim, mat, uv, ng, ns, back, d_k, tau):
+        """Shading normals perturbed by tangent-space normal maps, as Cycles' Normal Map node does:
+        N = x T + y B + z n with the UV tangent T (per triangle, made orthogonal to the shading
+        normal n, which faces the triangle's front), B = sign n x T, then
+        n + strength (N - n), turned toward the viewer's side again."""
+        local = self.materials.tangent_normals(mat, uv)
+        mapped = np.flatnonzero(~np.isnan(local[:, 0]))
+        if len(mapped) == 0:
+            return ns
+        tangent, sign = uv_tangents(frame, prim[mapped], tau[mapped])
+        facing = np.where(back[mapped], -1.0, 1.0)
+        n = rows.scale(ns[mapped], facing)  # the front side's normal
+        tangent = rows.normalized(tangent - rows.scale(n, rows.dot(n, tangent)))
+        bitangent = rows.scale(rows.cross(n, tangent), sign)
+        c = local[mapped]
+        perturbed = rows.normalized(rows.scale(tangent, c[:, 0]) + rows.scale(bitangent, c[:, 1]) + rows.scale(n, c[:, 2]))
+        strength = self.materials.normal_strength[mat[mapped]]
+        perturbed = rows.normalized(n + rows.scale(perturbed - n, strength))
+        perturbed = rows.scale(perturbed, facing)
+        away = rows.dot(perturbed, d_k[mapped]) >= 0.0  # turned away from the viewer: the geometric normal
+        perturbed[away] = ng[mapped][away]
+        ns = ns.copy()
+        ns[mapped] = perturbed
+        return ns
+
     # ------------------------------------------------------------------ direct light
     def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache):
         mats = self.materials
@@ -252,7 +356,7 @@ class Shader:
         rough = mats.glossy[mat]
         if rough.any():
             f0 = rows.scale(base, mats.metallic[mat]) + mats.f0_dielectric[mat][:, None]
-            f90, alpha = mats.f90[mat], mats.alpha[mat]
+            f90, alpha = mats.f90[mat], mats.ggx_alpha[mat]
         eps = self.epsilon[k]
         origin = position + eps * ng
         total = np.zeros_like(base)
@@ -267,7 +371,9 @@ class Shader:
             sel = np.flatnonzero(lit)
             if len(sel) == 0:
                 continue
-            blocked = occluded(self.frames, k, tau[sel], origin[sel], e_k[sel], eps, s_max[sel] - 2.0 * eps, cache)
+            blocked = occluded(self.frames, k, tau[sel], origin[sel], e_k[sel], eps, s_max[sel] - 2.0 * eps, cache,
+                               self.cutouts(pixel[sel], sample[sel],
+                                            _CUTOUT_SHADOW_DIMENSION + 1000 * depth + 300 * index))
             sel = sel[~blocked]
             if len(sel) == 0:
                 continue
@@ -348,7 +454,7 @@ class Shader:
         reflected = d_a + 2.0 * cos_i[:, None] * n_a
         values[active] += reflect_weight * self._bounce(k, tau[active], position[active] + eps * ng_a, reflected,
                                                         eps, depth, pixel[active], sample[active], _rows(lam, active),
-                                                        cache)
+                                                        cache, RAY_GLOSSY)
         refr = np.flatnonzero(np.any(transmit_weight > 0.0, axis=1))
         if len(refr):
             k2 = 1.0 - eta[refr] ** 2 * (1.0 - cos_i[refr] ** 2)
@@ -359,14 +465,44 @@ class Shader:
             idx = active[refr]
             values[idx] += transmit_weight[refr] * self._bounce(k, tau[idx], position[idx] - eps * ng_a[refr],
                                                                 transmitted, eps, depth, pixel[idx], sample[idx],
-                                                                _rows(lam, idx), cache)
+                                                                _rows(lam, idx), cache, RAY_TRANSMISSION)
         return values
 
-    def _bounce(self, k, tau, origin, d, eps, depth, pixel, sample, lam, cache):
+    def _bounce(self, k, tau, origin, d, eps, depth, pixel, sample, lam, cache, ray: int):
         if len(d) == 0:
             return np.zeros((0, self.colour.channels))
-        values, _ = self.radiance(k, tau, origin, d, eps, np.inf, depth + 1, pixel, sample, lam, cache=cache)
+        values, _ = self.radiance(k, tau, origin, d, eps, np.inf, depth + 1, pixel, sample, lam, cache=cache, ray=ray)
         return values
+
+
+def hit_uv(frame, prim, u, v):
+    """Interpolated UVs at hits of one frame (None when its geometry has none)."""
+    corner_uvs = frame.geometry.corner_uvs
+    if corner_uvs is None:
+        return None
+    cuv = corner_uvs[prim]
+    uu, vv = u[:, None], v[:, None]
+    return (1.0 - uu - vv) * cuv[:, 0] + uu * cuv[:, 1] + vv * cuv[:, 2]
+
+
+def uv_tangents(frame, prim, tau=None):
+    """The direction of increasing U on each triangle (frame coordinates, unnormalised) and the
+    sign that makes n x T point along increasing V (the UV map's handedness)."""
+    geometry = frame.geometry
+    corners = geometry.vertices[geometry.triangles[prim]]
+    cuv = geometry.corner_uvs[prim]
+    e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    du1, dv1 = cuv[:, 1, 0] - cuv[:, 0, 0], cuv[:, 1, 1] - cuv[:, 0, 1]
+    du2, dv2 = cuv[:, 2, 0] - cuv[:, 0, 0], cuv[:, 2, 1] - cuv[:, 0, 1]
+    tangent = rows.scale(e1, dv2) - rows.scale(e2, dv1)
+    bitangent = rows.scale(e2, du1) - rows.scale(e1, du2)
+    determinant = du1 * dv2 - du2 * dv1
+    tangent = rows.scale(tangent, np.where(determinant < 0.0, -1.0, 1.0))
+    bitangent = rows.scale(bitangent, np.where(determinant < 0.0, -1.0, 1.0))
+    sign = np.where(rows.dot(rows.cross(geometry.face_normals[prim], tangent), bitangent) < 0.0, -1.0, 1.0)
+    if frame.spin is not None:
+        _, tangent = frame.to_frame(corners[:, 0], tangent, tau)
+    return tangent, sign
 
 
 def _rows(lam, index):
