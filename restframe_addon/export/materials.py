@@ -10,23 +10,12 @@ import numpy as np
 from ..core.scene import Material
 from ..motion_query import fcurves
 from .motion import MAX_SAMPLES, SUBFRAMES
+from .nodes import upstream
+from .surface_maps import principled_alpha, principled_normal_map
 
 
 def _linear_from_srgb(c: np.ndarray) -> np.ndarray:
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-
-
-def upstream(socket):
-    """The node feeding a socket, through reroutes; None if unlinked."""
-    while socket is not None and socket.is_linked:
-        link = socket.links[0]
-        if not link.is_valid or link.is_muted:
-            return None
-        node = link.from_node
-        if node.type != 'REROUTE':
-            return node
-        socket = node.inputs[0]
-    return None
 
 
 def output_node(id_data):
@@ -99,6 +88,8 @@ class MaterialExporter:
         out.specular_ior_level = self._value(mat, inputs["Specular IOR Level"])
         out.transmission = self._value(mat, inputs["Transmission Weight"])
         out.emission = self._emission(mat, inputs["Emission Color"], inputs["Emission Strength"], out)
+        out.alpha, out.alpha_texture = principled_alpha(mat, node, self.warn)
+        out.normal_texture, out.normal_strength = principled_normal_map(mat, node, self.warn)
 
     def _emission(self, mat, color, strength, out: Material):
         """Emission colour * strength; a keyframed strength becomes an optical-clock curve."""

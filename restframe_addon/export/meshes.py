@@ -60,7 +60,7 @@ def read_mesh(obj, mesh, materials: MaterialExporter, should_stop=lambda: False)
 
     uvs = None
     layer = next((uv for uv in mesh.uv_layers if uv.active_render), None)
-    if layer is not None and any(materials.materials[i].base_color_texture is not None for i in np.unique(lookup)):
+    if layer is not None and any(_reads_uvs(materials.materials[i]) for i in np.unique(lookup)):
         if corners is None:
             corners = np.empty(n_tri * 3, dtype=np.int32)
             tris.foreach_get("loops", corners)
@@ -71,6 +71,11 @@ def read_mesh(obj, mesh, materials: MaterialExporter, should_stop=lambda: False)
     check()
     return MeshData(vertices.reshape(-1, 3).astype(np.float64), triangles.reshape(-1, 3),
                      global_materials, normals, uvs)
+
+
+def _reads_uvs(material) -> bool:
+    """Whether a material looks an image up through the UVs."""
+    return any(t is not None for t in (material.base_color_texture, material.alpha_texture, material.normal_texture))
 
 
 def place(data: MeshData, matrix: np.ndarray):

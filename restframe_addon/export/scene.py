@@ -14,7 +14,8 @@ from typing import Callable
 import numpy as np
 
 from ..core import validation
-from ..core.scene import Light, Mesh, RenderSettings, Scene, Velocity
+from ..core.scene import (RAY_ALL, RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_SHADOW, RAY_TRANSMISSION, Light, Mesh,
+                          RenderSettings, Scene, Velocity)
 from ..motion_query import assembly_root, has_animated_location, observation_time
 from .camera import export_camera
 from .errors import ExportCancelled, ExportError
@@ -41,6 +42,33 @@ def _instance_source(inst):
     if inst.is_instance:
         return obj, tuple(inst.matrix_world.translation)
     return obj, tuple(assembly_root(obj).matrix_world.translation)
+
+
+_RAY_VISIBILITY = (("visible_camera", RAY_CAMERA), ("visible_diffuse", RAY_DIFFUSE), ("visible_glossy", RAY_GLOSSY),
+                   ("visible_transmission", RAY_TRANSMISSION), ("visible_shadow", RAY_SHADOW))
+
+
+def ray_visibility(inst, view_layer) -> int:
+    """The ray types (RAY_* bits) that see an instance, as Cycles decides: the object's Ray
+    Visibility, and its instancer's; Indirect Only collections hide it from the camera."""
+    visibility = RAY_ALL
+    for obj in (inst.object, inst.parent if inst.is_instance else None):
+        if obj is not None:
+            for name, bit in _RAY_VISIBILITY:
+                if not getattr(obj, name):
+                    visibility &= ~bit
+    source = inst.parent if inst.is_instance and inst.parent is not None else inst.object
+    if view_layer is not None and source.original.indirect_only_get(view_layer=view_layer):
+        visibility &= ~RAY_CAMERA
+    return visibility
+
+
+def is_holdout(inst, view_layer) -> bool:
+    """Object Holdout (of the object or its instancer) or a Holdout collection (Cycles: the instancer's)."""
+    source = inst.parent if inst.is_instance and inst.parent is not None else inst.object
+    if inst.object.original.is_holdout or source.original.is_holdout:
+        return True
+    return view_layer is not None and source.original.holdout_get(view_layer=view_layer)
 
 
 def export_scene(depsgraph, camera_object=None, *, resolution=None,
@@ -135,6 +163,8 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
             corner_uvs=data.uvs,
             object_index=int(obj.pass_index),
             angular_velocity=spin if any(spin) and body is None else None,
+            visibility=ray_visibility(inst, depsgraph.view_layer),
+            holdout=is_holdout(inst, depsgraph.view_layer),
         )))
 
     # each world line is built once its whole body is known, so its corners are rounded for that body
