@@ -8,6 +8,7 @@ inside ``render()`` and would show a silent black image instead.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import threading
 import time
@@ -106,24 +107,41 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
             )
             if self.should_stop():
                 return
-            self.update_stats("", "RESTframe | Building rest frames")
-            prepared = self._prepare(scene, settings)
-            if prepared is None:
+            views = export.render_views(depsgraph.scene_eval)
+            self._first_view = views[0] if views else None
+            if not views:
+                self._render_view(scene, settings, view_layer, None, started)
                 return
+            camera_object = (self.camera_override or depsgraph.scene_eval.camera).evaluated_get(depsgraph)
+            for view in views:  # each eye is its own camera and observation event
+                self.active_view_set(view)
+                camera = export.view_camera(scene.camera, camera_object,
+                                            self.camera_model_matrix(camera_object, use_spherical_stereo=False),
+                                            self.camera_shift_x(camera_object, use_spherical_stereo=False))
+                if not self._render_view(dataclasses.replace(scene, camera=camera), settings, view_layer, view, started):
+                    return
         except export.ExportCancelled:
             return
         except (export.ExportError, RenderError) as error:
             self.report({'ERROR'}, f"RESTframe: {error}")
             return
-        for message in prepared.warnings:
-            self.report({'WARNING'}, f"RESTframe: {message}")
+
+    def _render_view(self, scene, settings, view_layer, view, started) -> bool:
+        """Prepare and render one view (None: the only one) into Blender's result; False once stopped."""
+        self.update_stats("", "RESTframe | Building rest frames")
+        prepared = self._prepare(scene, settings)
+        if prepared is None:
+            return False
+        if view in (None, self._first_view):  # the same warnings for every view: said once
+            for message in prepared.warnings:
+                self.report({'WARNING'}, f"RESTframe: {message}")
 
         x_offset, y_offset = prepared.region[:2]
         total = len(prepared.tiles())
         triangles = sum(len(mesh.triangles) for mesh in scene.meshes)
         for done, tile in enumerate(render_tiles(prepared, self.should_stop), start=1):
             result = self.begin_result(tile.x0 - x_offset, tile.y0 - y_offset,
-                                       tile.x1 - tile.x0, tile.y1 - tile.y0, layer=view_layer.name)
+                                       tile.x1 - tile.x0, tile.y1 - tile.y0, layer=view_layer.name, view=view or "")
             for render_pass in result.layers[0].passes:
                 data = tile.passes.get(_CORE_PASS.get(render_pass.name, render_pass.name))
                 if data is not None and data.shape[2] == render_pass.channels:
@@ -131,7 +149,9 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
             self.end_result(result)
             self.update_progress(done / total)
             self.update_stats("", f"RESTframe | {len(scene.meshes)} objects, {triangles} triangles | "
+                              f"{'' if view is None else f'View {view} | '}"
                               f"Tile {done}/{total} | {time.monotonic() - started:.1f} s")
+        return not self.should_stop()
 
 
 classes = (RestframeRenderEngine,)

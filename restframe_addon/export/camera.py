@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from ..core.scene import Camera
@@ -56,3 +58,29 @@ def export_camera(camera_object, scene) -> Camera:
         out.fisheye_lens = float(cam.fisheye_lens)
     return out
 
+
+
+def render_views(scene) -> list[str]:
+    """The views a render produces: none without Stereoscopy, else Blender's stereo pair or
+    the enabled multi-views."""
+    render = scene.render
+    if not render.use_multiview:
+        return []
+    if render.views_format == 'STEREO_3D':
+        return [name for name in ('left', 'right') if name in render.views]
+    return [view.name for view in render.views if view.use]
+
+
+def view_camera(camera: Camera, camera_object, model_matrix, shift_x: float) -> Camera:
+    """The camera of one view (an eye): Blender's own model matrix and lens shift for it
+    (``RenderEngine.camera_model_matrix`` / ``camera_shift_x`` after ``active_view_set``, the
+    stereo convention of Cycles).  Its position is its own observation event."""
+    matrix = np.array(model_matrix, dtype=np.float64)
+    matrix[:3, :3] /= np.linalg.norm(matrix[:3, :3], axis=0)
+    frame = np.array(camera.frame)
+    width, height = np.ptp(frame[:, 0]), np.ptp(frame[:, 1])
+    fit = camera_object.data.sensor_fit
+    horizontal = fit == 'HORIZONTAL' or (fit == 'AUTO' and width >= height)
+    # the lens shift is measured in the fitted sensor side; view_frame already holds the camera's own
+    frame[:, 0] += (shift_x - camera_object.data.shift_x) * (width if horizontal else height)
+    return dataclasses.replace(camera, matrix=matrix, frame=frame)

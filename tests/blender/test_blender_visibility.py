@@ -1,4 +1,4 @@
-"""Holdout, Indirect Only, ray visibility, Principled Alpha and normal maps render as in Cycles.
+"""Holdout, Indirect Only, ray visibility, Principled Alpha, normal maps and stereo render as in Cycles.
 
 An orthographic camera looks straight down at a white Lambert floor (Principled, no specular)
 lit by a sun without size: 32 x 32 pixels of 0.25 units.  A 2 x 2 card floats 1 above the
@@ -13,6 +13,7 @@ import math
 
 import bpy
 import numpy as np
+import OpenEXR
 import pytest
 
 from blender_helpers import add_camera, add_plane, render_rgba
@@ -216,3 +217,43 @@ def test_a_normal_map_shades_as_in_cycles(scene, tmp_path, tilt, strength):
     # normal's tilt theta from the surface (0.3% at 17 degrees, 0.8% at 27: measured, not
     # explained); RESTframe gives E cos / pi of that normal to 1e-6 (tests/core/test_visibility.py)
     assert_same(ours, cycles, rtol=1e-2)
+
+
+def eye_centroids(scene, tmp_path, engine):
+    """The horizontal centroid (pixels) of a glowing square in each eye's image."""
+    scene.render.engine = engine
+    scene.cycles.samples = scene.restframe.samples = 16
+    scene.cycles.filter_width = 0.01
+    settings = scene.render.image_settings
+    settings.file_format, settings.color_mode, settings.color_depth = 'OPEN_EXR', 'RGBA', '32'
+    settings.views_format = 'INDIVIDUAL'
+    scene.render.filepath = str(tmp_path / f"{engine}.exr")
+    bpy.ops.render.render(write_still=True)
+    centroids = []
+    for eye in ("L", "R"):
+        with OpenEXR.File(str(tmp_path / f"{engine}_{eye}.exr")) as exr:
+            channels = exr.parts[0].channels
+            red = channels["RGBA"].pixels[..., 0] if "RGBA" in channels else channels["R"].pixels
+        weight = np.asarray(red, dtype=np.float64).sum(axis=0)
+        centroids.append(float(weight @ np.arange(len(weight)) / weight.sum()))
+    return centroids
+
+
+@pytest.mark.parametrize("mode", ['OFFAXIS', 'TOE', 'PARALLEL'])
+def test_stereo_eyes_see_what_cycles_eyes_see(scene, tmp_path, mode):
+    """Stereoscopy: each eye is its own camera (Blender's model matrix and lens shift for the view)
+    and observation event; a glowing square lands where Cycles puts it in each eye."""
+    scene.render.resolution_x, scene.render.resolution_y = 64, 32
+    scene.world = None
+    camera = add_camera(scene, location=(0.0, 0.0, 6.0))
+    stereo = camera.data.stereo
+    stereo.interocular_distance, stereo.convergence_distance, stereo.convergence_mode = 0.5, 4.0, mode
+    square = add_plane(scene, "Glow", size=0.5, location=(0.7, 0.0, 0.0))
+    square.data.materials.append(glow("Glow"))
+    scene.render.use_multiview = True
+    ours = eye_centroids(scene, tmp_path, 'RESTFRAME')
+    cycles = eye_centroids(scene, tmp_path, 'CYCLES')
+    assert abs(cycles[0] - cycles[1]) > 3.0  # the eyes differ by pixels
+    # 16 samples at the square's edges: within 0.1 px; toe-in's turned eye lands 0.17 px from
+    # Cycles' (measured at 4 and 16 samples alike, not explained yet)
+    np.testing.assert_allclose(ours, cycles, atol=0.25 if mode == 'TOE' else 0.1)
