@@ -301,18 +301,20 @@ class Shader:
         return held
 
     def surface_info(self, k: int, prim, u, v, d_k, tau_hit=None):
-        """Position, facing geometric and shading normals, and material index at hits of frame k."""
+        """Position, facing geometric and shading normals (normal maps applied), and material
+        index at hits of frame k."""
         frame = self.frames.frames[k]
         position, ng, ns, back = facing_normals(frame, prim, u, v, d_k, tau_hit)
         material = self.materials.clamp(frame.geometry.tri_material[prim])
+        if self.materials.normal_mapped and frame.geometry.corner_uvs is not None:
+            ns = self._normal_mapped(frame, prim, material, hit_uv(frame, prim, u, v), ng, ns, back, d_k,
+                                     np.zeros(len(prim)) if tau_hit is None else tau_hit)
         return position, ng, ns, material, back
 
     def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample, lam, cache):
         frame = self.frames.frames[k]
         position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau)
         uv = hit_uv(frame, prim, u, v)
-        if self.materials.normal_mapped and uv is not None:
-            ns = self._normal_mapped(frame, prim, mat, uv, ng, ns, back, d_k, tau)
         base = self.colour.base_color(mat, uv, lam)
         values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
         if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event

@@ -260,3 +260,36 @@ def test_stereo_eyes_see_what_cycles_eyes_see(scene, tmp_path, mode):
     cycles = eye_centroids(scene, tmp_path, 'CYCLES')
     assert abs(cycles[0] - cycles[1]) > 3.0  # the eyes differ by pixels
     np.testing.assert_allclose(ours, cycles, atol=0.05)  # 64 samples per pixel at the square's edges
+
+
+def test_export_takes_ray_visibility_and_holdout_from_the_object_its_instancer_and_collections(scene):
+    """What Cycles combines: the object's and its instancer's Ray Visibility (both must allow a ray
+    type), Indirect Only and Holdout of the (instancer's) collection, Holdout of either object."""
+    from blender_helpers import export_now
+    from restframe_addon.core.scene import RAY_ALL, RAY_CAMERA, RAY_GLOSSY, RAY_SHADOW
+
+    add_camera(scene)
+    add_plane(scene, "Plain")
+    add_plane(scene, "Shy").visible_shadow = False
+    held = add_plane(scene, "Held")
+    in_collection(scene, held, "HeldOut").holdout = True
+    indirect = add_plane(scene, "Indirect")
+    in_collection(scene, indirect, "IndirectOnly").indirect_only = True
+    source = bpy.data.collections.new("Source")  # instanced only: not in the scene
+    member = bpy.data.objects.new("Member", bpy.data.meshes.new("Member"))
+    member.data.from_pydata([(0, 0, 0), (1, 0, 0), (0, 1, 0)], [], [(0, 1, 2)])
+    member.visible_glossy = False
+    source.objects.link(member)
+    empty = bpy.data.objects.new("Instancer", None)
+    empty.instance_type, empty.instance_collection = 'COLLECTION', source
+    empty.visible_camera = False
+    empty.is_holdout = True
+    scene.collection.objects.link(empty)
+    out, _, _ = export_now(scene)
+    meshes = {m.name: m for m in out.meshes}
+    assert (meshes["Plain"].visibility, meshes["Plain"].holdout) == (RAY_ALL, False)
+    assert meshes["Shy"].visibility == RAY_ALL & ~RAY_SHADOW
+    assert meshes["Held"].holdout and meshes["Held"].visibility == RAY_ALL
+    assert meshes["Indirect"].visibility == RAY_ALL & ~RAY_CAMERA and not meshes["Indirect"].holdout
+    instance = meshes["Instancer/Member"]
+    assert instance.visibility == RAY_ALL & ~RAY_CAMERA & ~RAY_GLOSSY and instance.holdout
