@@ -41,10 +41,9 @@ _POINT_INTENSITY_PER_WATT = 1.0 / (4.0 * np.pi)
 # Cycles' default view-layer Alpha Threshold: the passes (depth, normal, index) see surfaces
 # at least this opaque, the colour sees every surface with the chance of its alpha
 PASS_ALPHA_THRESHOLD = 0.5
-# sampler dimensions of the cut-out decisions (one more per surface passed): camera and bounce rays,
-# then shadow rays of each light
-_CUTOUT_DIMENSION = 20_000
-_CUTOUT_SHADOW_DIMENSION = 40_000
+# sampler dimensions of the cut-out decisions: from here, 1000 per (bounce depth, ray type) and
+# (bounce depth, light), one more per surface passed (at most tracer._MAX_PASS_THROUGH < 1000)
+_CUTOUT_DIMENSION = 1_000_000
 
 
 class MaterialTable:
@@ -263,7 +262,7 @@ class Shader:
         elif for_passes:
             see_through = lambda hits, rays, layer: self.hit_opacity(hits) < PASS_ALPHA_THRESHOLD
         else:
-            see_through = self.cutouts(pixel, sample, _CUTOUT_DIMENSION + 1000 * depth + 300 * ray.bit_length())
+            see_through = self.cutouts(pixel, sample, _cutout_dimension(depth, ray.bit_length()))
         return trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi, cache, ray, see_through)
 
     def cutouts(self, pixel, sample, dimension: int):
@@ -374,8 +373,7 @@ class Shader:
             if len(sel) == 0:
                 continue
             blocked = occluded(self.frames, k, tau[sel], origin[sel], e_k[sel], eps, s_max[sel] - 2.0 * eps, cache,
-                               self.cutouts(pixel[sel], sample[sel],
-                                            _CUTOUT_SHADOW_DIMENSION + 1000 * depth + 300 * index))
+                               self.cutouts(pixel[sel], sample[sel], _cutout_dimension(depth, 8 + index)))
             sel = sel[~blocked]
             if len(sel) == 0:
                 continue
@@ -475,6 +473,12 @@ class Shader:
             return np.zeros((0, self.colour.channels))
         values, _ = self.radiance(k, tau, origin, d, eps, np.inf, depth + 1, pixel, sample, lam, cache=cache, ray=ray)
         return values
+
+
+def _cutout_dimension(depth: int, stream: int) -> int:
+    """The first sampler dimension of the cut-out decisions of one stream of rays at one bounce
+    depth (streams 1-5: the ray types, 8 + i: shadow rays toward light i)."""
+    return _CUTOUT_DIMENSION + 1000 * (stream + 1_000_000 * depth)
 
 
 def hit_uv(frame, prim, u, v):
