@@ -67,6 +67,7 @@ class MaterialTable:
         self.transmission = np.clip([m.transmission for m in materials], 0.0, 1.0)
         self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
         self.textures = [m.base_color_texture for m in materials]
+        self.closest = [m.base_color_interpolation == "Closest" for m in materials]
         self.alpha = np.clip([m.alpha for m in materials], 0.0, 1.0)
         self.alpha_textures = [m.alpha_texture for m in materials]
         self.cuts_out = bool(np.any(self.alpha < 1.0)) or any(t is not None for t in self.alpha_textures)
@@ -98,7 +99,7 @@ class MaterialTable:
         return np.clip(index, 0, len(self.materials) - 1)
 
     def base_color(self, index, uv):
-        """Base colour per hit, with image textures looked up (bilinear, repeat) where present."""
+        """Base colour per hit, with image textures looked up (bilinear or closest, repeat) where present."""
         color = self.base[index]
         if uv is None:
             return color
@@ -107,7 +108,7 @@ class MaterialTable:
                 continue
             sel = np.flatnonzero(index == m)
             if len(sel):
-                color[sel] = _sample_texture(texture, uv[sel])
+                color[sel] = _sample_texture(texture, uv[sel], self.closest[m])
         return color
 
     def opacity(self, index, uv):
@@ -134,8 +135,12 @@ class MaterialTable:
         return normal
 
 
-def _sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
+def _sample_texture(texture: np.ndarray, uv: np.ndarray, closest: bool = False) -> np.ndarray:
     h, w = texture.shape[:2]
+    if closest:  # the pixel the UV falls in (Blender's Closest)
+        x = np.minimum(((uv[:, 0] % 1.0) * w).astype(np.int64), w - 1)
+        y = np.minimum(((uv[:, 1] % 1.0) * h).astype(np.int64), h - 1)
+        return texture[y, x, :3].astype(np.float64)
     x = (uv[:, 0] % 1.0) * w - 0.5
     y = (uv[:, 1] % 1.0) * h - 0.5
     x0 = np.floor(x).astype(np.int64)

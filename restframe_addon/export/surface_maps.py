@@ -63,6 +63,8 @@ def principled_normal_map(mat, node, warn):
     if link is None:
         return None, 1.0
     normal_map = link.from_node
+    if normal_map.type == 'BUMP':  # warned about with the objects that use it (features.uses_bump_map)
+        return None, 1.0
     if normal_map.type != 'NORMAL_MAP' or normal_map.space != 'TANGENT':
         warn(f"Material '{mat.name}': only a tangent-space Normal Map node is supported on 'Normal', ignored")
         return None, 1.0
