@@ -128,7 +128,8 @@ class MaterialExporter:
         out.transmission = self._value(mat, inputs["Transmission Weight"])
         out.emission = self._emission(mat, inputs["Emission Color"], inputs["Emission Strength"], out)
         out.alpha, out.alpha_texture = principled_alpha(mat, node, self.warn)
-        out.normal_texture, out.normal_strength = principled_normal_map(mat, node, self.warn)
+        out.normal_texture, out.normal_strength = principled_normal_map(
+            mat, node, self.scene.frame_current if self.scene is not None else 1, self.warn)
         return uv_transform
 
     def _emission(self, mat, color, strength, out: Material):

@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .images import ImageMissing, image_texture
 from .nodes import upstream, upstream_link
-
-_LINEAR_SPACES = {"Non-Color", "Linear Rec.709", "Linear", "Raw"}
 
 
 def _pixels(image):
@@ -56,8 +55,9 @@ def principled_alpha(mat, node, warn):
     return 1.0, np.ascontiguousarray(pixels[..., 3:4])
 
 
-def principled_normal_map(mat, node, warn):
-    """(normal map image (H, W, 3) or None, strength) of a Principled BSDF's Normal input."""
+def principled_normal_map(mat, node, frame: int, warn):
+    """(normal map image (H, W, 3) or None, strength) of a Principled BSDF's Normal input, the
+    image as an Image Texture shows it at scene frame ``frame`` (converted once, cached)."""
     socket = node.inputs["Normal"]
     link = upstream_link(socket)
     if link is None:
@@ -74,13 +74,13 @@ def principled_normal_map(mat, node, warn):
     texture = _texture_node(mat, normal_map.inputs["Color"], "Color", warn)
     if texture is None:
         return None, 1.0
-    pixels = _pixels(texture.image)
-    if pixels is None:
-        warn(f"Image '{texture.image.name}' (material '{mat.name}') could not be loaded: no normal map")
+    try:
+        image = image_texture(texture.image, texture.image_user, frame, warn)
+    except ImageMissing as missing:
+        warn(f"Image '{texture.image.name}' (material '{mat.name}') could not be loaded: '{missing}' is missing; "
+             "no normal map")
         return None, 1.0
-    rgb = pixels[..., :3] if pixels.shape[2] >= 3 else np.repeat(pixels[..., :1], 3, axis=2)
-    space = texture.image.colorspace_settings.name
-    if not texture.image.is_float and space not in _LINEAR_SPACES:
-        warn(f"Image '{texture.image.name}': a normal map should be Non-Color (it is '{space}'); read as sRGB")
-        rgb = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
-    return np.ascontiguousarray(rgb, dtype=np.float32), max(float(strength.default_value), 0.0)
+    if image.tiles != (1, 1):
+        warn(f"Image '{texture.image.name}' (material '{mat.name}'): UDIM normal maps are not supported; no normal map")
+        return None, 1.0
+    return image.pixels, max(float(strength.default_value), 0.0)
