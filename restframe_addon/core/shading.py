@@ -378,7 +378,7 @@ class Shader:
             if len(sel) == 0:
                 continue
             blocked = occluded(self.frames, k, tau[sel], origin[sel], e_k[sel], eps, s_max[sel] - 2.0 * eps, cache,
-                               self.cutouts(pixel[sel], sample[sel], _cutout_dimension(depth, 8 + index)))
+                               see_through=self.cutouts(pixel[sel], sample[sel], _cutout_dimension(depth, 8 + index)))
             sel = sel[~blocked]
             if len(sel) == 0:
                 continue
