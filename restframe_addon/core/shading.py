@@ -68,9 +68,9 @@ class MaterialTable:
         self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
         self.textures = [m.base_color_texture for m in materials]
         self.closest = [m.base_color_interpolation == "Closest" for m in materials]
-        self.alpha = np.clip([m.alpha for m in materials], 0.0, 1.0)
+        self.principled_alpha = np.clip([m.alpha for m in materials], 0.0, 1.0)  # cut-outs (not the GGX alpha)
         self.alpha_textures = [m.alpha_texture for m in materials]
-        self.cuts_out = bool(np.any(self.alpha < 1.0)) or any(t is not None for t in self.alpha_textures)
+        self.cuts_out = bool(np.any(self.principled_alpha < 1.0)) or any(t is not None for t in self.alpha_textures)
         self.normal_textures = [m.normal_texture for m in materials]
         self.normal_strength = np.maximum([m.normal_strength for m in materials], 0.0)
         self.normal_mapped = any(t is not None for t in self.normal_textures)
@@ -82,7 +82,7 @@ class MaterialTable:
         # Specular IOR Level scales the whole dielectric lobe (0 = none), grazing reflection included
         self.f0_dielectric = np.minimum(_dielectric_f0(self.ior) * self.specular_scale, 1.0) * (1.0 - self.metallic)
         self.f90 = np.minimum(self.specular_scale, 1.0) * (1.0 - self.metallic) + self.metallic
-        self.ggx_alpha = np.maximum(self.roughness**2, _MIN_ALPHA)
+        self.alpha = np.maximum(self.roughness**2, _MIN_ALPHA)
         # rough surfaces with a specular lobe get GGX highlights (Specular IOR Level 0, not metallic: none)
         self.glossy = ~self.mirror & ((self.f90 > 0.0) | (self.f0_dielectric > 0.0) | (self.metallic > 0.0))
 
@@ -113,7 +113,7 @@ class MaterialTable:
 
     def opacity(self, index, uv):
         """Principled Alpha per hit (the alpha image looked up where there is one, UVs or not)."""
-        alpha = self.alpha[index]
+        alpha = self.principled_alpha[index]
         for m, texture in enumerate(self.alpha_textures):
             if texture is None:
                 continue
@@ -362,7 +362,7 @@ class Shader:
         rough = mats.glossy[mat]
         if rough.any():
             f0 = rows.scale(base, mats.metallic[mat]) + mats.f0_dielectric[mat][:, None]
-            f90, alpha = mats.f90[mat], mats.ggx_alpha[mat]
+            f90, alpha = mats.f90[mat], mats.alpha[mat]
         eps = self.epsilon[k]
         origin = position + eps * ng
         total = np.zeros_like(base)
