@@ -18,7 +18,7 @@ import bpy
 
 from . import export
 from .core.passes import BY_NAME
-from .core.prepared import prepare
+from .core.prepared import prepare, prepare_view
 from .core.render import render_tiles
 from .core.validation import RenderError
 
@@ -58,8 +58,9 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         for name, channel_ids, channel_type in list_render_passes(scene, renderlayer):
             self.register_pass(scene, renderlayer, name, len(channel_ids), channel_ids, channel_type)
 
-    def _prepare(self, scene, settings):
-        """``prepare(...)`` in a worker thread, polled for Esc every 50 ms.
+    def _prepare(self, scene, settings, first_view=None):
+        """``prepare(...)`` (or, given the first view's prepared scene, ``prepare_view``) in a
+        worker thread, polled for Esc every 50 ms.
 
         The build checks Esc between pieces of 2**14 triangles, but polling needs the GIL,
         which each frame's embree BVH build holds throughout (about 0.4 s for a million
@@ -71,7 +72,8 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
 
         def work():
             try:
-                box["prepared"] = prepare(scene, settings, cancelled.is_set)
+                box["prepared"] = (prepare(scene, settings, cancelled.is_set) if first_view is None
+                                   else prepare_view(first_view, scene.camera, cancelled.is_set))
             except BaseException as error:  # handed to the main thread
                 box["error"] = error
 
@@ -108,17 +110,19 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
             if self.should_stop():
                 return
             views = export.render_views(depsgraph.scene_eval)
-            self._first_view = views[0] if views else None
             if not views:
                 self._render_view(scene, settings, view_layer, None, started)
                 return
             camera_object = (self.camera_override or depsgraph.scene_eval.camera).evaluated_get(depsgraph)
-            for view in views:  # each eye is its own camera and observation event
+            first = None
+            for view in views:  # each eye is its own camera and observation event; the rest frames are shared
                 self.active_view_set(view)
                 camera = export.view_camera(scene.camera, camera_object,
                                             self.camera_model_matrix(camera_object, use_spherical_stereo=False),
                                             self.camera_shift_x(camera_object, use_spherical_stereo=False))
-                if not self._render_view(dataclasses.replace(scene, camera=camera), settings, view_layer, view, started):
+                first = self._render_view(dataclasses.replace(scene, camera=camera), settings, view_layer, view,
+                                          started, first)
+                if first is None:
                     return
         except export.ExportCancelled:
             return
@@ -126,13 +130,14 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
             self.report({'ERROR'}, f"RESTframe: {error}")
             return
 
-    def _render_view(self, scene, settings, view_layer, view, started) -> bool:
-        """Prepare and render one view (None: the only one) into Blender's result; False once stopped."""
+    def _render_view(self, scene, settings, view_layer, view, started, first_view=None):
+        """Prepare (from ``first_view``'s prepared scene if given) and render one view (None: the
+        only one) into Blender's result; its prepared scene, or None once stopped."""
         self.update_stats("", "RESTframe | Building rest frames")
-        prepared = self._prepare(scene, settings)
+        prepared = self._prepare(scene, settings, first_view)
         if prepared is None:
-            return False
-        if view in (None, self._first_view):  # the same warnings for every view: said once
+            return None
+        if first_view is None:  # the views share the rest frames and their warnings: said once
             for message in prepared.warnings:
                 self.report({'WARNING'}, f"RESTframe: {message}")
 
@@ -151,7 +156,7 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
             self.update_stats("", f"RESTframe | {len(scene.meshes)} objects, {triangles} triangles | "
                               f"{'' if view is None else f'View {view} | '}"
                               f"Tile {done}/{total} | {time.monotonic() - started:.1f} s")
-        return not self.should_stop()
+        return None if self.should_stop() else prepared
 
 
 classes = (RestframeRenderEngine,)

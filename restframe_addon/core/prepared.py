@@ -23,9 +23,8 @@ from .camera import CameraRays
 from .colour import RGBColour, SpectralColour
 from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
 from .passes import EXTRA_PASSES, ray_doppler
-from .scene import RenderSettings, Scene
+from .scene import RAY_CAMERA, Camera, RenderSettings, Scene
 from .shading import MaterialTable, PreparedLight, Shader, prepare_lights
-from .scene import RAY_CAMERA
 from .tracer import TraceCache
 from .validation import RenderError, check_render
 
@@ -120,7 +119,27 @@ def prepare(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bo
     and must not be rendered.
     """
     settings = dataclasses.replace(settings)  # its own copy: a caller changing theirs later changes no render
-    prepared = _build(scene, settings, should_stop)
+    return _measured(_build(scene, settings, should_stop), should_stop)
+
+
+def prepare_view(prepared: PreparedScene, camera: Camera, should_stop: Callable[[], bool] = lambda: False
+                 ) -> PreparedScene:
+    """The prepared scene seen by another camera (a stereo eye, another view): with the same
+    velocity its rest frames, lights and shader are shared (built once), and only the camera's
+    observation event, rays and the pre-passes are its own; else prepared afresh."""
+    scene = dataclasses.replace(prepared.scene, camera=camera)
+    if camera.velocity != prepared.scene.camera.velocity:
+        return prepare(scene, prepared.settings, should_stop)
+    check_render(scene, prepared.settings, EXTRA_PASSES)
+    camera_tau, camera_rays = _camera(scene, prepared.settings, prepared.frames)
+    view = dataclasses.replace(prepared, scene=scene, camera_tau=camera_tau, camera_rays=camera_rays,
+                               doppler_range=prepared.settings.doppler_range, exposure=1.0)
+    return _measured(view, should_stop)
+
+
+def _measured(prepared: PreparedScene, should_stop) -> PreparedScene:
+    """The prepared scene with its pre-passes' values (Doppler range, exposure) measured."""
+    settings = prepared.settings
     doppler_range = settings.doppler_range
     if settings.doppler_mode == "FACTOR" and doppler_range is None:
         doppler_range = _measure_doppler_range(prepared, should_stop)
@@ -148,17 +167,23 @@ def _build(scene: Scene, settings: RenderSettings, should_stop: Callable[[], boo
         colour = SpectralColour(materials, lights, scene.world_color, settings.spectral_samples)
     else:
         colour = RGBColour(materials, lights, scene.world_color)
+    camera_tau, camera_rays = _camera(scene, settings, frames)
+    return PreparedScene(
+        scene=scene, settings=settings, frames=frames, lights=lights, materials=materials, colour=colour,
+        shader=Shader(frames, materials, lights, colour, settings.max_bounces, settings.searchlight),
+        camera_tau=camera_tau, camera_rays=camera_rays,
+        passes=tuple(EXTRA_PASSES) if settings.passes is None else tuple(settings.passes),
+        doppler_range=settings.doppler_range, exposure=1.0)
+
+
+def _camera(scene: Scene, settings: RenderSettings, frames: FrameSet) -> tuple[float, CameraRays]:
+    """The camera-frame time of the observation event (the camera's position at world time
+    tau_obs) and the camera's rays."""
     camera_boost = frames.frames[frames.camera].boost
     position = np.asarray(scene.camera.matrix, dtype=np.float64)[:3, 3]
     world_event = position + camera_boost.b * camera_boost.n * scene.tau_obs
     tau, _ = camera_boost.events(np.array(scene.tau_obs), world_event)
-    return PreparedScene(
-        scene=scene, settings=settings, frames=frames, lights=lights, materials=materials, colour=colour,
-        shader=Shader(frames, materials, lights, colour, settings.max_bounces, settings.searchlight),
-        camera_tau=float(tau),
-        camera_rays=CameraRays(scene.camera, settings.resolution, shift_into_frame(camera_boost, position)),
-        passes=tuple(EXTRA_PASSES) if settings.passes is None else tuple(settings.passes),
-        doppler_range=settings.doppler_range, exposure=1.0)
+    return float(tau), CameraRays(scene.camera, settings.resolution, shift_into_frame(camera_boost, position))
 
 
 def _measure_doppler_range(prepared: PreparedScene, should_stop) -> tuple[float, float]:
