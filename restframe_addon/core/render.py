@@ -63,7 +63,8 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     centre = prepared.centre_rays(rect)
     centre_hits = shader.trace(frames.camera, *centre, RAY_CAMERA, pixel, np.zeros_like(pixel), 0, cache,
                                for_passes=True)
-    passes = pixel_passes(frames, prepared.scene.light_speed, prepared.passes, centre, centre_hits)
+    passes = pixel_passes(frames, prepared.scene.light_speed, prepared.passes, centre, centre_hits,
+                          shader.shading_normals if prepared.materials.normal_mapped else None)
     samples = max(int(settings.samples), 1)
     rgb = np.zeros((n, 3))
     coverage = np.zeros(n)  # the share of samples that hit a surface (holdouts included)

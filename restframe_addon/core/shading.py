@@ -330,6 +330,10 @@ class Shader:
                                       cache)
         return values
 
+    def shading_normals(self, k: int, prim, u, v, d_k, tau_hit=None):
+        """The facing shading normals at hits of frame k, normal maps applied (the Normal pass's)."""
+        return self.surface_info(k, prim, u, v, d_k, tau_hit)[2]
+
     def _normal_mapped(self, frame, prim, mat, uv, ng, ns, back, d_k, tau):
         """Shading normals perturbed by tangent-space normal maps, as Cycles' Normal Map node does:
         N = x T + y B + z n with the UV tangent T (per triangle, made orthogonal to the shading

@@ -16,7 +16,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from blender_helpers import add_camera, add_plane, render_rgba
+from blender_helpers import add_camera, add_plane, render_exr, render_rgba
 
 SUN_TILT = math.radians(45)
 
@@ -220,6 +220,28 @@ def test_a_normal_map_shades_as_in_cycles(scene, tmp_path, tilt, strength):
     # tilted 12 degrees) to 1.7% (37 degrees) darker, the same for either tilt direction: a scale on
     # its BSDF, not another normal (measured, not explained)
     assert_same(ours, cycles, rtol=1e-2)
+
+
+
+def test_the_normal_pass_shows_the_mapped_normal_as_cycles_does(scene, tmp_path):
+    floor_material = principled("Bumpy")
+    nodes = floor_material.node_tree.nodes
+    normal_map = nodes.new("ShaderNodeNormalMap")
+    floor_material.node_tree.links.new(normal_map.outputs["Normal"], nodes["Principled BSDF"].inputs["Normal"])
+    image_node(floor_material, normal_image((0.35, -0.2, math.sqrt(1.0 - 0.35**2 - 0.2**2))), "Color",
+               normal_map.inputs["Color"])
+    floor, card = card_scene(scene, floor_material=floor_material)
+    floor.data.uv_layers.new()
+    bpy.data.objects.remove(card)
+    scene.render.resolution_x = scene.render.resolution_y = 4
+    scene.view_layers[0].use_pass_normal = True
+    normals = {}
+    for engine in ('RESTFRAME', 'CYCLES'):
+        scene.render.engine = engine
+        scene.cycles.samples, scene.cycles.use_denoising = 4, False
+        normals[engine] = render_exr(scene, tmp_path / f"{engine}.exr")["Normal"].reshape(-1, 3)
+    np.testing.assert_allclose(normals['CYCLES'], [[0.35, -0.2, math.sqrt(1.0 - 0.35**2 - 0.2**2)]] * 16, atol=1e-6)
+    np.testing.assert_allclose(normals['RESTFRAME'], normals['CYCLES'], atol=1e-6)
 
 
 def eye_centroids(scene, tmp_path, engine):

@@ -183,8 +183,10 @@ def test_a_normal_map_tilts_the_shading_normal_along_the_uv_tangent(tilt, streng
     ground = Mesh("ground", vertices, triangles, corner_uvs=uvs)
     n = np.array([0.0, 0.0, 1.0]) + strength * (np.array([math.sin(tilt), 0.0, math.cos(tilt)]) - [0.0, 0.0, 1.0])
     effective = math.atan2(n[0], n[2])
-    seen = patch(render([ground], (mapped,)))
-    assert seen[0] == pytest.approx(SUN * math.cos(SUN_TILT - effective) / math.pi, rel=1e-5)
+    passes = render([ground], (mapped,))
+    assert patch(passes)[0] == pytest.approx(SUN * math.cos(SUN_TILT - effective) / math.pi, rel=1e-5)
+    # the Normal pass shows the mapped normal, as Cycles' does
+    np.testing.assert_allclose(patch(passes, "Normal"), [math.sin(effective), 0.0, math.cos(effective)], atol=1e-6)
 
 
 def test_a_normal_map_follows_the_uv_layout():
