@@ -118,7 +118,7 @@ def _sample(prepared: PreparedScene, rays, hits, pixel, sample, cache: TraceCach
         rgb[~hit] = 0.0
     elif settings.doppler_mode == "FACTOR":
         rgb[~hit] = prepared.scene.world_color
-    if not prepared.frames.has_holdout:
+    if not prepared.shader.has_holdouts:
         return rgb, hit, None
     hole = prepared.shader.held_out(hits)
     rgb[hole] = 0.0

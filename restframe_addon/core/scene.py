@@ -73,6 +73,7 @@ class Material:
     # a tangent-space normal map (Normal Map node): the image's colour (H, W, 3), Non-Color, row 0 = bottom
     normal_texture: np.ndarray | None = None
     normal_strength: float = 1.0
+    holdout: bool = False  # a Holdout shader: a hole in the image, as a holdout object
 
 
 @dataclass

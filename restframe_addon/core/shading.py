@@ -74,6 +74,8 @@ class MaterialTable:
         self.normal_textures = [m.normal_texture for m in materials]
         self.normal_strength = np.maximum([m.normal_strength for m in materials], 0.0)
         self.normal_mapped = any(t is not None for t in self.normal_textures)
+        self.holdout = np.array([m.holdout for m in materials], dtype=bool)
+        self.holdouts = bool(self.holdout.any())
         self.mirror = self.roughness < MIRROR_ROUGHNESS
         self.glass = self.transmission > 0.0
         self.traces_secondary = bool(np.any(self.mirror | self.glass))
@@ -292,16 +294,23 @@ class Shader:
             alpha[sel] = self.materials.opacity(material, hit_uv(frame, prim, hits.u[sel], hits.v[sel]))
         return alpha
 
+    @property
+    def has_holdouts(self) -> bool:
+        """Whether any surface is a holdout (an object's or a Holdout shader)."""
+        return self.frames.has_holdout or self.materials.holdouts
+
     def held_out(self, hits: Hits) -> np.ndarray:
         """Whether each hit is on a holdout surface (a hole in the image)."""
         held = np.zeros(len(hits.frame), dtype=bool)
-        if not self.frames.has_holdout:
+        if not self.has_holdouts:
             return held
         for k in frames_hit(hits):
-            holdout = self.frames.frames[k].geometry.tri_holdout
-            if holdout is not None:
-                sel = np.flatnonzero(hits.frame == k)
-                held[sel] = holdout[hits.prim[sel]]
+            geometry = self.frames.frames[k].geometry
+            sel = np.flatnonzero(hits.frame == k)
+            prim = hits.prim[sel]
+            held[sel] = self.materials.holdout[self.materials.clamp(geometry.tri_material[prim])]
+            if geometry.tri_holdout is not None:
+                held[sel] |= geometry.tri_holdout[prim]
         return held
 
     def surface_info(self, k: int, prim, u, v, d_k, tau_hit=None):

@@ -94,6 +94,8 @@ class MaterialExporter:
         elif node.type == 'EMISSION':  # emits, reflects nothing
             out.base_color, out.specular_ior_level = (0.0, 0.0, 0.0), 0.0
             out.emission = self._emission(mat, node.inputs["Color"], node.inputs["Strength"], out)
+        elif node.type == 'HOLDOUT':  # a hole in the image (reflects and emits nothing)
+            out.base_color, out.specular_ior_level, out.holdout = (0.0, 0.0, 0.0), 0.0, True
         elif node.type == 'BSDF_DIFFUSE':  # Lambert, without the Principled BSDF's specular layer
             out.base_color, out.specular_ior_level = self._color(mat, node.inputs["Color"]), 0.0
             out.roughness = 1.0

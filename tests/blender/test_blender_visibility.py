@@ -89,12 +89,22 @@ def in_collection(scene, obj, name):
     return scene.view_layers[0].layer_collection.children[name]
 
 
-@pytest.mark.parametrize("how", ["object", "collection"])
+def holdout_shader():
+    mat = bpy.data.materials.new("Hole")
+    if bpy.app.version < (5, 0, 0):
+        mat.use_nodes = True
+    nodes = mat.node_tree.nodes
+    nodes.remove(nodes["Principled BSDF"])
+    mat.node_tree.links.new(nodes.new("ShaderNodeHoldout").outputs[0], nodes["Material Output"].inputs["Surface"])
+    return mat
+
+
+@pytest.mark.parametrize("how", ["object", "collection", "shader"])
 def test_a_holdout_is_a_hole_that_casts_its_shadow(scene, tmp_path, how):
-    _, card = card_scene(scene)
+    _, card = card_scene(scene, card_material=holdout_shader() if how == "shader" else None)
     if how == "object":
         card.is_holdout = True
-    else:
+    elif how == "collection":
         in_collection(scene, card, "Held").holdout = True
     ours, cycles = render_both(scene, tmp_path)
     assert np.count_nonzero(cycles[..., 3] == 0.0) == 64  # the card's 8 x 8 pixels
