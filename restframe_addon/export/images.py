@@ -10,8 +10,10 @@ to ``CACHE_BYTES`` (always the latest one).
 Image sequences use the file of the image user's frame (Blender's rule: the scene frame
 counted from the user's start frame, cyclic or held at the ends, plus the offset), UDIM
 images every tile, laid out side by side in one array (``Texture.tiles`` says how many
-columns and rows; the exporter scales the UVs to match).  Both read their files through a
-temporary image datablock that is removed again.
+columns and rows; the exporter scales the UVs to match).  Approximations of that layout:
+Linear filtering blends a tile's outermost half pixel with its neighbour's, and UVs beyond the
+tiles wrap around instead of finding no tile.  Both read their files through a temporary
+image datablock that is removed again.
 """
 
 from __future__ import annotations

@@ -14,7 +14,6 @@ from .errors import ExportCancelled, ExportError
 from .keyed_speed import KeyedCurve, fastest, is_finite, non_finite_key
 
 
-
 _SHUTTER_OPENS = {'START': 0.0, 'CENTER': -0.5, 'END': -1.0}  # the frame's place in the shutter, in shutters
 
 
@@ -95,12 +94,13 @@ def object_trajectory(root, scene, camera_position, radius: float, *, should_sto
     ``radius`` is the assembly's ``body_radius`` about the pivot (every mesh moving with it),
     so the world line is built with its corners rounded for that body.
 
-    Samples ``SUBFRAMES`` per frame from before the scene's start frame (early enough
-    for light from any sampled position to reach the camera) up to just past the
-    rendered frame; the F-curves are evaluated directly, so the scene's current frame
+    Samples ``SUBFRAMES`` per frame, and every key, from before the scene's start frame
+    (early enough for light from any sampled position to reach the camera) up to just past
+    the rendered frame; the F-curves are evaluated directly, so the scene's current frame
     never changes.  Supported: the object's own location/delta location keys; a parent
     is taken as static at its pose of the rendered frame.  Raises ExportError (naming
-    the object and frames) when the motion reaches c, ExportCancelled on Esc.
+    the object and frames) when the keyed curves, differentiated per segment, reach c
+    anywhere (``_refuse_light_speed``), ExportCancelled on Esc.
     """
     rf = scene.restframe
     c = rf.light_speed
@@ -144,7 +144,7 @@ def object_trajectory(root, scene, camera_position, radius: float, *, should_sto
     count = int(min((end - start) * SUBFRAMES, MAX_SAMPLES)) + 1
     keys = np.concatenate([curve.key_frame for curve in keyed.values()] + [np.empty(0)])
     # the keys themselves are samples too: a short burst between two keys is not averaged away
-    frames = np.union1d(np.linspace(start, end, count), keys[(keys > start) & (keys < end)])
+    frames = _samples_with_keys(start, end, count, keys)
     _refuse_light_speed(root.name, keyed, parent_matrix, frames, fps / c)
     if should_stop():
         raise ExportCancelled()
@@ -164,11 +164,26 @@ def object_trajectory(root, scene, camera_position, radius: float, *, should_sto
         raise ExportError(str(error)) from error
 
 
+def _samples_with_keys(start: float, end: float, count: int, keys: np.ndarray) -> np.ndarray:
+    """``count`` even samples of [start, end] and every key inside, without the even samples that
+    come within a quarter step of a key (a sliver interval would leave a key's corner no room)."""
+    grid = np.linspace(start, end, count)
+    keys = np.unique(keys[(keys > start) & (keys < end)])
+    if len(keys) == 0:
+        return grid
+    step = (end - start) / max(count - 1, 1)
+    nearest = np.clip(np.searchsorted(keys, grid), 1, len(keys)) - 1
+    gap = np.minimum(np.abs(grid - keys[nearest]), np.abs(grid - keys[np.minimum(nearest + 1, len(keys) - 1)]))
+    keep = gap >= 0.25 * step
+    keep[[0, -1]] = True
+    return np.union1d(grid[keep], keys)
+
 
 def _refuse_light_speed(name: str, keyed: dict, parent_matrix: np.ndarray, frames: np.ndarray,
-                        frames_per_light_unit: float) -> None:
+                        to_c: float) -> None:
     """Raise ExportError (naming the object and the frames) where the keyed location, differentiated
-    per key segment, reaches the speed of light within ``frames``; a jump is infinitely fast."""
+    per key segment, reaches the speed of light within ``frames``; a jump is infinitely fast.
+    ``to_c`` turns scene units per frame into units of c (fps / c)."""
     lo, hi = frames[0], frames[-1]
     jumps = sorted({f for curve in keyed.values() for f in curve.jumps() if lo <= f <= hi})
     if jumps:
@@ -189,7 +204,7 @@ def _refuse_light_speed(name: str, keyed: dict, parent_matrix: np.ndarray, frame
         local = np.zeros((len(at), 3))
         for (_, index), curve in keyed.items():
             local[:, index] += curve.derivative(at)
-        return local @ linear.T * frames_per_light_unit
+        return local @ linear.T * to_c
 
     probes = np.concatenate([frames] + [curve.probe_frames() for curve in keyed.values()])
     probes = np.unique(probes[(probes >= lo) & (probes <= hi)])

@@ -134,7 +134,8 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
     camera_position = tuple(camera_object.matrix_world.translation)
     unsupported = FeatureReport()
     features_seen: set[int] = set()  # original objects already asked (instances share theirs)
-    moving_instancers: dict = {}  # instanced instancers with a velocity -> (object, pivot); listed before their instances
+    # instanced instancers with a velocity -> (object, pivot); Blender lists them before their instances
+    moving_instancers: dict = {}
     view_layer = depsgraph.view_layer
 
     for inst in depsgraph.object_instances:

@@ -1,7 +1,6 @@
 """Blender features RESTframe does not render yet: one warning per feature, naming the objects."""
 
 import bpy
-import pytest
 
 from blender_helpers import add_camera, add_plane, export_now
 from restframe_addon.export import features

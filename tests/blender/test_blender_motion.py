@@ -413,3 +413,20 @@ def test_bezier_handles_that_stop_time_are_refused_as_infinitely_fast(scene):
     scene.frame_set(10)
     with pytest.raises(export.ExportError, match=r"Flick: .*stand still in time while it moves at frame 5.5"):
         export_now(scene)
+
+
+def test_keys_are_world_line_samples_without_slivers(scene):
+    """A key between the even samples is a sample itself, and no even sample is left within a
+    quarter step of it (the corner there keeps its room)."""
+    scene.render.fps, scene.render.fps_base = FPS, 1.0
+    add_camera(scene)
+    walker = add_plane(scene, "Walker", size=0.5)
+    key_x(walker, [(1, 0.0), (10.03, 1.0), (20, 0.0)], 'LINEAR')
+    scene.frame_set(15)
+    out, _, _ = export_now(scene)
+    frames = out.meshes[0].trajectory.frames
+    key = float(np.float32(10.03))
+    assert key in frames
+    assert np.diff(frames).min() >= 0.25 / SUBFRAMES * 0.999
+    i = int(np.flatnonzero(frames == key)[0])
+    np.testing.assert_allclose(out.meshes[0].trajectory.position[i], (1.0, 0.0, 0.0), atol=1e-6)
