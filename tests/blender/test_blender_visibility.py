@@ -325,3 +325,22 @@ def test_export_takes_ray_visibility_and_holdout_from_the_object_its_instancer_a
     assert meshes["Indirect"].visibility == RAY_ALL & ~RAY_CAMERA and not meshes["Indirect"].holdout
     instance = meshes["Instancer/Member"]
     assert instance.visibility == RAY_ALL & ~RAY_CAMERA & ~RAY_GLOSSY and instance.holdout
+
+
+def test_the_command_line_refuses_multi_view_with_a_clear_error(scene, tmp_path):
+    """Blender's save_render writes the _L / _R files of a multi-view result but reports failure, so the
+    command line says what to do instead of a traceback (F12 and blender -b -E RESTFRAME write every view)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    add_camera(scene)
+    add_plane(scene)
+    scene.render.use_multiview = True
+    blend = tmp_path / "stereo.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    done = subprocess.run([sys.executable, "-m", "restframe_addon", "render", str(blend), "-o", str(tmp_path / "out.png")],
+                          cwd=Path(__file__).resolve().parents[2], capture_output=True, text=True, timeout=300)
+    assert done.returncode != 0
+    assert "restframe: error:" in done.stderr and "Stereoscopy" in done.stderr and "Traceback" not in done.stderr
+    assert not list(tmp_path.glob("*out*"))  # nothing half-written
