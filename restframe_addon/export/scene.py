@@ -17,7 +17,7 @@ from ..core import validation
 from ..core.scene import (RAY_ALL, RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_SHADOW, RAY_TRANSMISSION, Light, Mesh,
                           RenderSettings, Scene, Velocity)
 from ..motion_query import assembly_root, has_animated_location, observation_time
-from .camera import export_camera
+from .camera import export_camera, render_views
 from .errors import ExportCancelled, ExportError
 from .features import FeatureReport, object_features
 from .lights import export_light, world_color
@@ -124,6 +124,9 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
     if camera_object is not None:
         camera_object = camera_object.evaluated_get(depsgraph)
     camera = export_camera(camera_object, scene)
+    if render_views(scene) and camera.kind == 'PANO':
+        warn_once(f"{camera_object.name}: a panoramic camera's stereo views are rendered as two panoramas from the "
+                  "eyes' positions (spherical stereo, the eyes turning with the view direction, is not supported)")
     materials = MaterialExporter(warn_once, scene)
     bodies: list[tuple[int | None, dict]] = []  # (assembly key of an animated body, Mesh fields) per mesh
     lights: list[Light] = []

@@ -344,3 +344,13 @@ def test_the_command_line_refuses_multi_view_with_a_clear_error(scene, tmp_path)
     assert done.returncode != 0
     assert "restframe: error:" in done.stderr and "Stereoscopy" in done.stderr and "Traceback" not in done.stderr
     assert not list(tmp_path.glob("*out*"))  # nothing half-written
+
+
+def test_a_panoramic_stereo_camera_is_warned_about(scene):
+    from blender_helpers import export_now
+
+    add_camera(scene, type='PANO')
+    add_plane(scene)
+    assert not any("spherical stereo" in w for w in export_now(scene)[2])
+    scene.render.use_multiview = True
+    assert sum("spherical stereo" in w for w in export_now(scene)[2]) == 1
