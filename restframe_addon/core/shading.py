@@ -220,10 +220,11 @@ class Shader:
                 doppler = 1.0 / to_world.rays(d[miss])[1]
                 world = self.colour.world(self.colour.shift(_rows(lam, miss), doppler), len(miss))
                 values[miss] = rows.scale(world, self._power(doppler, 4))
-        held = self.held_out(hits)
-        values[held] = 0.0
+        held = self.held_out(hits) if self.has_holdouts else None
+        if held is not None:
+            values[held] = 0.0
         for k in frames_hit(hits):
-            sel = np.flatnonzero((hits.frame == k) & ~held)
+            sel = np.flatnonzero(hits.frame == k if held is None else (hits.frame == k) & ~held)
             if len(sel) == 0:
                 continue
             fmap = self.frames.map(src, int(k))
