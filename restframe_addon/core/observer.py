@@ -21,6 +21,14 @@ from .lorentz import Boost, RowBoosts
 from .scene import Camera, Velocity
 
 
+def proper_time(tau: float, velocity: Velocity, trajectory=None) -> float:
+    """The own clock (c*t units) at world time ``tau`` of a camera, lamp or body pivot whose clock
+    reads 0 at world time 0: along its world line, or ``tau / gamma`` at constant velocity."""
+    if trajectory is not None:
+        return float(trajectory.proper_time(np.array([tau]))[0])
+    return tau / Boost.from_velocity(velocity.beta, velocity.lorentz_factor).gamma
+
+
 def camera_velocity(camera: Camera, tau_obs: float) -> Velocity:
     """The velocity of the camera frame: constant, or the world line's at the observation event."""
     if camera.trajectory is None:
