@@ -203,6 +203,17 @@ class RESTFRAME_VIEWLAYER_PT_passes(RestframeButtonsPanel, Panel):
 
 
 # --------------------------------------------------------------------------- object
+def _draw_clock(col, obj, scene, speed: bool = True):
+    """The object's own clock at the rendered frame (and its speed there, on a world line)."""
+    seconds, beta = motion_query.clock(obj, scene)
+    if seconds != seconds:  # NaN: the motion reaches c
+        col.label(text="The keyed motion reaches the speed of light", icon='ERROR')
+        return
+    if speed:
+        col.label(text=f"Speed \u03b2 = {math.sqrt(sum(b * b for b in beta)):.9g} c at this frame")
+    col.label(text=f"Proper time {seconds:.9g} s (own clock at this frame)", icon='TIME')
+
+
 class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
     bl_label = "Relativistic Motion"
     bl_context = "object"
@@ -234,7 +245,7 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
             if any(rf.angular_velocity):
                 box.label(text="Angular Velocity is ignored with Motion = Animation", icon='ERROR')
             if observer_or_lamp:
-                self.draw_clock(box.column(align=True), obj, context.scene)
+                _draw_clock(box.column(align=True), obj, context.scene)
             return
         if not observer_or_lamp:  # lamps and cameras do not spin
             col.prop(rf, "angular_velocity")
@@ -256,7 +267,7 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
             col.label(text=f"Lorentz factor \u03b3 = {gamma:.9g}")
             col.label(text=f"Rapidity = {rapidity:.6g}")
             if observer_or_lamp:
-                self.draw_clock(col, obj, context.scene, speed=False)
+                _draw_clock(col, obj, context.scene, speed=False)
         if not rf.is_moving:
             return
         if obj.type == 'CAMERA':
@@ -269,17 +280,6 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
             warn.alert = True
             warn.label(text="Location is keyframed: the object will jump between frames", icon='ERROR')
             warn.label(text="Set Motion to Animation to follow the keyframed path")
-
-    @staticmethod
-    def draw_clock(col, obj, scene, speed: bool = True):
-        """The object's own clock at the rendered frame (and its speed there, on a world line)."""
-        seconds, beta = motion_query.clock(obj, scene)
-        if seconds != seconds:  # NaN: the motion reaches c
-            col.label(text="The keyed motion reaches the speed of light", icon='ERROR')
-            return
-        if speed:
-            col.label(text=f"Speed \u03b2 = {math.sqrt(sum(b * b for b in beta)):.9g} c at this frame")
-        col.label(text=f"Proper time {seconds:.9g} s (own clock at this frame)", icon='TIME')
 
 
 # --------------------------------------------------------------------------- light

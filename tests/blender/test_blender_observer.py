@@ -195,3 +195,21 @@ def test_flash_seen_in_blender_lights_the_floor_only_between_the_ellipses(scene,
     lit = image > 1e-6
     assert inside.sum() > 20 and outside.sum() > 300
     assert lit[inside].all() and not lit[outside].any()
+
+
+def test_the_motion_panel_shows_the_clock_and_speed_of_cameras_and_lamps(scene):
+    from test_blender_ui import context_for, draw
+
+    from restframe_addon import ui
+
+    camera = rocket_scene(scene, 25)
+    labels = draw(ui.RESTFRAME_OBJECT_PT_motion, context_for(scene, camera))["labels"]
+    expected = C / ACCEL * math.asinh(ACCEL / C)
+    assert any(text.startswith("Proper time ") and abs(float(text.split()[2]) - expected) < 1e-6
+               for text in labels), labels
+    assert any("Speed" in text and "0.371" in text for text in labels), labels
+    assert any("momentary rest frame" in text for text in labels)
+    lamp = add_point_lamp(scene, (0.0, 0.0, 2.0), watts=100.0)
+    lamp.restframe.velocity = (0.6, 0.0, 0.0)
+    labels = draw(ui.RESTFRAME_OBJECT_PT_motion, context_for(scene, lamp))["labels"]
+    assert any(text.startswith("Proper time ") and abs(float(text.split()[2]) - 0.8) < 1e-6 for text in labels)
