@@ -12,26 +12,50 @@ from .materials import output_node, upstream
 from .motion import MAX_SAMPLES, SUBFRAMES
 
 
-def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, scene=None, trajectory=None) -> Light:
+def node_emission(data, name: str, warn: Callable[[str], None]) -> tuple[np.ndarray, float]:
+    """(colour, strength) of the Emission node in a light's node tree, which Cycles multiplies
+    into the light's own colour and power; (white, 1) without nodes, black when nothing feeds
+    the Light Output."""
+    tree = data.node_tree
+    if tree is None or not data.use_nodes:
+        return np.ones(3), 1.0
+    output = tree.get_output_node('CYCLES')
+    if output is None:
+        return np.ones(3), 1.0
+    node = upstream(output.inputs["Surface"])
+    if node is None:
+        return np.zeros(3), 0.0
+    if node.type != 'EMISSION':
+        warn(f"Light '{name}': shader '{node.bl_label}' in its node tree is not supported, ignored")
+        return np.ones(3), 1.0
+    color, strength = node.inputs["Color"], node.inputs["Strength"]
+    if upstream(color) is not None or upstream(strength) is not None:
+        warn(f"Light '{name}': links into its Emission node are not supported, using their values")
+    return np.asarray(color.default_value[:3], dtype=np.float64), float(strength.default_value)
+
+
+def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Callable[[str], None] = print,
+                 scene=None, trajectory=None) -> Light:
     """The lamp as the core sees it; with ``scene``, its keyed strength and colour as curves on
     its own clock, and ``trajectory`` its world line (Motion = Animation)."""
     data = obj.data
     rotation = matrix[:3, :3] / np.linalg.norm(matrix[:3, :3], axis=0)
+    tint, strength = node_emission(data, obj.name, warn)
     light = Light(
         name=obj.name,
         kind=data.type,
         position=tuple(matrix[:3, 3]),
         matrix=rotation,
-        color=tuple(float(c) for c in data.color[:3]),
+        color=tuple(float(c) for c in np.asarray(data.color[:3], dtype=np.float64) * tint),
         # a black body (a spectrum the core Doppler-shifts), tinted by the colour
         temperature=float(data.temperature) if getattr(data, "use_temperature", False) else 0.0,
-        power=float(data.energy) * 2.0 ** float(getattr(data, "exposure", 0.0)),
+        power=float(data.energy) * 2.0 ** float(getattr(data, "exposure", 0.0)) * strength,
         velocity=velocity,
         pivot=pivot,
         trajectory=trajectory,
     )
     if scene is not None:
-        light.power_curve, light.color_curve = keyed_output(data, scene)
+        light.power_curve, light.color_curve = keyed_output(data, scene, tint, strength)
     if data.type in {'POINT', 'SPOT'}:
         light.radius = float(data.shadow_soft_size)
     if data.type == 'SPOT':
@@ -88,19 +112,23 @@ def _evaluate(fc, frames: np.ndarray) -> np.ndarray:
     return values
 
 
-def keyed_output(data, scene):
+def keyed_output(data, scene, tint=(1.0, 1.0, 1.0), strength: float = 1.0):
     """(power curve, colour curve) of a lamp whose energy, colour or node Emission strength is
     keyed: (seconds of the lamp's own clock, watts) and (seconds, (N, 3) colours), each None when
     not keyed.  Blender frame f is clock time (f - reference_frame) * fps_base / fps
-    (docs/physics.md#lamps-and-shadow-rays); the power includes the exposure of the rendered frame."""
+    (docs/physics.md#lamps-and-shadow-rays); the power includes the exposure of the rendered frame
+    and the node Emission ``strength`` (where not keyed), the colours its ``tint``
+    (:func:`node_emission`)."""
     animation = data.animation_data
     energy = _curve(animation, "energy")
     colors = [_curve(animation, "color", i) for i in range(3)]
     socket = _emission_strength(data)
-    strength = None
+    keyed_strength = None
     if socket is not None:
-        strength = _curve(data.node_tree.animation_data, socket.path_from_id("default_value"))
-    keyed = [fc for fc in (energy, strength, *colors) if fc is not None and len(fc.keyframe_points)]
+        keyed_strength = _curve(data.node_tree.animation_data, socket.path_from_id("default_value"))
+        if keyed_strength is not None and not len(keyed_strength.keyframe_points):
+            keyed_strength = None
+    keyed = [fc for fc in (energy, keyed_strength, *colors) if fc is not None and len(fc.keyframe_points)]
     if not keyed:
         return None, None
     frames = _sample_frames(keyed, scene)
@@ -112,13 +140,12 @@ def keyed_output(data, scene):
         return _evaluate(fc, frames)
 
     power_curve = color_curve = None
-    if any(fc in keyed for fc in (energy, strength)):
+    if any(fc in keyed for fc in (energy, keyed_strength)):
         watts = values(energy, data.energy) * 2.0 ** float(getattr(data, "exposure", 0.0))
-        if socket is not None:
-            watts = watts * values(strength, socket.default_value)
-        power_curve = (seconds, watts)
+        power_curve = (seconds, watts * (strength if keyed_strength is None else values(keyed_strength, 0.0)))
     if any(fc in keyed for fc in colors):
-        color_curve = (seconds, np.column_stack([values(fc, data.color[i]) for i, fc in enumerate(colors)]))
+        color_curve = (seconds, np.column_stack([values(fc, data.color[i]) for i, fc in enumerate(colors)])
+                       * np.asarray(tint, dtype=np.float64))
     return power_curve, color_curve
 
 
