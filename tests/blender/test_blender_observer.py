@@ -213,3 +213,35 @@ def test_the_motion_panel_shows_the_clock_and_speed_of_cameras_and_lamps(scene):
     lamp.restframe.velocity = (0.6, 0.0, 0.0)
     labels = draw(ui.RESTFRAME_OBJECT_PT_motion, context_for(scene, lamp))["labels"]
     assert any(text.startswith("Proper time ") and abs(float(text.split()[2]) - 0.8) < 1e-6 for text in labels)
+
+
+def test_keyed_node_emission_strength_and_colour_enter_the_lamp_curves(scene):
+    """A light node tree's Emission strength, keyed, multiplies the lamp's power on its clock; its
+    colour tints the keyed colour (as Cycles multiplies both into the lamp)."""
+    scene.render.fps, scene.render.fps_base = FPS, 1.0
+    scene.restframe.reference_frame = 1
+    add_camera(scene)
+    lamp = add_point_lamp(scene, (0.0, 0.0, 2.0), watts=100.0)
+    lamp.data.use_nodes = True
+    emission = next(n for n in lamp.data.node_tree.nodes if n.type == 'EMISSION')
+    emission.inputs["Color"].default_value = (1.0, 0.5, 0.25, 1.0)
+    strength = emission.inputs["Strength"]
+    for frame, value in ((1, 0.0), (25, 3.0)):
+        strength.default_value = value
+        strength.keyframe_insert("default_value", frame=frame)
+    for frame, value in ((1, (1.0, 1.0, 1.0)), (25, (0.0, 1.0, 0.0))):
+        lamp.data.color = value
+        lamp.data.keyframe_insert("color", frame=frame)
+    for animation in (lamp.data.node_tree.animation_data, lamp.data.animation_data):
+        for fc in motion_query.fcurves(animation.action, getattr(animation, "action_slot", None)):
+            for point in fc.keyframe_points:
+                point.interpolation = 'LINEAR'
+    scene.frame_set(60)
+    out, _, _ = export_now(scene)
+    (light,) = out.lights
+    seconds, watts = light.power_curve
+    assert np.interp(0.5, seconds, watts) == pytest.approx(100.0 * 1.5)  # frame 13: halfway up
+    assert np.interp(1.0, seconds, watts) == pytest.approx(300.0)
+    seconds, colours = light.color_curve
+    np.testing.assert_allclose([np.interp(0.5, seconds, colours[:, i]) for i in range(3)], [0.5, 0.5, 0.125],
+                               atol=1e-6)
