@@ -17,6 +17,7 @@ import traceback
 import bpy
 
 from . import export
+from .core.observer import proper_time
 from .core.passes import BY_NAME
 from .core.prepared import prepare, prepare_view
 from .core.render import render_tiles
@@ -24,6 +25,18 @@ from .core.validation import RenderError
 
 # Blender 5.0 renamed its object index pass ("IndexOB" before).
 OBJECT_INDEX_PASS = "Object Index" if bpy.app.version >= (5, 0, 0) else "IndexOB"
+
+# the render's metadata (Blender's stamp data: written into EXR headers and PNG text chunks)
+STAMP_PROPER_TIME = "RESTframe Observer Proper Time"
+
+
+def observer_stamp(scene) -> dict[str, str]:
+    """Stamp fields of a rendered core scene: the camera's own clock at the observation event, in
+    seconds from the reference time (its proper time on its world line)."""
+    camera = scene.camera
+    seconds = proper_time(scene.tau_obs, camera.velocity, camera.trajectory) / scene.light_speed
+    return {STAMP_PROPER_TIME: f"{seconds:.12g} s"}
+
 
 # Blender pass name -> the core's pass name
 _CORE_PASS = {OBJECT_INDEX_PASS: "IndexOB"}
@@ -156,6 +169,9 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
             self.update_stats("", f"RESTframe | {len(scene.meshes)} objects, {triangles} triangles | "
                               f"{'' if view is None else f'View {view} | '}"
                               f"Tile {done}/{total} | {time.monotonic() - started:.1f} s")
+        result = self.get_result()
+        for field, value in observer_stamp(scene).items():
+            result.stamp_data_add_field(field, value)
         return None if self.should_stop() else prepared
 
 

@@ -24,7 +24,7 @@ import numpy as np
 from embreex import rtcore, rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
-from . import motion, rows, validation
+from . import motion, observer, rows, validation
 from .lorentz import Boost
 from .scene import RAY_ALL, REST, Scene, Velocity
 
@@ -368,8 +368,10 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
         return frame
 
     world = shared_frame(REST, "world").index
-    camera = shared_frame(scene.camera.velocity, scene.camera.name).index
-    light_frames = [shared_frame(light.velocity, light.name).index for light in scene.lights]
+    camera = shared_frame(observer.camera_velocity(scene.camera, scene.tau_obs), scene.camera.name).index
+    # an animated lamp is in no one frame: it is lit from its momentary rest frame at each retarded event
+    light_frames = [shared_frame(REST if light.trajectory is not None else light.velocity, light.name).index
+                    for light in scene.lights]
 
     inertial: dict[int, list] = {}
     groups: list[SegmentGroup] = []

@@ -18,7 +18,7 @@ from typing import Callable
 
 import numpy as np
 
-from . import lens
+from . import lens, observer
 from .camera import CameraRays
 from .colour import RGBColour, SpectralColour
 from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
@@ -96,14 +96,28 @@ class PreparedScene:
         every px with every py); rays outside a panorama get s_hi = -inf (they hit nothing).
         With ``keys`` = (pixel ids, sample numbers, samples per pixel) they are camera samples:
         through the lens, and with motion blur each at its own time of the camera's clock."""
+        return self.sample_rays(px, py, grid, keys)[0]
+
+    def sample_rays(self, px, py, grid: bool = False, keys=None):
+        """:meth:`rays` and the Doppler factor (n,) of the camera frame as each ray's observer
+        sees it, None where that is the camera frame itself (all but the shutter samples of an
+        accelerating camera, each observing in its momentary rest frame: core.observer)."""
         origins, d, s_lo, s_hi, valid = self.camera_rays(px, py, grid, keys)
         camera = self.scene.camera
+        doppler = None
         if keys is not None and camera.has_motion_blur:
-            # an inertial camera's rest-frame time runs with its own clock (tau = c t)
-            tau = self.camera_tau + self.scene.light_speed * lens.shutter_times(camera, *keys, self.settings.resolution)
+            proper = self.scene.light_speed * lens.shutter_times(camera, *keys, self.settings.resolution)
+            if camera.trajectory is None:
+                # an inertial camera's rest-frame time runs with its own clock (tau = c t)
+                tau = self.camera_tau + proper
+            else:
+                tau, origins, d, w = observer.shutter_samples(
+                    camera, self.frames.frames[self.frames.camera].boost, self.scene.tau_obs,
+                    self.camera_rays.position, proper, origins, d)
+                s_lo, s_hi, doppler = s_lo * w, s_hi * w, 1.0 / w
         else:
             tau = np.broadcast_to(self.camera_tau, (len(d),))  # read-only views: every ray starts at this time
-        return tau, origins, d, s_lo, s_hi if valid.all() else np.where(valid, s_hi, -np.inf)
+        return (tau, origins, d, s_lo, s_hi if valid.all() else np.where(valid, s_hi, -np.inf)), doppler
 
     def centre_rays(self, rect):
         """The pixel-centre camera rays of a rectangle of pixels, in row-major order."""
@@ -181,9 +195,14 @@ def _camera(scene: Scene, settings: RenderSettings, frames: FrameSet) -> tuple[f
     tau_obs) and the camera's rays."""
     camera_boost = frames.frames[frames.camera].boost
     position = np.asarray(scene.camera.matrix, dtype=np.float64)[:3, 3]
-    world_event = position + camera_boost.b * camera_boost.n * scene.tau_obs
-    tau, _ = camera_boost.events(np.array(scene.tau_obs), world_event)
-    return float(tau), CameraRays(scene.camera, settings.resolution, shift_into_frame(camera_boost, position))
+    if scene.camera.trajectory is None:
+        world_event = position + camera_boost.b * camera_boost.n * scene.tau_obs
+        tau, _ = camera_boost.events(np.array(scene.tau_obs), world_event)
+        offset = shift_into_frame(camera_boost, position)
+    else:  # on its world line, in its momentary rest frame
+        tau, place = observer.observation_event(scene.camera, camera_boost, scene.tau_obs)
+        offset = place - position
+    return float(tau), CameraRays(scene.camera, settings.resolution, offset)
 
 
 def _measure_doppler_range(prepared: PreparedScene, should_stop) -> tuple[float, float]:

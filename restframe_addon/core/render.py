@@ -77,6 +77,7 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
         m = part.stop - part.start
         pix = np.repeat(pixel[part], count)
         smp = np.tile(np.arange(first, first + count), m)
+        observed = None  # the Doppler factor of the camera frame seen by each sample's observer (None: 1)
         if samples == 1 and not prepared.samples_vary:  # the one sample is the pixel-centre ray
             rays = tuple(a[part] for a in centre)
             # already traced, unless cut-outs pass it by chance (the passes' trace used a threshold)
@@ -84,10 +85,10 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
                     if prepared.materials.cuts_out else centre_hits.take(part))
         else:
             ox, oy = sampling.stratified_offsets(pix, smp, samples)
-            rays = prepared.rays(np.repeat(xs[part], count) + ox, np.repeat(ys[part], count) + oy,
-                                 keys=(pix, smp, samples))
+            rays, observed = prepared.sample_rays(np.repeat(xs[part], count) + ox, np.repeat(ys[part], count) + oy,
+                                                  keys=(pix, smp, samples))
             hits = shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache)
-        color, hit, hole = _sample(prepared, rays, hits, pix, smp, cache)
+        color, hit, hole = _sample(prepared, rays, hits, pix, smp, cache, observed)
         rgb[part] += color.reshape(m, count, 3).sum(axis=1)
         coverage[part] += hit.reshape(m, count).sum(axis=1)
         if hole is not None:
@@ -101,17 +102,25 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     return Tile(x0, y0, x1, y1, {k: v.reshape(h, w, -1).astype(np.float32) for k, v in passes.items()}, complete)
 
 
-def _sample(prepared: PreparedScene, rays, hits, pixel, sample, cache: TraceCache):
+def _sample(prepared: PreparedScene, rays, hits, pixel, sample, cache: TraceCache, observed=None):
     """Colour of camera samples (already traced: ``hits``), whether they hit anything and whether
-    a holdout (None: the scene has none; a holdout's colour is 0)."""
+    a holdout (None: the scene has none; a holdout's colour is 0); ``observed``: the Doppler factor
+    of the camera frame as each sample's observer sees it (an accelerating camera's shutter
+    samples), None for 1."""
     settings = prepared.settings
     if settings.doppler_mode == "FACTOR":
         hit = hits.frame >= 0
-        rgb = np.repeat(_doppler_grey(prepared, ray_doppler(prepared.frames, hits))[:, None], 3, axis=1)
+        doppler = ray_doppler(prepared.frames, hits)
+        if observed is not None:
+            doppler = doppler * observed
+        rgb = np.repeat(_doppler_grey(prepared, doppler)[:, None], 3, axis=1)
     else:
         colour = prepared.colour
         lam = colour.camera_wavelengths(pixel, sample)
-        values, hits = prepared.shader.radiance(prepared.frames.camera, *rays, 0, pixel, sample, lam, hits, cache)
+        traced = lam if observed is None else colour.shift(lam, observed)  # the wavelengths in the camera frame
+        values, hits = prepared.shader.radiance(prepared.frames.camera, *rays, 0, pixel, sample, traced, hits, cache)
+        if observed is not None:
+            values = values * prepared.shader._power(observed, 4)[:, None]
         rgb = colour.to_rgb(values, lam)
         hit = hits.frame >= 0
     if settings.film_transparent:

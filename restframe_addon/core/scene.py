@@ -124,6 +124,16 @@ class Light:
     temperature: float = 0.0  # K; > 0: a black body at this temperature, tinted by ``color``
     velocity: Velocity = REST
     pivot: tuple[float, float, float] | None = None  # None = its own position
+    trajectory: "Trajectory | None" = None  # an animated lamp's world line (replaces velocity and position)
+    # keyed output, read on the lamp's own clock at emission: (seconds, watts) and (seconds, (N, 3) colours);
+    # linear between samples, constant beyond; None = ``power`` / ``color`` at every time
+    power_curve: tuple[np.ndarray, np.ndarray] | None = None
+    color_curve: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def is_keyed(self) -> bool:
+        """Whether its strength or colour changes with its clock."""
+        return self.power_curve is not None or self.color_curve is not None
 
     @property
     def pivot_or_position(self):
@@ -156,6 +166,9 @@ class Camera:
     sensor_size: tuple[float, float] = (36.0, 24.0)  # mm (width, height) as fitted to the image
     velocity: Velocity = REST
     name: str = "Camera"
+    # an animated (accelerating) observer's world line: replaces velocity; the image forms in its momentary
+    # rest frame at the observation event, shutter samples at their own proper times on it (core.observer)
+    trajectory: "Trajectory | None" = None
     # depth of field (Cycles' thin lens, in the camera's rest frame; core.lens): radius 0 = a pinhole
     aperture_radius: float = 0.0  # scene units (the polygon's corners lie on this circle)
     focus_distance: float = 10.0  # scene units along the view axis (the plane of focus)

@@ -26,7 +26,8 @@ import numpy as np
 
 from . import rows, sampling, spectral
 from .bsdf import dielectric_f0, fresnel_dielectric, ggx_reflection
-from .frames import FrameSet, shift_into_frame
+from .frames import FrameSet, clock_shift, shift_into_frame
+from .lorentz import RowBoosts
 from .passes import facing_normals, hit_doppler, hit_times
 from .scene import RAY_CAMERA, RAY_GLOSSY, RAY_TRANSMISSION, Light, Material, Scene
 from .tracer import Hits, TraceCache, frames_hit, occluded, trace_nearest
@@ -149,6 +150,8 @@ class PreparedLight:
     position: np.ndarray  # in its frame
     axes: np.ndarray  # 3x3, columns = local X, Y, Z (emits along -Z)
     radiant: np.ndarray  # colour * power in Blender units
+    clock_offset: float = 0.0  # the lamp's own clock = its frame's time + this (constant velocity)
+    keyed: tuple | None = None  # keyed output: (lamp-clock times c*t (N,), colours (N, 3), powers (N,)); None: radiant
 
     @property
     def sampled(self) -> bool:
@@ -171,9 +174,33 @@ def prepare_lights(scene: Scene, frames: FrameSet) -> list[PreparedLight]:
             radiant = radiant * spectral.blackbody_rgb(light.temperature)
         if light.kind not in ("POINT", "SPOT", "SUN", "AREA"):
             raise ValueError(f"{light.name}: light type {light.kind} is not supported by RESTframe")
-        if np.any(radiant > 0):
-            prepared.append(PreparedLight(light, frame, position, axes, radiant))
+        if light.kind == "SUN" and light.trajectory is not None:
+            raise ValueError(f"{light.name}: a sun lamp is infinitely far and has no world line: "
+                             "give it a constant velocity (Motion = Constant Velocity)")
+        keyed = _keyed_output(light, scene.light_speed) if light.is_keyed else None
+        if np.any(radiant > 0) if keyed is None else np.any(keyed[1] * keyed[2][:, None] > 0):
+            prepared.append(PreparedLight(light, frame, position, axes, radiant,
+                                          clock_offset=-clock_shift(boost, light.pivot_or_position), keyed=keyed))
     return prepared
+
+
+def _keyed_output(light: Light, light_speed: float):
+    """A keyed lamp's (lamp-clock times c*t, colours, powers) on the union of its curves' samples
+    (linear between them, as each curve)."""
+    curves = [c for c in (light.power_curve, light.color_curve) if c is not None]
+    seconds = np.unique(np.concatenate([np.asarray(c[0], dtype=np.float64) for c in curves]))
+    if light.power_curve is None:
+        power = np.full(len(seconds), float(light.power))
+    else:
+        power = np.interp(seconds, *(np.asarray(a, dtype=np.float64) for a in light.power_curve))
+    if light.color_curve is None:
+        color = np.broadcast_to(np.asarray(light.color, dtype=np.float64), (len(seconds), 3)).copy()
+    else:
+        times, values = (np.asarray(a, dtype=np.float64) for a in light.color_curve)
+        color = np.column_stack([np.interp(seconds, times, values.reshape(-1, 3)[:, i]) for i in range(3)])
+    if not (np.all(np.isfinite(power)) and np.all(np.isfinite(color))):
+        raise ValueError(f"{light.name}: its keyed strength or colour is not a finite number")
+    return seconds * light_speed, color, power
 
 
 class Shader:
@@ -368,7 +395,7 @@ class Shader:
             xi1 = xi2 = None  # a point light or sharp sun needs no random numbers
             if light.sampled:
                 xi1, xi2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
-            e_k, strength, doppler, s_max = self._incident(light, k, tau, position, xi1, xi2)
+            e_k, strength, doppler, s_max, clock = self._incident(light, k, tau, position, xi1, xi2)
             cos_n = rows.dot(ns, e_k)
             lit = (cos_n > 0.0) & (rows.dot(ng, e_k) > 0.0) & (strength > 0.0)
             sel = np.flatnonzero(lit)
@@ -383,7 +410,8 @@ class Shader:
             r = sel[rough[sel]]
             if len(r):
                 brdf[rough[sel]] += ggx_reflection(ns[r], view[r], e_k[r], alpha[r], f0[r], f90[r])
-            emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel))
+            emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel),
+                                        None if clock is None else clock[sel])
             total[sel] += rows.scale(brdf * emitted, strength[sel] * cos_n[sel])
         return total
 
@@ -393,22 +421,33 @@ class Shader:
         Returns the direction toward the light's retarded position (frame k), the
         geometric and Doppler factor of its irradiance on a surface facing it (to
         multiply the light's colour at the shifted wavelengths), the Doppler
-        factor D = r / r' of the light seen from the surface, and the path length
-        to the light (inf for the sun).
+        factor D = r / r' of the light seen from the surface, the path length
+        to the light (inf for the sun), and the lamp's own clock (c*t) when it
+        sent that light (None unless its output is keyed).
+
+        The lamp is static in its frame j; an animated lamp in its momentary rest frame
+        at the retarded event, different for every hit (:meth:`_momentary`).
         """
         light = pl.light
-        to_light = self.frames.map(k, pl.frame)
-        back = self.frames.map(pl.frame, k)
         n = len(tau)
         x_axis, y_axis, z_axis = pl.axes[:, 0], pl.axes[:, 1], pl.axes[:, 2]
         if light.kind == "SUN":
             e_j = np.broadcast_to(z_axis, (n, 3))
             if light.sun_angle > 0.0:
                 e_j = _cone_sample(z_axis, 0.5 * light.sun_angle, xi1, xi2)
-            e_k, doppler = back.rays(e_j)
-            return e_k, self._power(doppler, 2), doppler, np.full(n, np.inf)
-        _, x_j = to_light.events(tau, position)
-        sample = np.broadcast_to(pl.position, (n, 3))
+            e_k, doppler = self.frames.map(pl.frame, k).rays(e_j)
+            clock = None
+            if pl.keyed is not None:  # the plane wave passed the lamp's place (P - x).e before reaching x
+                tau_j, x_j = self.frames.map(k, pl.frame).events(tau, position)
+                clock = tau_j - (pl.position - x_j) @ z_axis + pl.clock_offset
+            return e_k, self._power(doppler, 2), doppler, np.full(n, np.inf), clock
+        if light.trajectory is None:
+            tau_j, x_j = self.frames.map(k, pl.frame).events(tau, position)
+            sample = np.broadcast_to(pl.position, (n, 3))
+            back = self.frames.map(pl.frame, k).rays
+            clock_zero = pl.clock_offset
+        else:
+            tau_j, x_j, sample, back, clock_zero = self._momentary(pl, k, tau, position)
         if light.kind == "AREA":
             sx, sy = light.area_size
             if light.area_shape in ("DISK", "ELLIPSE"):
@@ -432,9 +471,35 @@ class Shader:
             intensity = np.full(n, _POINT_INTENSITY_PER_WATT)
             if light.kind == "SPOT":
                 intensity = intensity * _spot_falloff(e_j @ z_axis, light.spot_size, light.spot_blend)
-        e_k, doppler = back.rays(e_j)  # s_surface / s_light: the Doppler factor seen by the surface
+        e_k, doppler = back(e_j)  # s_surface / s_light: the Doppler factor seen by the surface
         r = doppler * r_rest  # distance to the retarded position in the surface frame
-        return e_k, intensity * self._power(doppler, 4) / np.maximum(r, 1e-300) ** 2, doppler, r
+        # the light left the lamp (its point ``sample``) r_rest before the hit, in the lamp's frame
+        clock = None if pl.keyed is None else tau_j - r_rest + clock_zero
+        return e_k, intensity * self._power(doppler, 4) / np.maximum(r, 1e-300) ** 2, doppler, r, clock
+
+    def _momentary(self, pl: PreparedLight, k, tau, position):
+        """An animated lamp seen from hit events of frame k, in its momentary rest frame at the
+        retarded event of each (where its world line crosses the hit's past light cone, solved
+        as for animated bodies): the hit events there (tau_j, x_j), the lamp's place, the map of
+        backward directions from there to frame k (d, s_k / s_lamp), and its clock minus that
+        frame's time (None unless keyed).  Static in that frame near the event: exact for a
+        point lamp, an area lamp's other points as if moving inertially."""
+        trajectory = pl.light.trajectory
+        tau_w, x_w = self.frames.map(k, self.frames.world).events(tau, position)
+        emitted = trajectory.light_cone_crossing(tau_w, x_w)
+        lamp_w, beta = trajectory.state(emitted)
+        into_lamp = RowBoosts(beta)
+        tau_j, x_j = into_lamp.events(tau_w, x_w)
+        tau_lamp, lamp = into_lamp.events(emitted, lamp_w)
+        out_of_lamp, to_frame = into_lamp.inverse(), self.frames.map(self.frames.world, k)
+
+        def back(e_j):
+            e_w, w_world = out_of_lamp.rays(e_j)
+            e_k, w_frame = to_frame.rays(e_w)
+            return e_k, w_world * w_frame
+
+        clock_zero = None if pl.keyed is None else trajectory.proper_time(emitted) - tau_lamp
+        return tau_j, x_j, lamp, back, clock_zero
 
     # ------------------------------------------------------------------ mirror and glass
     def _secondary(self, k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam, cache):

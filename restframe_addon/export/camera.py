@@ -8,9 +8,9 @@ import dataclasses
 import numpy as np
 
 from ..core import lens, validation
-from ..core.scene import Camera
+from ..core.scene import Camera, Velocity
 from .errors import ExportError
-from .motion import object_velocity, shutter_frames
+from .motion import object_trajectory, object_velocity, shutter_frames
 
 
 _PANORAMAS = {"EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID"}
@@ -79,8 +79,9 @@ def motion_blur(scene) -> dict:
     )
 
 
-def export_camera(camera_object, scene) -> Camera:
-    """Blender's camera as the core sees it; ``view_frame`` gives the exact image plane."""
+def export_camera(camera_object, scene, warn=print) -> Camera:
+    """Blender's camera as the core sees it; ``view_frame`` gives the exact image plane.  With
+    Motion = Animation its keyframed location is its world line (an accelerating observer)."""
     if camera_object is None:
         raise ExportError("the scene has no camera: add one and set it as the scene camera")
     if camera_object.type != 'CAMERA':
@@ -90,6 +91,7 @@ def export_camera(camera_object, scene) -> Camera:
     matrix[:3, :3] /= np.linalg.norm(matrix[:3, :3], axis=0)
     render = scene.render
     aspect = (render.resolution_x * render.pixel_aspect_x) / (render.resolution_y * render.pixel_aspect_y)
+    animated = camera_object.restframe.is_animated
     out = Camera(
         matrix=matrix,
         kind=cam.type,
@@ -97,7 +99,9 @@ def export_camera(camera_object, scene) -> Camera:
         clip_start=float(cam.clip_start),
         clip_end=float(cam.clip_end),
         sensor_size=_fitted_sensor(cam, aspect),
-        velocity=object_velocity(camera_object),
+        velocity=Velocity() if animated else object_velocity(camera_object),
+        trajectory=object_trajectory(camera_object, scene, matrix[:3, 3], 0.0, warn=warn, smooth=True)
+        if animated else None,
         name=camera_object.name,
         **depth_of_field(camera_object),
         **motion_blur(scene),

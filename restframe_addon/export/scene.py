@@ -23,7 +23,7 @@ from .features import FeatureReport, object_features
 from .lights import export_light, world_color
 from .materials import MaterialExporter
 from .meshes import MeshData, place, read_mesh
-from .motion import body_radius, object_trajectory, object_velocity
+from .motion import body_radius, lamp_trajectory, object_trajectory, object_velocity
 from .settings import render_settings
 
 
@@ -123,7 +123,7 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
         camera_object = scene.camera
     if camera_object is not None:
         camera_object = camera_object.evaluated_get(depsgraph)
-    camera = export_camera(camera_object, scene)
+    camera = export_camera(camera_object, scene, warn_once)
     if render_views(scene) and camera.kind == 'PANO':
         warn_once(f"{camera_object.name}: a panoramic camera's stereo views are rendered as two panoramas from the "
                   "eyes' positions (spherical stereo, the eyes turning with the view direction, is not supported)")
@@ -159,18 +159,24 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
             continue
         source, pivot = _instance_source(inst, moving_instancers)
         animated = source.restframe.is_animated
-        # an animated body's velocity comes from its world line (lights keep theirs)
-        velocity = Velocity() if animated and obj.type == 'MESH' else object_velocity(source)
+        # an animated body's or lamp's velocity comes from its world line
+        velocity = Velocity() if animated else object_velocity(source)
         spin = tuple(float(w) for w in source.restframe.angular_velocity)
         if not animated and not velocity.is_zero and has_animated_location(source):
             jumping.add(source.name)
         matrix = np.array(inst.matrix_world, dtype=np.float64)
         name = f"{inst.parent.name}/{obj.name}" if inst.is_instance and inst.parent is not None else obj.name
         if obj.type == 'LIGHT':
-            if animated or any(spin):
-                warn_once(f"{source.name}: lights move only at a constant velocity "
-                          "(Motion = Animation and Angular Velocity are ignored)")
-            lights.append(export_light(obj, matrix, velocity, pivot, warn_once))
+            if any(spin):
+                warn_once(f"{source.name}: lamps do not spin (Angular Velocity is ignored)")
+            trajectory = None
+            if animated and obj.data.type == 'SUN':
+                warn_once(f"{source.name}: a sun lamp is infinitely far and has no world line "
+                          "(Motion = Animation is ignored: it stays at rest)")
+            elif animated:  # the lamp rides on its assembly's keyed world line
+                trajectory = lamp_trajectory(assembly_root(source), scene, camera_position, matrix[:3, 3],
+                                             should_stop=should_stop, warn=warn_once)
+            lights.append(export_light(obj, matrix, velocity, pivot, warn_once, scene=scene, trajectory=trajectory))
             continue
         body = None
         if animated:
