@@ -11,11 +11,16 @@ client and assembles regions into the image a single process would have written.
 
 Workers render through a child process (``python -m restframe_addon.distributed --serve``,
 one per worker, started once): Blender as a Python module must run on its process's main
-thread (bpy crashes when it renders from a Dask worker thread).  The child runs the same
-code as ``python -m restframe_addon render`` for each task (it opens the .blend afresh),
-with the worker's own interpreter and ``sys.path``, so a worker must be able to
-``import bpy`` and ``import restframe_addon``; the client checks that on every worker
-before sending work and reports the ones that cannot.
+thread (bpy crashes when it renders from a Dask worker thread).  The child receives one
+:class:`headless.RenderSpec` per task (as JSON) and renders it with the same code as
+``python -m restframe_addon render`` (it opens the .blend afresh), with the worker's own
+interpreter and ``sys.path``, so a worker must be able to ``import bpy`` and
+``import restframe_addon``; the client checks that on every worker before sending work and
+reports the ones that cannot.
+
+A result carries the engine's proof that every tile was rendered; the client writes nothing
+else.  A child stopped by SIGINT or SIGTERM (Ctrl-C on the worker's terminal) writes
+nothing and exits, and its task is retried like a crash.
 
 Dask is imported lazily: the extension itself never needs it.
 """
@@ -33,6 +38,9 @@ import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
+
+from . import headless
+
 
 class DistributedError(Exception):
     """A problem with the cluster, the workers or a task, reported without a traceback."""
@@ -58,6 +66,24 @@ class Job:
     assets: list[str] = field(default_factory=list)  # files the .blend uses, relative to its folder
     missing_assets: list[str] = field(default_factory=list)  # absolute paths the workers must see
     scene_format: bool = False  # the output had no extension: workers use the scene's own format settings
+
+
+@dataclass(frozen=True)
+class Task:
+    """One Dask task: a frame, or one region of it, of the job's .blend."""
+
+    blend: str  # the client's path
+    copy: str  # the name of a worker's shipped copy (the .blend's SHA-256 and the job's token)
+    scene: str
+    frame: int
+    ext: str  # what the task's file is (".exr", ...; "" = the scene's own format)
+    samples: int | None = None
+    percentage: int | None = None
+    region: tuple[int, int, int, int] | None = None
+
+    def render_spec(self, blend: str, output: str) -> headless.RenderSpec:
+        return headless.RenderSpec(blend=blend, output=output, frame=self.frame, scene=self.scene,
+                                   samples=self.samples, percentage=self.percentage, region=self.region)
 
 
 def split_regions(width: int, height: int, count: int) -> list[tuple[int, int, int, int]]:
@@ -94,21 +120,27 @@ def file_digest(path: str) -> str:
     return sha.hexdigest()
 
 
-def write_atomically(path: str, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and os.replace."""
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    stem, ext = os.path.splitext(os.path.basename(path))
-    fd, partial = tempfile.mkstemp(prefix=f".{stem}.partial-", suffix=ext, dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(partial, path)
-    finally:
-        if os.path.exists(partial):
-            os.remove(partial)
+def blend_assets(blend: str) -> tuple[list[str], list[str]]:
+    """Files the open .blend reads (unpacked images): (paths relative to the .blend's folder,
+    absolute paths elsewhere)."""
+    import bpy
+
+    folder = os.path.dirname(os.path.abspath(blend))
+    relative, absolute = [], []
+    for image in bpy.data.images:
+        if image.packed_file is not None or image.source not in {'FILE', 'SEQUENCE', 'MOVIE', 'TILED'}:
+            continue
+        if not image.filepath:
+            continue
+        path = os.path.normpath(bpy.path.abspath(image.filepath, library=image.library))
+        inside = os.path.relpath(path, folder)
+        if not os.path.exists(path):
+            continue  # missing here too: the render warns about it wherever it runs
+        if image.filepath.startswith("//") and not inside.startswith(os.pardir) and os.path.isfile(path):
+            relative.append(inside)
+        else:
+            absolute.append(path)
+    return sorted(set(relative)), sorted(set(absolute))
 
 
 # --------------------------------------------------------------------------- on the workers
@@ -154,12 +186,12 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child before e
         pass
 
 
-def _local_blend(spec: dict, bundle: dict | None) -> str:
+def _local_blend(task: Task, bundle: dict | None) -> str:
     """The .blend this worker opens: the client's path when shared, else the shipped copy."""
     if bundle is None:
-        return spec["blend"]
-    root = bundle_dir(spec["digest"])
-    blend = os.path.join(root, "files", os.path.basename(spec["blend"]))
+        return task.blend
+    root = bundle_dir(task.copy)
+    blend = os.path.join(root, "files", os.path.basename(task.blend))
     if not os.path.isfile(os.path.join(root, ".complete")):
         staging = tempfile.mkdtemp(prefix=".staging-", dir=_makedirs(os.path.dirname(root)))
         for relative, data in bundle.items():
@@ -218,9 +250,9 @@ class _Server:
         time.sleep(0.2)  # let the reader thread catch the last words
         return " | ".join(list(self.log)[-lines:]) or "no output"
 
-    def request(self, argv: list[str]) -> dict:
+    def request(self, spec: headless.RenderSpec) -> dict:
         try:
-            self.process.stdin.write(json.dumps({"argv": argv}) + "\n")
+            self.process.stdin.write(json.dumps({"render": spec.to_json()}) + "\n")
             self.process.stdin.flush()
         except OSError:  # it died since the last task
             self.process.wait()
@@ -245,9 +277,15 @@ def _remove_stale_task_dirs() -> None:
             shutil.rmtree(os.path.join(root, name), ignore_errors=True)
 
 
-def bundle_dir(digest: str) -> str:
-    """Where a worker keeps the .blend (and files) shipped to it, by content digest."""
-    return os.path.join(_task_dir_root(), "blends", digest)
+def bundle_dir(copy: str) -> str:
+    """Where a worker keeps the .blend (and files) shipped to it for one job."""
+    return os.path.join(_task_dir_root(), "blends", copy)
+
+
+def remove_bundle(copy: str) -> None:
+    """On a worker at the end of a job: its shipped copy goes (one job never reuses another's,
+    so removing it cannot pull a file from under a running render)."""
+    shutil.rmtree(bundle_dir(copy), ignore_errors=True)
 
 
 def _ensure_server() -> _Server:
@@ -282,63 +320,64 @@ def _serve() -> int:
     reply = os.fdopen(os.dup(1), "w")
     os.dup2(2, 1)  # whatever Blender or the CLI prints goes to the log, not the protocol
     sys.stdout = sys.stderr
+
+    def answer(message: dict) -> None:
+        reply.write(json.dumps(message) + "\n")
+        reply.flush()
+
     try:
         import bpy
 
         import restframe_addon
         import restframe_addon.engine  # noqa: F401  (the core and embreex)
-        from restframe_addon import __main__ as cli
     except BaseException as error:
-        reply.write(json.dumps({"error": f"{type(error).__name__}: {error}"}) + "\n")
-        reply.flush()
+        answer({"error": f"{type(error).__name__}: {error}"})
         return 1
-    reply.write(json.dumps({"ready": bpy.app.version_string, "addon": os.path.dirname(restframe_addon.__file__)})
-                + "\n")
-    reply.flush()
-    for line in sys.stdin:
-        request = json.loads(line)
-        try:
-            cli.render_command(cli.build_parser().parse_args(request["argv"]))
-            answer = {"ok": True}
-        except cli.CommandError as error:
-            answer = {"error": str(error)}
-        except SystemExit:
-            answer = {"error": f"bad render arguments {request['argv']}"}
-        reply.write(json.dumps(answer) + "\n")
-        reply.flush()
+    answer({"ready": bpy.app.version_string, "addon": os.path.dirname(restframe_addon.__file__)})
+    try:
+        with headless.interruptible():
+            for line in sys.stdin:
+                spec = headless.RenderSpec.from_json(json.loads(line)["render"])
+                try:
+                    outcome = headless.render(spec)
+                    answer({"tiles": outcome.tiles, "total": outcome.total, "complete": outcome.complete})
+                except headless.CommandError as error:
+                    answer({"error": str(error)})
+    except headless.Interrupted as interrupt:
+        # stopped by a signal: nothing was written; say so (if the worker still listens) and leave
+        answer({"interrupted": str(interrupt)})
+        return interrupt.status
     return 0
 
 
-def render_task(spec: dict, bundle: dict | None = None) -> dict:
-    """Render one frame (or one region of it) in this worker's render server; return the file's bytes.
+def render_task(task: Task, bundle: dict | None = None) -> dict:
+    """Render one frame (or one region of it) in this worker's render server; return the file's
+    bytes with the engine's tile count as proof that it is complete.
 
     Returns ``{"error": message}`` for RESTframe's own errors (bad scene: no use retrying) and
-    raises :class:`TaskCrashed` when the render child died, so Dask retries the task."""
+    raises :class:`TaskCrashed` when the render child died or was interrupted, so Dask retries
+    the task."""
     import socket
 
     started = time.monotonic()
     where = f"{socket.gethostname()} (pid {os.getpid()})"
-    blend = _local_blend(spec, bundle)
+    blend = _local_blend(task, bundle)
     workdir = tempfile.mkdtemp(prefix=f"{os.getpid()}-", dir=_makedirs(os.path.join(_task_dir_root(), "tasks")))
     try:
-        out = os.path.join(workdir, "result" + spec["ext"])
-        argv = ["render", blend, "-o", out, "--frame", str(spec["frame"]), "--scene", spec["scene"]]
-        if spec.get("samples") is not None:
-            argv += ["--samples", str(spec["samples"])]
-        if spec.get("percentage") is not None:
-            argv += ["--percentage", str(spec["percentage"])]
-        if spec.get("region") is not None:
-            argv += ["--region", ",".join(map(str, spec["region"]))]
+        out = os.path.join(workdir, "result" + task.ext)
         with _server_lock:  # bpy is one per process: one render at a time per worker
             server = _ensure_server()
             if "ready" not in server.hello:
                 raise TaskCrashed(f"the render child on {where} cannot start: "
                                   f"{server.hello.get('error') or server.hello.get('dead')}")
-            answer = server.request(argv)
-        if "dead" in answer:
-            raise TaskCrashed(f"on {where}: {answer['dead']}")
+            answer = server.request(task.render_spec(blend, out))
+        if "dead" in answer or "interrupted" in answer:
+            raise TaskCrashed(f"on {where}: {answer.get('dead') or answer.get('interrupted')}")
         if "error" in answer:
             return {"error": answer["error"], "host": where}
+        if not answer.get("complete"):
+            raise TaskCrashed(f"on {where}: the render child returned an incomplete frame "
+                              f"({answer.get('tiles')} of {answer.get('total')} tiles)")
         written = [name for name in os.listdir(workdir) if name.startswith("result")]
         if len(written) != 1:
             raise TaskCrashed(f"on {where}: the render child wrote {written or 'nothing'}")
@@ -346,7 +385,13 @@ def render_task(spec: dict, bundle: dict | None = None) -> dict:
             data = fh.read()
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
-    return {"data": data, "host": where, "seconds": time.monotonic() - started}
+    return {"data": data, "host": where, "seconds": time.monotonic() - started,
+            "tiles": answer["tiles"], "total": answer["total"], "complete": True}
+
+
+def is_complete(result: dict) -> bool:
+    """Whether a task's result proves that every tile of its frame or region was rendered."""
+    return result.get("complete") is True and (result.get("total") or 0) > 0 and result.get("tiles") == result.get("total")
 
 
 def _make_probe(blend: str, digest: str, size: int, absolute_assets: list[str]):
@@ -521,17 +566,12 @@ def write_exr(parts, resolution: tuple[int, int], path: str) -> None:
     for name, header, channels in parts:
         header = dict(header, dataWindow=window, displayWindow=window)
         exr_parts.append(OpenEXR.Part(header, {k: OpenEXR.Channel(k, v) for k, v in channels.items()}, name))
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    fd, partial = tempfile.mkstemp(prefix=".assembled.partial-", suffix=".exr", dir=directory)
-    os.close(fd)
-    try:
+
+    def write(partial):
         with OpenEXR.File(exr_parts) as exr:
             exr.write(partial)
-        os.replace(partial, path)
-    finally:
-        if os.path.exists(partial):
-            os.remove(partial)
+
+    headless.write_atomically(path, write)
 
 
 def combined_rgba(parts, resolution) -> "np.ndarray":
@@ -569,6 +609,7 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
         from dask.distributed import as_completed
 
         digest = file_digest(job.blend)
+        copy = f"{digest}-{os.getpid()}-{os.urandom(4).hex()}"
         ship = check_workers(client, job, digest)
         bundle = client.scatter(make_bundle(job), broadcast=False, hash=False) if ship else None
         print(f"restframe: {len(todo)} frame(s) x {len(regions)} region(s) on "
@@ -579,9 +620,9 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
         futures = {}
         for frame in sorted(todo):
             for index, region in enumerate(regions):
-                spec = {"blend": job.blend, "digest": digest, "scene": job.scene, "frame": frame,
-                        "ext": task_ext, "samples": job.samples, "percentage": job.percentage, "region": region}
-                future = client.submit(render_task, spec, bundle, retries=retries, pure=False,
+                task = Task(blend=job.blend, copy=copy, scene=job.scene, frame=frame, ext=task_ext,
+                            samples=job.samples, percentage=job.percentage, region=region)
+                future = client.submit(render_task, task, bundle, retries=retries, pure=False,
                                        key=f"restframe-frame{frame}-region{index}-{digest[:8]}-{os.urandom(4).hex()}")
                 futures[future] = (frame, index)
         progress = Progress(len(futures), len(todo), stream)
@@ -596,6 +637,9 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
                 result = future.result()
             except Exception as error:
                 result = {"error": f"{type(error).__name__}: {error}"}
+            if "error" not in result and not is_complete(result):
+                result = {"error": f"the result from {result.get('host')} does not prove it is complete "
+                                   f"({result.get('tiles')} of {result.get('total')} tiles): not written"}
             if "error" in result:
                 message = result["error"]
                 message = message[len(f"frame {frame}: "):] if message.startswith(f"frame {frame}: ") else message
@@ -605,7 +649,7 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
                 continue
             done_frame = False
             if len(regions) == 1:
-                write_atomically(todo[frame], result["data"])
+                headless.write_bytes(todo[frame], result["data"])
                 done_frame = True
             else:
                 pieces.setdefault(frame, {})[index] = result["data"]
@@ -624,6 +668,8 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
             if done_frame:
                 print(f"restframe: frame {frame} -> {todo[frame]} ({result['host']}, {result['seconds']:.2f} s)",
                       file=stream, flush=True)
+        if ship:
+            client.run(remove_bundle, copy)
         return len(failed)
     finally:
         client.close()

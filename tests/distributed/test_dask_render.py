@@ -2,6 +2,7 @@
 processes on loopback match single-process renders pixel for pixel; faults lose nothing."""
 
 import contextlib
+import glob
 import os
 import shutil
 import signal
@@ -14,8 +15,8 @@ import numpy as np
 import pytest
 
 from dask_helpers import ROOT, assert_same_exr, exr_channels, png_pixels, run_cli
-from restframe_addon.distributed import (DistributedError, Progress, bundle_dir, render_task, split_regions,
-                                         write_atomically)
+from restframe_addon.distributed import DistributedError, Progress, Task, bundle_dir, render_task, split_regions
+from restframe_addon.headless import write_bytes
 
 
 # --------------------------------------------------------------------------- pure helpers
@@ -69,8 +70,8 @@ def test_region_option_parses_pixel_rectangles():
 
 def test_atomic_write_replaces_whole_files_only(tmp_path):
     target = tmp_path / "out" / "f.exr"
-    write_atomically(str(target), b"one")
-    write_atomically(str(target), b"two")
+    write_bytes(str(target), b"one")
+    write_bytes(str(target), b"two")
     assert target.read_bytes() == b"two"
     assert os.listdir(target.parent) == ["f.exr"]
 
@@ -188,17 +189,17 @@ def test_killed_worker_loses_no_frame(tiny_blend, cluster, tmp_path):
 
 def test_shipped_blend_renders_where_the_path_is_not_visible(tiny_blend, reference, tmp_path):
     """A worker that cannot see the client's path renders from the bytes the client shipped."""
-    spec = {"blend": "/nonexistent/client/only/tiny.blend", "digest": "test-" + os.urandom(6).hex(), "scene": "",
-            "frame": 2, "ext": ".exr", "samples": None, "percentage": None, "region": None}
+    task = Task(blend="/nonexistent/client/only/tiny.blend", copy="test-" + os.urandom(6).hex(), scene="",
+                frame=2, ext=".exr")
     try:
-        result = render_task(spec, {"tiny.blend": tiny_blend.read_bytes()})
+        result = render_task(task, {"tiny.blend": tiny_blend.read_bytes()})
     finally:
-        shutil.rmtree(bundle_dir(spec["digest"]), ignore_errors=True)
+        shutil.rmtree(bundle_dir(task.copy), ignore_errors=True)
     assert "error" not in result, result
     (tmp_path / "shipped.exr").write_bytes(result["data"])
     assert_same_exr(tmp_path / "shipped.exr", reference / "f_2.exr")
     # not shipped and not visible: the worker's error names the file (and is not retried)
-    result = render_task(spec, None)
+    result = render_task(task, None)
     assert "no such .blend file" in result["error"] and "/nonexistent/client/only/tiny.blend" in result["error"]
 
 
@@ -270,7 +271,10 @@ def test_blend_is_shipped_to_a_worker_that_cannot_see_it(tiny_blend, reference, 
                              empty.scheduler_address)
     from restframe_addon.distributed import file_digest
 
-    shutil.rmtree(bundle_dir(file_digest(str(tiny_blend))), ignore_errors=True)  # the worker's copy
+    copies = glob.glob(bundle_dir(file_digest(str(tiny_blend))) + "*")
+    for copy in copies:
+        shutil.rmtree(copy, ignore_errors=True)
     assert result.returncode == 0, result.stderr
     assert "(the .blend is shipped to the workers)" in result.stdout
     assert_same_exr(tmp_path / "f_2.exr", reference / "f_2.exr")
+    assert not copies, "the worker kept its shipped copy of the .blend after the job"
