@@ -371,6 +371,8 @@ def render_task(task: Task, bundle: dict | None = None) -> dict:
                 raise TaskCrashed(f"the render child on {where} cannot start: "
                                   f"{server.hello.get('error') or server.hello.get('dead')}")
             answer = server.request(task.render_spec(blend, out))
+            if "interrupted" in answer:  # the child is on its way out: the next task starts a new one
+                _forget_server()
         if "dead" in answer or "interrupted" in answer:
             raise TaskCrashed(f"on {where}: {answer.get('dead') or answer.get('interrupted')}")
         if "error" in answer:

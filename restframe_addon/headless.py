@@ -119,6 +119,8 @@ def _signals_stop_the_render(frame: int):
     global _rendering
     from . import engine
 
+    if _received:  # arrived where Blender swallowed the exception (a callback during loading)
+        raise Interrupted(_received[0], frame)
     engine.STOP.clear()
     _rendering = True
     try:
