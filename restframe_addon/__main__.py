@@ -90,6 +90,9 @@ def distributed_command(args, scene, out: str, ext: str, frames: list[int]) -> i
         raise CommandError("--region renders one region in this process: it does not combine with the Dask options")
     if args.scheduler is not None and args.workers is not None:
         raise CommandError("--workers starts a local cluster: give it or --scheduler, not both")
+    if (args.regions or 1) > 1:
+        headless.check_exr_pixel_aspect(scene, "--regions (each region travels as a multilayer EXR): ",
+                                        instead="render the frame whole")
     relative, absolute = distributed.blend_assets(args.blend)
     job = distributed.Job(
         blend=os.path.abspath(args.blend), scene=scene.name, output_ext=ext,

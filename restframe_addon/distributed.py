@@ -476,6 +476,9 @@ def connect(scheduler: str | None, workers: int | None):
             client = Client(scheduler, timeout="20s")
         except (OSError, TimeoutError) as error:
             raise DistributedError(f"cannot reach the Dask scheduler at {scheduler}: {error}") from None
+        except ValueError as error:  # not an address at all
+            raise DistributedError(f"--scheduler {scheduler!r} is not a Dask scheduler address "
+                                   f"(e.g. tcp://HOST:8786): {error}") from None
         return client, None
     import logging
 

@@ -246,10 +246,22 @@ def configure_output(scene, out: str) -> str:
     else:
         settings.file_format = file_format
     if multilayer:
+        check_exr_pixel_aspect(scene, f"{out}: ")
         settings.color_depth = '32'  # full float: pass values (Doppler, times) are quotable
     else:
         settings.color_mode = 'RGBA' if scene.render.film_transparent and file_format != "JPEG" else 'RGB'
     return ext
+
+
+def check_exr_pixel_aspect(scene, where: str = "", instead: str = "write .png, .jpg or .tif") -> None:
+    """Blender 5.0's multilayer EXR writer fails on a pixel aspect other than 1 ("Conflicting
+    attributes ... pixelAspectRatio", Cycles' renders too): say so before rendering."""
+    import bpy
+
+    x, y = scene.render.pixel_aspect_x, scene.render.pixel_aspect_y
+    if x != y and bpy.app.version >= (5, 0, 0):
+        raise CommandError(f"{where}Blender {bpy.app.version_string} cannot write a multilayer EXR with a pixel "
+                           f"aspect of {x:g}:{y:g} (its EXR writer fails): set Pixel Aspect X and Y equal, or {instead}")
 
 
 def set_region(scene, region: tuple[int, int, int, int]) -> None:
