@@ -76,6 +76,17 @@ def test_atomic_write_replaces_whole_files_only(tmp_path):
     assert os.listdir(target.parent) == ["f.exr"]
 
 
+@pytest.mark.parametrize("umask", [0o022, 0o077, 0o002])
+def test_atomic_write_gives_the_mode_of_any_new_file(tmp_path, umask):
+    """0666 less the umask, as open() would (a temporary file from mkstemp is 0600)."""
+    previous = os.umask(umask)
+    try:
+        write_bytes(str(tmp_path / "f.exr"), b"data")
+    finally:
+        os.umask(previous)
+    assert os.stat(tmp_path / "f.exr").st_mode & 0o777 == 0o666 & ~umask
+
+
 # --------------------------------------------------------------------------- on the cluster
 def test_frame_range_matches_single_process_and_reruns_skip(tiny_blend, reference, cluster, tmp_path):
     address = cluster[0].scheduler_address
@@ -87,6 +98,9 @@ def test_frame_range_matches_single_process_and_reruns_skip(tiny_blend, referenc
     for frame in range(1, 5):
         assert_same_exr(out / f"f_{frame}.exr", reference / f"f_{frame}.exr")
     assert sorted(os.listdir(out)) == [f"f_{frame}.exr" for frame in range(1, 5)]  # no partial files
+    umask = os.umask(0)
+    os.umask(umask)
+    assert {os.stat(out / f"f_{frame}.exr").st_mode & 0o777 for frame in range(1, 5)} == {0o666 & ~umask}
 
     # a rerun skips what is on disk and renders only the missing frame; --overwrite renders all
     stamps = {frame: os.stat(out / f"f_{frame}.exr").st_mtime_ns for frame in range(1, 5)}
