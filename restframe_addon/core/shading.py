@@ -20,13 +20,17 @@ power of D for spectral densities).  Values are in the frame they are evaluated 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import MappingProxyType
 
 import numpy as np
 
 from . import rows, sampling, spectral
+from .bsdf import dielectric_f0, fresnel_dielectric, ggx_reflection
 from .frames import FrameSet, shift_into_frame
+from .passes import facing_normals, hit_doppler, hit_times
 from .scene import Light, Material, Scene
-from .tracer import frames_hit, hit_geometry, occluded, trace_nearest
+from .tracer import TraceCache, frames_hit, occluded, trace_nearest
+from .world import image_lookup
 
 MIRROR_ROUGHNESS = 0.05  # smoother surfaces reflect by traced mirror rays, rougher ones by GGX highlights
 _MIN_ALPHA = 1e-3
@@ -64,7 +68,7 @@ class MaterialTable:
         # the direct-light lobes, per material (worked out once, gathered per hit)
         self.diffuse_weight = (1.0 - self.metallic) * (1.0 - self.transmission) / np.pi
         # Specular IOR Level scales the whole dielectric lobe (0 = none), grazing reflection included
-        self.f0_dielectric = np.minimum(_dielectric_f0(self.ior) * self.specular_scale, 1.0) * (1.0 - self.metallic)
+        self.f0_dielectric = np.minimum(dielectric_f0(self.ior) * self.specular_scale, 1.0) * (1.0 - self.metallic)
         self.f90 = np.minimum(self.specular_scale, 1.0) * (1.0 - self.metallic) + self.metallic
         self.alpha = np.maximum(self.roughness**2, _MIN_ALPHA)
         # rough surfaces with a specular lobe get GGX highlights (Specular IOR Level 0, not metallic: none)
@@ -92,24 +96,8 @@ class MaterialTable:
                 continue
             sel = np.flatnonzero(index == m)
             if len(sel):
-                color[sel] = _sample_texture(texture, uv[sel])
+                color[sel] = image_lookup(texture[..., :3], uv[sel, 0], uv[sel, 1])
         return color
-
-
-def _sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    h, w = texture.shape[:2]
-    x = (uv[:, 0] % 1.0) * w - 0.5
-    y = (uv[:, 1] % 1.0) * h - 0.5
-    x0 = np.floor(x).astype(np.int64)
-    y0 = np.floor(y).astype(np.int64)
-    fx = (x - x0)[:, None]
-    fy = (y - y0)[:, None]
-    x0, x1 = x0 % w, (x0 + 1) % w
-    y0, y1 = y0 % h, (y0 + 1) % h
-    t = texture[..., :3]
-    top = t[y1, x0] * (1 - fx) + t[y1, x1] * fx
-    bottom = t[y0, x0] * (1 - fx) + t[y0, x1] * fx
-    return bottom * (1 - fy) + top * fy
 
 
 @dataclass
@@ -155,7 +143,7 @@ class Shader:
                  colour, max_bounces: int, searchlight: bool):
         self.frames = frames
         self.materials = materials
-        self.lights = lights
+        self.lights = tuple(lights)
         self.colour = colour
         self.max_bounces = max_bounces
         self.searchlight = searchlight
@@ -163,12 +151,13 @@ class Shader:
         # rounding (relative to its extent), the float64 rounding of far positions (a hundred
         # ulps), and, for the inertial segments of an accelerated body, twice the motion
         # tolerance by which neighbouring segments of the same body may disagree
-        self.epsilon = {}
+        epsilon = {}
         for k in frames.geometry:
             frame = frames.frames[k]
             reach = float(np.max(np.abs(frame.geometry.anchor))) + float(np.max(np.abs(frame.offset)))
             segment = 2.0 * frame.tolerance if frame.window is not None else 0.0
-            self.epsilon[k] = 1e-5 * frame.geometry.extent + 1e-14 * reach + segment
+            epsilon[k] = 1e-5 * frame.geometry.extent + 1e-14 * reach + segment
+        self.epsilon = MappingProxyType(epsilon)
 
     # ------------------------------------------------------------------ helpers
     def _power(self, doppler, exponent: int):
@@ -178,15 +167,17 @@ class Shader:
         return doppler ** (exponent + self.colour.extra_power)
 
     # ------------------------------------------------------------------ rays
-    def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, depth: int, pixel, sample, lam, hits=None):
+    def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, depth: int, pixel, sample, lam, hits=None,
+                 cache: TraceCache | None = None):
         """Radiance arriving at events (tau0, x0) of frame src from backward directions d,
-        at the wavelengths ``lam`` of frame src (None in RGB mode); ``hits`` if already traced.
+        at the wavelengths ``lam`` of frame src (None in RGB mode); ``hits`` if already traced;
+        ``cache``: the calling thread's :class:`~.tracer.TraceCache` (None: keep nothing).
 
         Returns (values (n, C), hits) -- the hits of this ray bundle, for the passes.
         """
         n = len(d)
         if hits is None:
-            hits = trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi)
+            hits = trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi, cache)
         values = np.empty((n, self.colour.channels))
         miss = np.flatnonzero(hits.frame < 0)
         if len(miss):
@@ -201,42 +192,27 @@ class Shader:
             sel = np.flatnonzero(hits.frame == k)
             fmap = self.frames.map(src, int(k))
             d_k, w = hits.d_frame[sel], hits.w[sel]
-            tau_hit = hits.tau_frame[sel] - hits.s_frame[sel]
+            tau_hit = hit_times(hits, sel)
             prim, u, v = hits.prim[sel], hits.u[sel], hits.v[sel]
-            if fmap.is_identity and self.frames.frames[k].spin is None:  # at rest with the viewer: D = 1
+            frame = self.frames.frames[k]
+            if fmap.is_identity and frame.spin is None:  # at rest with the viewer: D = 1
                 values[sel] = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, pixel[sel], sample[sel],
-                                                  _rows(lam, sel))
+                                                  _rows(lam, sel), cache)
                 continue
-            doppler = self.surface_doppler(int(k), prim, u, v, tau_hit, d_k) / w
+            doppler = hit_doppler(frame, prim, u, v, tau_hit, d_k, w)
             local = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, pixel[sel], sample[sel],
-                                        self.colour.shift(_rows(lam, sel), doppler))
+                                        self.colour.shift(_rows(lam, sel), doppler), cache)
             values[sel] = rows.scale(local, self._power(doppler, 4))
         return values, hits
-
-    def surface_doppler(self, k: int, prim, u, v, tau_hit, d_k):
-        """Doppler factor of the surface's own motion in frame k (1 but for spinning bodies:
-        their points move with omega x r), for light leaving along backward directions d_k."""
-        frame = self.frames.frames[k]
-        if frame.spin is None:
-            return np.ones(len(prim))
-        position, _, _ = hit_geometry(frame, prim, u, v, tau_hit)
-        velocity = frame.surface_velocity(position)
-        return np.sqrt(1.0 - rows.dot(velocity, velocity)) / (1.0 + rows.dot(velocity, d_k))
 
     def surface_info(self, k: int, prim, u, v, d_k, tau_hit=None):
         """Position, facing geometric and shading normals, and material index at hits of frame k."""
         frame = self.frames.frames[k]
-        position, ng, ns = hit_geometry(frame, prim, u, v, tau_hit)
-        back = rows.dot(ng, d_k) > 0.0
-        facing = np.where(back, -1.0, 1.0)
-        ng, ns = rows.scale(ng, facing), rows.scale(ns, facing)
-        # a shading normal turned away from the viewer falls back to the geometric one
-        away = rows.dot(ns, d_k) >= 0.0
-        ns[away] = ng[away]
+        position, ng, ns, back = facing_normals(frame, prim, u, v, d_k, tau_hit)
         material = self.materials.clamp(frame.geometry.tri_material[prim])
         return position, ng, ns, material, back
 
-    def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample, lam):
+    def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample, lam, cache):
         frame = self.frames.frames[k]
         position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau)
         uv = None
@@ -249,13 +225,14 @@ class Shader:
         if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
             values *= self.materials.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
         if self.lights:
-            values += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam)
+            values += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
         if self.materials.traces_secondary and depth < self.max_bounces:
-            values += self._secondary(k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam)
+            values += self._secondary(k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam,
+                                      cache)
         return values
 
     # ------------------------------------------------------------------ direct light
-    def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam):
+    def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache):
         mats = self.materials
         diffuse = rows.scale(base, mats.diffuse_weight[mat])
         rough = mats.glossy[mat]
@@ -276,14 +253,14 @@ class Shader:
             sel = np.flatnonzero(lit)
             if len(sel) == 0:
                 continue
-            blocked = occluded(self.frames, k, tau[sel], origin[sel], e_k[sel], eps, s_max[sel] - 2.0 * eps)
+            blocked = occluded(self.frames, k, tau[sel], origin[sel], e_k[sel], eps, s_max[sel] - 2.0 * eps, cache)
             sel = sel[~blocked]
             if len(sel) == 0:
                 continue
             brdf = diffuse[sel].copy()
             r = sel[rough[sel]]
             if len(r):
-                brdf[rough[sel]] += _ggx(ns[r], view[r], e_k[r], alpha[r], f0[r], f90[r])
+                brdf[rough[sel]] += ggx_reflection(ns[r], view[r], e_k[r], alpha[r], f0[r], f90[r])
             emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel))
             total[sel] += rows.scale(brdf * emitted, strength[sel] * cos_n[sel])
         return total
@@ -338,7 +315,7 @@ class Shader:
         return e_k, intensity * self._power(doppler, 4) / np.maximum(r, 1e-300) ** 2, doppler, r
 
     # ------------------------------------------------------------------ mirror and glass
-    def _secondary(self, k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam):
+    def _secondary(self, k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam, cache):
         mats = self.materials
         values = np.zeros_like(base)
         active = np.flatnonzero(mats.mirror[mat] | mats.glass[mat])
@@ -349,14 +326,15 @@ class Shader:
         cos_i = -np.einsum("ij,ij->i", n_a, d_a)
         # relative index of refraction across the surface, as the ray leaves the viewer's side
         eta = np.where(back[active], mats.ior[m], 1.0 / mats.ior[m])
-        fresnel = np.minimum(_fresnel_dielectric(cos_i, eta) * mats.specular_scale[m], 1.0)
+        fresnel = np.minimum(fresnel_dielectric(cos_i, eta) * mats.specular_scale[m], 1.0)
         metallic = mats.metallic[m][:, None]
         reflect_weight = fresnel[:, None] * (1.0 - metallic) + base[active] * metallic
         transmit_weight = ((1.0 - fresnel) * mats.transmission[m])[:, None] * (1.0 - metallic)
         eps = self.epsilon[k]
         reflected = d_a + 2.0 * cos_i[:, None] * n_a
         values[active] += reflect_weight * self._bounce(k, tau[active], position[active] + eps * ng_a, reflected,
-                                                        eps, depth, pixel[active], sample[active], _rows(lam, active))
+                                                        eps, depth, pixel[active], sample[active], _rows(lam, active),
+                                                        cache)
         refr = np.flatnonzero(np.any(transmit_weight > 0.0, axis=1))
         if len(refr):
             k2 = 1.0 - eta[refr] ** 2 * (1.0 - cos_i[refr] ** 2)
@@ -367,51 +345,19 @@ class Shader:
             idx = active[refr]
             values[idx] += transmit_weight[refr] * self._bounce(k, tau[idx], position[idx] - eps * ng_a[refr],
                                                                 transmitted, eps, depth, pixel[idx], sample[idx],
-                                                                _rows(lam, idx))
+                                                                _rows(lam, idx), cache)
         return values
 
-    def _bounce(self, k, tau, origin, d, eps, depth, pixel, sample, lam):
+    def _bounce(self, k, tau, origin, d, eps, depth, pixel, sample, lam, cache):
         if len(d) == 0:
             return np.zeros((0, self.colour.channels))
-        values, _ = self.radiance(k, tau, origin, d, eps, np.inf, depth + 1, pixel, sample, lam)
+        values, _ = self.radiance(k, tau, origin, d, eps, np.inf, depth + 1, pixel, sample, lam, cache=cache)
         return values
 
 
 def _rows(lam, index):
     """The wavelengths of some rays (None in RGB mode)."""
     return None if lam is None else lam[index]
-
-
-def _dielectric_f0(ior):
-    return ((ior - 1.0) / (ior + 1.0)) ** 2
-
-
-def _fresnel_dielectric(cos_i, eta):
-    """Unpolarised Fresnel reflectance; eta = n_incident / n_transmitted; 1 for total internal reflection."""
-    cos_i = np.clip(cos_i, 0.0, 1.0)
-    sin_t2 = eta**2 * (1.0 - cos_i**2)
-    cos_t = np.sqrt(np.maximum(1.0 - sin_t2, 0.0))
-    rs = (eta * cos_i - cos_t) / np.maximum(eta * cos_i + cos_t, 1e-300)
-    rp = (cos_i - eta * cos_t) / np.maximum(cos_i + eta * cos_t, 1e-300)
-    return np.where(sin_t2 >= 1.0, 1.0, 0.5 * (rs**2 + rp**2))
-
-
-def _ggx(n, view, light, alpha, f0, f90):
-    """Cook-Torrance GGX specular BRDF (Schlick Fresnel from f0 to f90, separable Smith shadowing)."""
-    h = rows.normalized(view + light)
-    n_h = np.clip(rows.dot(n, h), 0.0, 1.0)
-    n_v = np.clip(rows.dot(n, view), 1e-6, 1.0)
-    n_l = np.clip(rows.dot(n, light), 1e-6, 1.0)
-    v_h = np.clip(rows.dot(view, h), 0.0, 1.0)
-    a2 = alpha**2
-    ndf = a2 / (np.pi * (n_h**2 * (a2 - 1.0) + 1.0) ** 2)
-
-    def smith(c):
-        return 2.0 * c / (c + np.sqrt(a2 + (1.0 - a2) * c * c))
-
-    schlick = (1.0 - v_h) ** 5
-    fresnel = rows.scale(f0, 1.0 - schlick) + (f90 * schlick)[:, None]
-    return rows.scale(fresnel, ndf * smith(n_v) * smith(n_l) / (4.0 * n_v * n_l))
 
 
 def _spot_falloff(cos_angle, spot_size, blend):
