@@ -100,7 +100,7 @@ def distributed_command(args, scene, out: str, ext: str, frames: list[int]) -> i
         samples=args.samples, percentage=args.percentage, resolution=full_resolution(scene),
         regions=args.regions or 1, assets=relative, missing_assets=absolute,
         scene_format=not os.path.splitext(args.output)[1])
-    check_outputs(job.frames.values())
+    headless.check_writable(job.frames.values())
     try:
         failed = distributed.run_job(job, scheduler=args.scheduler, workers=args.workers, retries=args.retries,
                                      overwrite=args.overwrite,
@@ -131,18 +131,12 @@ def render_command(args) -> int:
     if region is not None:
         headless.set_region(scene, region)
     paths = {frame: output_path(out, frame, len(frames) > 1) for frame in frames}
-    check_outputs(paths.values())
+    headless.check_writable(paths.values())
     for frame, path in paths.items():
         started = time.monotonic()
         headless.render_frame(scene, frame, path)
         print(f"restframe: frame {frame} -> {path} ({time.monotonic() - started:.2f} s)", flush=True)
     return 0
-
-
-def check_outputs(paths) -> None:
-    """Each output folder is writable (and no output is a folder): known before any render."""
-    for path in {os.path.dirname(os.path.abspath(path)): path for path in paths}.values():
-        headless.check_writable(path)
 
 
 def at_least(minimum: int):

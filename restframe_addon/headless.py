@@ -60,7 +60,7 @@ class Interrupted(BaseException):
 
     def message(self) -> str:
         where = f": frame {self.frame} was not written" if self.frame is not None else ""
-        return f"interrupted by {signal.Signals(self.signum).name}{where}"
+        return f"interrupted by {self.signal_name}{where}"
 
 
 @dataclass(frozen=True)
@@ -105,8 +105,8 @@ def interruptible():
     if threading.current_thread() is not threading.main_thread():
         yield  # signal handlers can only be set on the main thread, where the signals arrive
         return
-    previous = {signum: signal.signal(signum, _on_signal) for signum in STOP_SIGNALS}
     _received.clear()
+    previous = {signum: signal.signal(signum, _on_signal) for signum in STOP_SIGNALS}
     try:
         yield
     finally:
@@ -116,6 +116,7 @@ def interruptible():
 
 @contextlib.contextmanager
 def _signals_stop_the_render(frame: int):
+    """Inside: a signal sets ``engine.STOP``; on leaving, any signal raises :class:`Interrupted`."""
     global _rendering
     from . import engine
 
@@ -147,10 +148,20 @@ def write_atomically(path: str, write: Callable[[str], None]) -> None:
             os.remove(partial)
 
 
-def check_writable(path: str) -> None:
-    """Fail now, not after the render, when ``path`` cannot be written (a folder, under a
-    file, no permission): creates and removes an empty temporary file next to it."""
-    os.remove(_create_partial(path))
+def check_writable(paths) -> None:
+    """Fail now, not after the render, when an output cannot be written (a folder, under a
+    file, no permission): creates and removes an empty temporary file in each folder."""
+    by_folder = {}
+    for path in paths:
+        _refuse_folder(path)
+        by_folder.setdefault(os.path.dirname(os.path.abspath(path)), path)
+    for path in by_folder.values():
+        os.remove(_create_partial(path))
+
+
+def _refuse_folder(path: str) -> None:
+    if os.path.isdir(path):
+        raise CommandError(f"{path}: is a folder, not an image file name")
 
 
 def _create_partial(path: str) -> str:
@@ -163,8 +174,7 @@ def _create_partial(path: str) -> str:
                            "not a folder") from None
     except OSError as error:
         raise CommandError(f"{path}: cannot create its folder: {error.strerror}") from None
-    if os.path.isdir(path):
-        raise CommandError(f"{path}: is a folder, not an image file name")
+    _refuse_folder(path)
     stem, ext = os.path.splitext(os.path.basename(path))
     while True:
         partial = os.path.join(directory, f".{stem}.partial-{os.getpid()}-{os.urandom(4).hex()}{ext}")
