@@ -192,7 +192,10 @@ def _local_blend(task: Task, bundle: dict | None) -> str:
         return task.blend
     root = bundle_dir(task.copy)
     blend = os.path.join(root, "files", os.path.basename(task.blend))
-    if not os.path.isfile(os.path.join(root, ".complete")):
+    marker = os.path.join(root, ".complete")
+    if os.path.isfile(marker):
+        os.utime(marker)  # in use: not stale (_remove_stale_copies)
+    else:
         staging = tempfile.mkdtemp(prefix=".staging-", dir=_makedirs(os.path.dirname(root)))
         for relative, data in bundle.items():
             target = os.path.join(staging, "files", relative)
@@ -225,6 +228,7 @@ class _Server:
         import collections
 
         _remove_stale_task_dirs()
+        _remove_stale_copies()
         kwargs = {"preexec_fn": _die_with_parent} if sys.platform.startswith("linux") else {}
         self.process = subprocess.Popen(
             [sys.executable, "-m", "restframe_addon.distributed", "--serve"], stdin=subprocess.PIPE,
@@ -266,6 +270,24 @@ class _Server:
 
 def _task_dir_root() -> str:
     return os.path.join(tempfile.gettempdir(), f"restframe-dask-{os.getuid() if hasattr(os, 'getuid') else 0}")
+
+
+# A shipped copy not used for this long belongs to a job whose client never said it ended
+# (interrupted, or its connection lost): a worker's render server removes it when it starts.
+STALE_COPY_SECONDS = 24 * 3600.0
+
+
+def _remove_stale_copies(max_age: float = STALE_COPY_SECONDS) -> None:
+    root = os.path.join(_task_dir_root(), "blends")
+    for name in os.listdir(root) if os.path.isdir(root) else []:
+        path = os.path.join(root, name)
+        marker = os.path.join(path, ".complete")
+        try:
+            used = os.path.getmtime(marker if os.path.exists(marker) else path)
+        except OSError:
+            continue  # removed meanwhile by another worker
+        if time.time() - used > max_age:
+            shutil.rmtree(path, ignore_errors=True)
 
 
 def _remove_stale_task_dirs() -> None:
@@ -610,6 +632,7 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
     regions = split_regions(*job.resolution, job.regions) if job.regions > 1 else [None]
 
     client, cluster = connect(scheduler, workers)
+    ship = False
     try:
         from dask.distributed import as_completed
 
@@ -673,10 +696,13 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
             if done_frame:
                 print(f"restframe: frame {frame} -> {todo[frame]} ({result['host']}, {result['seconds']:.2f} s)",
                       file=stream, flush=True)
-        if ship:
-            client.run(remove_bundle, copy)
         return len(failed)
     finally:
+        if ship and client.status == "running":  # also when interrupted: best effort, never blocks the exit
+            try:
+                client.run(remove_bundle, copy)
+            except Exception:
+                pass  # a worker that cannot be reached cleans up at its next start (_remove_stale_copies)
         client.close()
         if cluster is not None:
             cluster.close()

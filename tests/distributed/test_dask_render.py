@@ -292,3 +292,17 @@ def test_blend_is_shipped_to_a_worker_that_cannot_see_it(tiny_blend, reference, 
     assert "(the .blend is shipped to the workers)" in result.stdout
     assert_same_exr(tmp_path / "f_2.exr", reference / "f_2.exr")
     assert not copies, "the worker kept its shipped copy of the .blend after the job"
+
+
+def test_shipped_copies_unused_for_a_day_are_removed(tmp_path, monkeypatch):
+    """A copy whose job never ended cleanly (client interrupted) goes when a render server starts."""
+    from restframe_addon import distributed
+
+    monkeypatch.setattr(distributed, "_task_dir_root", lambda: str(tmp_path))
+    for name, age in (("old", distributed.STALE_COPY_SECONDS + 60), ("recent", 60)):
+        os.makedirs(os.path.join(bundle_dir(name), "files"))
+        marker = os.path.join(bundle_dir(name), ".complete")
+        open(marker, "w").close()
+        os.utime(marker, (time.time() - age, time.time() - age))
+    distributed._remove_stale_copies()
+    assert sorted(os.listdir(os.path.join(tmp_path, "blends"))) == ["recent"]
