@@ -121,25 +121,29 @@ def file_digest(path: str) -> str:
 
 
 def blend_assets(blend: str) -> tuple[list[str], list[str]]:
-    """Files the open .blend reads (unpacked images): (paths relative to the .blend's folder,
-    absolute paths elsewhere)."""
+    """Files the open .blend reads besides itself (unpacked images, linked libraries and what
+    those link, recursively): (paths relative to the .blend's folder, absolute paths elsewhere)."""
     import bpy
 
     folder = os.path.dirname(os.path.abspath(blend))
     relative, absolute = [], []
-    for image in bpy.data.images:
-        if image.packed_file is not None or image.source not in {'FILE', 'SEQUENCE', 'MOVIE', 'TILED'}:
-            continue
-        if not image.filepath:
-            continue
-        path = os.path.normpath(bpy.path.abspath(image.filepath, library=image.library))
-        inside = os.path.relpath(path, folder)
+
+    def add(filepath: str, library) -> None:
+        path = os.path.normpath(bpy.path.abspath(filepath, library=library))
         if not os.path.exists(path):
-            continue  # missing here too: the render warns about it wherever it runs
-        if image.filepath.startswith("//") and not inside.startswith(os.pardir) and os.path.isfile(path):
+            return  # missing here too: the render warns about it wherever it runs
+        inside = os.path.relpath(path, folder)
+        if filepath.startswith("//") and not inside.startswith(os.pardir) and os.path.isfile(path):
             relative.append(inside)
         else:
             absolute.append(path)
+
+    for image in bpy.data.images:
+        if image.packed_file is None and image.source in {'FILE', 'SEQUENCE', 'MOVIE', 'TILED'} and image.filepath:
+            add(image.filepath, image.library)
+    for library in bpy.data.libraries:  # indirect ones too, each relative to the library that links it
+        if library.packed_file is None and library.filepath:
+            add(library.filepath, library.parent)
     return sorted(set(relative)), sorted(set(absolute))
 
 

@@ -266,31 +266,74 @@ def test_render_errors_on_workers_reach_the_client(tmp_path, cluster):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["tachyon.blend"]
 
 
-def test_blend_is_shipped_to_a_worker_that_cannot_see_it(tiny_blend, reference, tmp_path):
-    """A worker in its own mount namespace, with an empty tmpfs over the .blend's folder, gets the
-    .blend from the client and renders the same pixels."""
+# The tiny scene with a plane in front of the camera linked from lib.blend beside it (relative path).
+MAKE_LINKED = """
+import sys, bpy, mathutils, restframe_addon
+restframe_addon.register()
+tiny, folder = sys.argv[1], sys.argv[2]
+bpy.ops.wm.open_mainfile(filepath=tiny, load_ui=False)
+camera = bpy.context.scene.camera.matrix_world.copy()
+bpy.ops.wm.read_factory_settings(use_empty=True)
+mesh = bpy.data.meshes.new("LinkedPlane")
+mesh.from_pydata([(-0.5, -0.5, 0), (0.5, -0.5, 0), (0.5, 0.5, 0), (-0.5, 0.5, 0)], [], [(0, 1, 2, 3)])
+plane = bpy.data.objects.new("LinkedPlane", mesh)
+bpy.context.scene.collection.objects.link(plane)
+plane.matrix_world = camera @ mathutils.Matrix.Translation((0.3, 0.0, -3.0))
+bpy.ops.wm.save_as_mainfile(filepath=folder + "/lib.blend")
+bpy.ops.wm.open_mainfile(filepath=tiny, load_ui=False)
+bpy.ops.wm.save_as_mainfile(filepath=folder + "/linked.blend", copy=False)
+with bpy.data.libraries.load(folder + "/lib.blend", link=True, relative=True) as (source, linked):
+    linked.objects = ["LinkedPlane"]
+for plane in linked.objects:
+    bpy.context.scene.collection.objects.link(plane)
+bpy.ops.wm.save_mainfile()
+"""
+
+
+@pytest.fixture(scope="module")
+def linked_blend(tiny_blend, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("linked")
+    made = subprocess.run([sys.executable, "-c", MAKE_LINKED, str(tiny_blend), str(folder)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+    assert made.returncode == 0, made.stderr
+    return folder / "linked.blend"
+
+
+def test_blend_is_shipped_to_a_worker_that_cannot_see_it(tiny_blend, linked_blend, reference, tmp_path):
+    """A worker in its own mount namespace, with empty tmpfs over the .blends' folders, gets each
+    .blend from the client, with the library it links, and renders the same pixels."""
     from dask.distributed import LocalCluster
 
-    folder = os.path.dirname(tiny_blend)
+    folders = [os.path.dirname(tiny_blend), os.path.dirname(linked_blend)]
+    hide = " && ".join(f"mount -t tmpfs none '{folder}'" for folder in folders)
     probe = subprocess.run(["unshare", "--mount", "--propagation", "private", "sh", "-c",
-                            f"mount -t tmpfs none '{folder}' && test ! -e '{tiny_blend}'"], capture_output=True)
+                            f"{hide} && test ! -e '{tiny_blend}'"], capture_output=True)
     if probe.returncode != 0:
         pytest.skip(f"no private mount namespace here: {probe.stderr.decode().strip()}")
+    linked_reference = tmp_path / "linked_reference.exr"
+    result = run_cli(linked_blend, "-o", linked_reference, "--frame", "2")
+    assert result.returncode == 0, result.stderr
+    combined = "ViewLayer.Combined/ViewLayer.Combined.R"
+    assert not np.array_equal(exr_channels(linked_reference)[combined], exr_channels(reference / "f_2.exr")[combined])
     with LocalCluster(n_workers=0, host="127.0.0.1", dashboard_address=":0", processes=True) as empty:
         with outside_worker(["unshare", "--mount", "--propagation", "private", "sh", "-c",
-                             f"mount -t tmpfs none '{folder}' && exec '{sys.executable}' -m distributed.cli.dask_worker "
+                             f"{hide} && exec '{sys.executable}' -m distributed.cli.dask_worker "
                              f"{empty.scheduler_address} --nthreads 1 --no-dashboard"],
                             tmp_path, dict(os.environ, PYTHONPATH=ROOT)):
             result = run_cli(tiny_blend, "-o", tmp_path / "f_#.exr", "--frames", "2", "--scheduler",
                              empty.scheduler_address)
+            linked = run_cli(linked_blend, "-o", tmp_path / "linked.exr", "--frame", "2", "--scheduler",
+                             empty.scheduler_address)
     from restframe_addon.distributed import file_digest
 
-    copies = glob.glob(bundle_dir(file_digest(str(tiny_blend))) + "*")
+    copies = [copy for blend in (tiny_blend, linked_blend) for copy in glob.glob(bundle_dir(file_digest(str(blend))) + "*")]
     for copy in copies:
         shutil.rmtree(copy, ignore_errors=True)
     assert result.returncode == 0, result.stderr
     assert "(the .blend is shipped to the workers)" in result.stdout
     assert_same_exr(tmp_path / "f_2.exr", reference / "f_2.exr")
+    assert linked.returncode == 0, linked.stderr
+    assert_same_exr(tmp_path / "linked.exr", linked_reference)  # the linked plane is there
     assert not copies, "the worker kept its shipped copy of the .blend after the job"
 
 
