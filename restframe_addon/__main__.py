@@ -84,7 +84,8 @@ def parse_region(spec: str) -> tuple[int, int, int, int]:
 
 def distributed_command(args, scene, out: str, ext: str, frames: list[int]) -> int:
     from . import distributed
-    from .export import full_resolution
+    from .export import ExportError, full_resolution
+    from .export.settings import border_region
 
     if args.region is not None:
         raise CommandError("--region renders one region in this process: it does not combine with the Dask options")
@@ -94,11 +95,16 @@ def distributed_command(args, scene, out: str, ext: str, frames: list[int]) -> i
         headless.check_exr_pixel_aspect(scene, "--regions (each region travels as a multilayer EXR): ",
                                         instead="render the frame whole")
     relative, absolute = distributed.blend_assets(args.blend)
+    try:
+        border = border_region(scene, full_resolution(scene))
+    except ExportError as error:
+        raise CommandError(str(error)) from None
     job = distributed.Job(
         blend=os.path.abspath(args.blend), scene=scene.name, output_ext=ext,
         frames={frame: output_path(out, frame, len(frames) > 1) for frame in frames},
         samples=args.samples, percentage=args.percentage, resolution=full_resolution(scene),
-        regions=args.regions or 1, assets=relative, missing_assets=absolute,
+        regions=args.regions or 1, border=border, crop=scene.render.use_crop_to_border,
+        assets=relative, missing_assets=absolute,
         scene_format=not os.path.splitext(args.output)[1])
     headless.check_writable(job.frames.values())
     try:

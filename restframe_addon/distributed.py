@@ -63,6 +63,8 @@ class Job:
     percentage: int | None = None
     resolution: tuple[int, int] = (0, 0)  # full image size in pixels (after the percentage)
     regions: int = 1
+    border: tuple[int, int, int, int] | None = None  # the file's render border in pixels (None: off)
+    crop: bool = False  # the border is cropped: the output is the border's pixels alone
     assets: list[str] = field(default_factory=list)  # files the .blend uses, relative to its folder
     missing_assets: list[str] = field(default_factory=list)  # absolute paths the workers must see
     scene_format: bool = False  # the output had no extension: workers use the scene's own format settings
@@ -84,6 +86,23 @@ class Task:
     def render_spec(self, blend: str, output: str) -> headless.RenderSpec:
         return headless.RenderSpec(blend=blend, output=output, frame=self.frame, scene=self.scene,
                                    samples=self.samples, percentage=self.percentage, region=self.region)
+
+
+def job_regions(job: Job) -> list[tuple[int, int, int, int] | None]:
+    """The regions of each frame's tasks (None: the frame whole), tiling the file's render
+    border if it has one, as a single render would fill it."""
+    if job.regions == 1:
+        return [None]
+    x0, y0, x1, y1 = job.border or (0, 0, *job.resolution)
+    return [(rx0 + x0, ry0 + y0, rx1 + x0, ry1 + y0) for rx0, ry0, rx1, ry1 in split_regions(x1 - x0, y1 - y0, job.regions)]
+
+
+def job_canvas(job: Job) -> tuple[tuple[int, int], tuple[int, int]]:
+    """(origin, size) in pixels of the image a single render writes: the border when cropped."""
+    if job.border is not None and job.crop:
+        x0, y0, x1, y1 = job.border
+        return (x0, y0), (x1 - x0, y1 - y0)
+    return (0, 0), job.resolution
 
 
 def split_regions(width: int, height: int, count: int) -> list[tuple[int, int, int, int]]:
@@ -633,7 +652,8 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
     if not todo:
         print("restframe: nothing to render", file=stream, flush=True)
         return 0
-    regions = split_regions(*job.resolution, job.regions) if job.regions > 1 else [None]
+    regions = job_regions(job)
+    (origin_x, origin_y), canvas = job_canvas(job)
 
     client, cluster = connect(scheduler, workers)
     ship = False
@@ -686,13 +706,14 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
             else:
                 pieces.setdefault(frame, {})[index] = result["data"]
                 if len(pieces[frame]) == len(regions):
-                    parts = assemble_exr([(regions[i], pieces[frame][i]) for i in range(len(regions))],
-                                         job.resolution)
+                    on_canvas = [((x0 - origin_x, y0 - origin_y, x1 - origin_x, y1 - origin_y), pieces[frame][i])
+                                 for i, (x0, y0, x1, y1) in enumerate(regions)]
+                    parts = assemble_exr(on_canvas, canvas)
                     del pieces[frame]
                     if job.output_ext == ".exr":
-                        write_exr(parts, job.resolution, todo[frame])
+                        write_exr(parts, canvas, todo[frame])
                     elif write_image is not None:
-                        write_image(combined_rgba(parts, job.resolution), todo[frame])
+                        write_image(combined_rgba(parts, canvas), todo[frame])
                     else:
                         raise DistributedError(f"no writer for {job.output_ext} images")
                     done_frame = True

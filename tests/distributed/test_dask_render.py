@@ -349,3 +349,30 @@ def test_shipped_copies_unused_for_a_day_are_removed(tmp_path, monkeypatch):
         os.utime(marker, (time.time() - age, time.time() - age))
     distributed._remove_stale_copies()
     assert sorted(os.listdir(os.path.join(tmp_path, "blends"))) == ["recent"]
+
+
+MAKE_BORDER = """
+import sys, bpy, restframe_addon
+restframe_addon.register()
+bpy.ops.wm.open_mainfile(filepath=sys.argv[1], load_ui=False)
+render = bpy.context.scene.render
+render.use_border, render.use_crop_to_border = True, sys.argv[3] == "crop"
+render.border_min_x, render.border_max_x, render.border_min_y, render.border_max_y = 0.2, 0.7, 0.15, 0.9
+bpy.ops.wm.save_as_mainfile(filepath=sys.argv[2], copy=True)
+"""
+
+
+@pytest.mark.parametrize("crop", ["crop", "no-crop"])
+def test_regions_fill_the_files_render_border_as_one_render_does(tiny_blend, cluster, tmp_path, crop):
+    blend = tmp_path / "border.blend"
+    made = subprocess.run([sys.executable, "-c", MAKE_BORDER, str(tiny_blend), str(blend), crop], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+    assert made.returncode == 0, made.stderr
+    result = run_cli(blend, "-o", tmp_path / "whole.exr", "--frame", "3")
+    assert result.returncode == 0, result.stderr
+    result = run_cli(blend, "-o", tmp_path / "regions.exr", "--frame", "3", "--regions", "4", "--scheduler",
+                     cluster[0].scheduler_address)
+    assert result.returncode == 0, result.stderr
+    shape = (18, 16) if crop == "crop" else (24, 32)  # the border: x 6..22, y 3..21 (Blender truncates)
+    assert exr_channels(tmp_path / "whole.exr")["ViewLayer.Combined/ViewLayer.Combined.R"].shape == shape
+    assert_same_exr(tmp_path / "regions.exr", tmp_path / "whole.exr")
