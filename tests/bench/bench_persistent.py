@@ -39,7 +39,7 @@ def worker(blend: str, frames: str, out: str, persistent: bool) -> None:
     sys.path.insert(0, str(ROOT))
     import restframe_addon
     from restframe_addon import __main__ as cli
-    from restframe_addon import engine, export
+    from restframe_addon import engine, export, headless
     from restframe_addon.core import frames as frames_module
 
     restframe_addon.register()
@@ -58,7 +58,7 @@ def worker(blend: str, frames: str, out: str, persistent: bool) -> None:
 
         setattr(owner, name, wrapper)
 
-    original_frame = cli.render_frame
+    original_frame = headless.render_frame
 
     def render_frame(*args, **kwargs):
         times.append(dict.fromkeys(STEPS, 0.0))
@@ -66,7 +66,7 @@ def worker(blend: str, frames: str, out: str, persistent: bool) -> None:
         original_frame(*args, **kwargs)
         times[-1]["frame"] = time.perf_counter() - started
 
-    cli.render_frame = render_frame
+    headless.render_frame = render_frame
     timed(engine.RestframeRenderEngine, "_render", "engine")
     timed(export, "export_scene", "export")
     timed(engine, "prepare", "prepare")
