@@ -163,7 +163,15 @@ class RenderSettings:
     resolution: tuple[int, int] = (64, 64)  # (x, y) pixels of the full image
     region: tuple[int, int, int, int] | None = None  # (x0, y0, x1, y1) pixels, x1/y1 exclusive
     samples: int = 1  # stratified camera samples per pixel
-    max_bounces: int = 4  # mirror / glass recursion depth
+    # DIRECT: lamps light surfaces, mirrors and glass are traced (the core's default, unchanged);
+    # PATH: full light transport, world and emissive surfaces lighting others (core/integrator.py)
+    integrator: str = "DIRECT"
+    max_bounces: int = 4  # DIRECT: mirror / glass recursion depth; PATH: total scattering events (Cycles' Total)
+    diffuse_bounces: int = 4  # PATH: limits by the kind of scattering (Cycles' Light Paths)
+    glossy_bounces: int = 4
+    transmission_bounces: int = 12
+    clamp_direct: float = 0.0  # PATH: largest RGB sum of one sample's light after one scattering (0 = off)
+    clamp_indirect: float = 0.0  # PATH: the same after two or more (0 = off)
     doppler_mode: str = "OFF"  # OFF (geometry only), FACTOR (D as grey), SPECTRAL (colour shift)
     searchlight: bool = True  # apply the D^4 intensity transforms (headlamp effect)
     spectral_samples: int = 32  # SPECTRAL: wavelengths per camera ray over 360-830 nm
