@@ -21,6 +21,7 @@ import numpy as np
 from .camera import CameraRays
 from .colour import RGBColour, SpectralColour
 from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
+from .integrator import PathTracer, scene_world
 from .passes import EXTRA_PASSES, ray_doppler
 from .scene import RenderSettings, Scene
 from .shading import MaterialTable, PreparedLight, Shader, prepare_lights
@@ -42,6 +43,7 @@ class PreparedScene:
     materials: MaterialTable
     colour: RGBColour | SpectralColour
     shader: Shader
+    path_tracer: PathTracer | None  # the Path Tracing integrator (None: Direct Light, the shader alone)
     camera_tau: float  # camera-frame time of the observation event: every primary ray starts then
     camera_rays: CameraRays
     passes: tuple[str, ...]  # the passes to fill besides Combined
@@ -134,13 +136,20 @@ def _build(scene: Scene, settings: RenderSettings, should_stop: Callable[[], boo
         colour = SpectralColour(materials, lights, scene.world_color, settings.spectral_samples)
     else:
         colour = RGBColour(materials, lights, scene.world_color)
+    shader = Shader(frames, materials, lights, colour, settings.max_bounces, settings.searchlight)
+    path_tracer = None
+    if settings.integrator == "PATH":
+        try:
+            path_tracer = PathTracer(shader, scene_world(scene), settings)
+        except ValueError as error:
+            raise RenderError(str(error)) from error
     camera_boost = frames.frames[frames.camera].boost
     position = np.asarray(scene.camera.matrix, dtype=np.float64)[:3, 3]
     world_event = position + camera_boost.b * camera_boost.n * scene.tau_obs
     tau, _ = camera_boost.events(np.array(scene.tau_obs), world_event)
     return PreparedScene(
         scene=scene, settings=settings, frames=frames, lights=lights, materials=materials, colour=colour,
-        shader=Shader(frames, materials, lights, colour, settings.max_bounces, settings.searchlight),
+        shader=shader, path_tracer=path_tracer,
         camera_tau=float(tau),
         camera_rays=CameraRays(scene.camera, settings.resolution, shift_into_frame(camera_boost, position)),
         passes=tuple(EXTRA_PASSES) if settings.passes is None else tuple(settings.passes),

@@ -95,7 +95,10 @@ def _sample(prepared: PreparedScene, rays, hits, pixel, sample, cache: TraceCach
     else:
         colour = prepared.colour
         lam = colour.camera_wavelengths(pixel, sample)
-        values, hits = prepared.shader.radiance(prepared.frames.camera, *rays, 0, pixel, sample, lam, hits, cache)
+        if prepared.path_tracer is not None:
+            values, hits = prepared.path_tracer.radiance(prepared.frames.camera, *rays, pixel, sample, lam, hits, cache)
+        else:
+            values, hits = prepared.shader.radiance(prepared.frames.camera, *rays, 0, pixel, sample, lam, hits, cache)
         rgb = colour.to_rgb(values, lam)
         hit = hits.frame >= 0
     if settings.film_transparent:

@@ -140,6 +140,24 @@ class Camera:
 
 
 @dataclass
+class WorldTexture:
+    """An Environment Texture on the world's Background (equirectangular), at rest in the world frame.
+
+    ``image`` (H, W, 3 or 4) scene-linear radiance, row 0 = bottom (Blender order); ``rotation``:
+    the Euler XYZ rotation of a Mapping node before it (``vector_type`` as the node's), see
+    :mod:`.world`.  Lights the scene with the Path Tracing integrator (Direct Light shows
+    ``Scene.world_color`` behind the scene, as before).
+    """
+
+    image: np.ndarray
+    strength: float = 1.0
+    rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    vector_type: str = "POINT"
+    interpolation: str = "Linear"
+    name: str = "World"
+
+
+@dataclass
 class Scene:
     """Everything one rendered frame needs.
 
@@ -151,7 +169,8 @@ class Scene:
     meshes: list[Mesh] = field(default_factory=list)
     materials: list[Material] = field(default_factory=lambda: [Material()])
     lights: list[Light] = field(default_factory=list)
-    world_color: tuple[float, float, float] = (0.05, 0.05, 0.05)
+    world_color: tuple[float, float, float] = (0.05, 0.05, 0.05)  # the Background colour x strength
+    world_texture: WorldTexture | None = None  # an environment image instead of the plain colour
     tau_obs: float = 0.0
     light_speed: float = 299792458.0
 

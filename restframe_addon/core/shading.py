@@ -232,13 +232,21 @@ class Shader:
         return values
 
     # ------------------------------------------------------------------ direct light
-    def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache):
+    def brdf(self, ns, view, light, base, mat):
+        """The surfaces' non-delta BSDF f (n, C) (without the cosine), in their rest frame: the
+        diffuse lobe and, on rough surfaces with a specular lobe, GGX highlights.  Mirror
+        reflection and refraction are delta lobes, traced instead (DIRECT: ``_secondary``)."""
         mats = self.materials
-        diffuse = rows.scale(base, mats.diffuse_weight[mat])
+        value = rows.scale(base, mats.diffuse_weight[mat])
         rough = mats.glossy[mat]
-        if rough.any():
-            f0 = rows.scale(base, mats.metallic[mat]) + mats.f0_dielectric[mat][:, None]
-            f90, alpha = mats.f90[mat], mats.alpha[mat]
+        r = np.flatnonzero(rough)
+        if len(r):
+            m = mat[r]
+            f0 = rows.scale(base[r], mats.metallic[m]) + mats.f0_dielectric[m][:, None]
+            value[rough] += ggx_reflection(ns[r], view[r], light[r], mats.alpha[m], f0, mats.f90[m])
+        return value
+
+    def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache):
         eps = self.epsilon[k]
         origin = position + eps * ng
         total = np.zeros_like(base)
@@ -257,10 +265,7 @@ class Shader:
             sel = sel[~blocked]
             if len(sel) == 0:
                 continue
-            brdf = diffuse[sel].copy()
-            r = sel[rough[sel]]
-            if len(r):
-                brdf[rough[sel]] += ggx_reflection(ns[r], view[r], e_k[r], alpha[r], f0[r], f90[r])
+            brdf = self.brdf(ns[sel], view[sel], e_k[sel], base[sel], mat[sel])
             emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel))
             total[sel] += rows.scale(brdf * emitted, strength[sel] * cos_n[sel])
         return total

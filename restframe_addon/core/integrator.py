@@ -1,0 +1,380 @@
+"""Path tracing across rest frames: world light, bounced light and emissive surfaces.
+
+Every scattering event happens in the rest frame k of the surface hit: there the BSDF
+picks the next incoming direction (cosine for diffuse, GGX visible normals for glossy,
+mirror and Fresnel-weighted refraction for the delta lobes), and the bounce ray is traced
+backward from the hit event across every frame, exactly as a camera ray is from the
+camera's (``trace_nearest(frames, k, ...)``).  Light crossing from the frame it comes
+from into frame k is carried by the Doppler factor D between them: radiance times D^4
+(RGB), or D^5 at wavelengths multiplied by D (Spectral): the factors multiply along the
+path, each path keeping its throughput and its wavelengths in the current frame
+(``docs/physics.md``; the world: ``docs/physics-world.md``).
+
+At each vertex the path adds the emission of the surface hit (emissive meshes light
+others by being hit), next-event estimates of the lamps (the direct-light code of
+:class:`~.shading.Shader`, retarded positions, one formula with the Direct Light
+integrator) and of the world (sampled in the world frame, its density carried into
+frame k by the aberration Jacobian D^2, weighed against BSDF sampling by the power
+heuristic), then scatters.  Bounce limits follow Cycles' Light Paths: a vertex reached
+past a limit only adds what the ray found (emission, world), Russian roulette after
+``RR_START`` bounces, clamps on each sample's light after one (direct) and after more
+(indirect) scatterings.
+
+All paths of a batch advance together (one numpy call per frame and bounce); random
+numbers are keyed by (pixel, sample, dimension), so tiles stay independent.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import mis, rows, sampling
+from .bsdf import (diffuse_pdf, fresnel_dielectric, fresnel_schlick, ggx_reflection_pdf, reflect, refract,
+                   sample_diffuse, sample_ggx_reflection)
+from .passes import hit_doppler, hit_times
+from .scene import RenderSettings, Scene
+from .shading import Shader
+from .tracer import Hits, TraceCache, frames_hit, occluded, trace_nearest
+from .world import EnvironmentWorld, UniformWorld, mapping_rotation
+
+RR_START = 3  # bounces without Russian roulette
+_DIMENSION = 1 << 20  # first random-number dimension of the path tracer (the direct light uses 1000 + ...)
+_DIMENSIONS_PER_BOUNCE = 16
+_DIFFUSE, _GLOSSY, _MIRROR, _TRANSMIT = range(4)  # lobes
+_KIND_OF_LOBE = np.array([1, 2, 2, 3])  # bounce counters: 0 total, 1 diffuse, 2 glossy (mirror too), 3 transmission
+
+
+def scene_world(scene: Scene):
+    """The world light of a scene, at rest in the world frame: its environment image or its colour."""
+    texture = scene.world_texture
+    if texture is None:
+        return UniformWorld(scene.world_color)
+    return EnvironmentWorld(texture.image, texture.strength, mapping_rotation(texture.rotation, texture.vector_type),
+                            texture.interpolation, texture.name)
+
+
+class PathTracer:
+    """Traces camera paths of one prepared scene (thread-safe: read-only state)."""
+
+    def __init__(self, shader: Shader, world, settings: RenderSettings):
+        self.shader = shader
+        self.frames = shader.frames
+        self.materials = shader.materials
+        self.colour = shader.colour
+        self.world = world
+        self.uniform_world = isinstance(world, UniformWorld)
+        self.limits = np.array([settings.max_bounces, settings.diffuse_bounces, settings.glossy_bounces,
+                                settings.transmission_bounces])
+        self.clamp_direct = float(settings.clamp_direct)
+        self.clamp_indirect = float(settings.clamp_indirect)
+        mats = self.materials
+        self.emissive = bool(np.any(mats.emission > 0.0))
+        # a ray past the limits is still traced for what it finds: only worth it if there is something
+        self.findable = self.emissive or not world.is_black
+
+    # ------------------------------------------------------------------ paths
+    def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, pixel, sample, lam, hits=None,
+                 cache: TraceCache | None = None):
+        """Radiance (n, C) arriving at events (tau0, x0) of frame src from backward directions d
+        (camera rays), at the wavelengths ``lam`` of frame src; ``hits`` if already traced.
+        Returns (values, hits of the first rays)."""
+        n = len(d)
+        if hits is None:
+            hits = trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi, cache)
+        first_hits = hits
+        out = np.zeros((n, self.colour.channels))
+        path = np.arange(n)
+        state = _Paths(
+            src=np.full(n, src, dtype=np.int64), d=np.asarray(d, dtype=np.float64), lam=lam,
+            throughput=np.ones((n, self.colour.channels)), pdf=np.full(n, np.inf),
+            counts=np.zeros((n, 4), dtype=np.int64), terminal=np.zeros(n, dtype=bool), reference=np.ones(n))
+        bounce = 0
+        while len(path):
+            self._add_world(out, path, state, hits, bounce)
+            path, state, rays = self._vertices(out, path, state, hits, bounce, pixel, sample, cache)
+            bounce += 1
+            if not len(path):
+                break
+            hits = self._trace(state.src, *rays, cache)
+        return out, first_hits
+
+    def _trace(self, src, tau, origin, d, s_lo, cache):
+        """Nearest hits of bounce rays starting in different frames (one trace per frame)."""
+        n = len(d)
+        hits = Hits(frame=np.full(n, -1, dtype=np.int32), s=np.full(n, np.inf), s_frame=np.full(n, np.inf),
+                    w=np.ones(n), prim=np.full(n, -1, dtype=np.int32), u=np.zeros(n, dtype=np.float32),
+                    v=np.zeros(n, dtype=np.float32), d_frame=d.copy(), tau_frame=tau.copy())
+        for k in np.unique(src):
+            sel = np.flatnonzero(src == k)
+            part = trace_nearest(self.frames, int(k), tau[sel], origin[sel], d[sel], s_lo[sel], np.inf, cache)
+            for name in ("frame", "s", "s_frame", "w", "prim", "u", "v", "d_frame", "tau_frame"):
+                getattr(hits, name)[sel] = getattr(part, name)
+        return hits
+
+    # ------------------------------------------------------------------ the world
+    def _world_light(self, to_world, d, lam):
+        """World radiance arriving along backward directions d of a frame (``to_world``: its map
+        to the world frame), in that frame, with the density of :meth:`_sample_world` there."""
+        if to_world.is_identity:
+            d_world, doppler = d, np.ones(len(d))
+        else:
+            d_world, w = to_world.rays(d)
+            doppler = 1.0 / w  # nu_frame / nu_world
+        values = self._world_values(d_world, self.colour.shift(lam, doppler))
+        return rows.scale(values, self.shader._power(doppler, 4)), self.world.pdf(d_world) * doppler**2
+
+    def _world_values(self, d_world, lam):
+        if self.uniform_world:
+            return self.colour.world(lam, len(d_world))
+        return self.colour.emitter_rgb(self.world.radiance(d_world), lam)
+
+    def _add_world(self, out, path, state, hits, bounce):
+        """What paths leaving the scene bring from the world (MIS-weighted against the world
+        samples of the vertex they left)."""
+        miss = np.flatnonzero(hits.frame < 0)
+        if not len(miss) or self.world.is_black:
+            return
+        for k in np.unique(state.src[miss]):
+            sel = miss[state.src[miss] == k]
+            light, pdf_world = self._world_light(self.frames.map(int(k), self.frames.world), state.d[sel],
+                                                 _rows(state.lam, sel))
+            pdf_bsdf = state.pdf[sel]
+            weight = mis.power_heuristic(pdf_bsdf, pdf_world) if bounce else np.ones(len(sel))
+            self._accumulate(out, path[sel], state.throughput[sel] * light, weight, bounce)
+
+    def _sample_world(self, k, tau, origin, ng, ns, view, base, mat, mix, eps, pixel, sample, lam, dim, cache):
+        """Next-event estimate of the world at vertices of frame k: a direction drawn from the
+        world's own density in the world frame, seen from frame k (density times D^2)."""
+        u1, u2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
+        d_world, pdf = self.world.sample(u1, u2)
+        to_frame = self.frames.map(self.frames.world, k)
+        if to_frame.is_identity:
+            light, doppler = d_world, np.ones(len(u1))
+        else:
+            light, doppler = to_frame.rays(d_world)  # w = nu_k / nu_world = D
+        pdf = pdf * doppler**2
+        cos = rows.dot(ns, light)
+        sel = np.flatnonzero((cos > 0.0) & (rows.dot(ng, light) > 0.0) & (pdf > 0.0))
+        total = np.zeros((len(u1), self.colour.channels))
+        if not len(sel):
+            return total
+        blocked = occluded(self.frames, k, tau[sel], origin[sel], light[sel], eps, np.inf, cache)
+        sel = sel[~blocked]
+        if not len(sel):
+            return total
+        f = self.shader.brdf(ns[sel], view[sel], light[sel], base[sel], mat[sel])
+        values = self._world_values(d_world[sel], self.colour.shift(_rows(lam, sel), doppler[sel]))
+        values = rows.scale(values, self.shader._power(doppler[sel], 4))
+        weight = mis.power_heuristic(pdf[sel], mix.pdf(sel, ns[sel], view[sel], light[sel])) * cos[sel] / pdf[sel]
+        total[sel] = rows.scale(f * values, weight)
+        return total
+
+    # ------------------------------------------------------------------ vertices
+    def _vertices(self, out, path, state, hits, bounce, pixel, sample, cache):
+        """Light at the surfaces hit and the scattered rays that continue the paths."""
+        pieces = []
+        for k in frames_hit(hits):
+            sel = np.flatnonzero(hits.frame == k)
+            piece = self._vertex(int(k), out, path[sel], state.take(sel), hits.take(sel), bounce,
+                                 pixel[path[sel]], sample[path[sel]], cache)
+            if piece is not None:
+                pieces.append(piece)
+        if not pieces:
+            return path[:0], state, None
+        path = np.concatenate([p[0] for p in pieces])
+        state = _Paths.join([p[1] for p in pieces])
+        rays = tuple(np.concatenate([p[2][i] for p in pieces]) for i in range(4))
+        return path, state, rays
+
+    def _vertex(self, k, out, path, state, hits, bounce, pixel, sample, cache):
+        shader, mats, colour = self.shader, self.materials, self.colour
+        frame = self.frames.frames[k]
+        d_k, tau = hits.d_frame, hit_times(hits, slice(None))
+        prim, u, v = hits.prim, hits.u, hits.v
+        doppler = hit_doppler(frame, prim, u, v, tau, d_k, hits.w)
+        throughput = rows.scale(state.throughput, shader._power(doppler, 4))
+        lam = colour.shift(state.lam, doppler)
+        if bounce == 0:  # Russian roulette compares throughputs with the camera hit's
+            state.reference = np.maximum(throughput.max(axis=1), 1e-300)
+        position, ng, ns, mat, back = shader.surface_info(k, prim, u, v, d_k, tau)
+        uv = None
+        if frame.geometry.corner_uvs is not None:
+            cuv = frame.geometry.corner_uvs[prim]
+            uu, vv = u[:, None], v[:, None]
+            uv = (1.0 - uu - vv) * cuv[:, 0] + uu * cuv[:, 1] + vv * cuv[:, 2]
+        if self.emissive:
+            emitted = np.array(colour.emission(mat, lam), dtype=np.float64)
+            if mats.emission_curves:
+                emitted *= mats.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
+            self._accumulate(out, path, throughput * emitted, None, bounce)
+        live = np.flatnonzero(~state.terminal)
+        if not len(live):
+            return None
+        keep = lambda a: a[live] if a is not None else None  # noqa: E731
+        path, throughput, lam, state = path[live], throughput[live], keep(lam), state.take(live)
+        d_k, tau, position, ng, ns, mat, back = d_k[live], tau[live], position[live], ng[live], ns[live], \
+            mat[live], back[live]
+        pixel, sample = pixel[live], sample[live]
+        base = colour.base_color(mat, keep(uv), lam)
+        view = -d_k
+        eps = shader.epsilon[k]
+        origin = position + eps * ng
+        lobes = _Lobes(mats, base, mat, ns, view, back)
+        dim = _DIMENSION + _DIMENSIONS_PER_BOUNCE * bounce
+        # next-event estimation: lamps (the direct-light integrator's own code) and the world
+        direct = None
+        if shader.lights:
+            direct = shader._direct(k, tau, position, ng, ns, view, base, mat, bounce, pixel, sample, lam, cache)
+        if not self.world.is_black and lobes.any_smooth:
+            world = self._sample_world(k, tau, origin, ng, ns, view, base, mat, lobes, eps, pixel, sample, lam,
+                                       dim + 3, cache)
+            direct = world if direct is None else direct + world
+        if direct is not None:
+            self._accumulate(out, path, throughput * direct, None, bounce + 1)
+        # scattering: one lobe chosen by its weight, a direction from its sampler
+        lobe, probability = lobes.choose(sampling.uniform(pixel, sample, dim))
+        u1, u2 = sampling.uniform(pixel, sample, dim + 1), sampling.uniform(pixel, sample, dim + 2)
+        light, weight, pdf = lobes.sample(lobe, probability, u1, u2)
+        transmitted = lobe == _TRANSMIT
+        side = np.where(transmitted, -1.0, 1.0)
+        valid = (probability > 0.0) & (rows.dot(ng, light) * side > 0.0) & np.any(weight > 0.0, axis=1)
+        counts = state.counts.copy()
+        counts[:, 0] += 1
+        kind = _KIND_OF_LOBE[lobe]
+        counts[np.arange(len(kind)), kind] += 1
+        terminal = (counts[:, 0] > self.limits[0]) | (counts[np.arange(len(kind)), kind] > self.limits[kind])
+        throughput = throughput * weight
+        if bounce + 1 > RR_START:  # Russian roulette
+            survive = np.clip(throughput.max(axis=1) / state.reference, 0.0, 1.0)
+            valid &= sampling.uniform(pixel, sample, dim + 5) < survive
+            throughput = rows.scale(throughput, 1.0 / np.where(survive > 0.0, survive, 1.0))
+        if not self.findable:
+            valid &= ~terminal
+        go = np.flatnonzero(valid)
+        if not len(go):
+            return None
+        ray_origin = position[go] + rows.scale(ng[go], side[go] * eps)
+        nxt = _Paths(src=np.full(len(go), k, dtype=np.int64), d=light[go], lam=None if lam is None else lam[go],
+                     throughput=throughput[go], pdf=pdf[go], counts=counts[go], terminal=terminal[go],
+                     reference=state.reference[go])
+        return path[go], nxt, (tau[go], ray_origin, light[go], np.full(len(go), eps))
+
+    # ------------------------------------------------------------------ accumulation
+    def _accumulate(self, out, path, values, weight, scatterings: int):
+        """Add light to the paths' camera samples: ``scatterings`` = how often the light has
+        scattered (0: seen directly, unclamped; 1: direct light; more: indirect)."""
+        if weight is not None:
+            values = rows.scale(values, weight)
+        limit = 0.0 if scatterings == 0 else self.clamp_direct if scatterings == 1 else self.clamp_indirect
+        if limit > 0.0:
+            total = np.abs(self.colour.to_rgb(values, None)).sum(axis=1)
+            values = rows.scale(values, np.minimum(1.0, limit / np.maximum(total, 1e-300)))
+        out[path] += values  # a path is one camera sample: no index repeats
+
+
+class _Paths:
+    """The state of live paths (rows): the frame their next ray starts in and its direction,
+    wavelengths in that frame (None: RGB), throughput, the BSDF density of the direction (inf:
+    a delta lobe or a camera ray), bounce counters, whether the next vertex is past the limits,
+    and the Russian roulette reference throughput."""
+
+    __slots__ = ("src", "d", "lam", "throughput", "pdf", "counts", "terminal", "reference")
+
+    def __init__(self, src, d, lam, throughput, pdf, counts, terminal, reference):
+        self.src, self.d, self.lam, self.throughput = src, d, lam, throughput
+        self.pdf, self.counts, self.terminal, self.reference = pdf, counts, terminal, reference
+
+    def take(self, index) -> "_Paths":
+        return _Paths(*(None if getattr(self, name) is None else getattr(self, name)[index]
+                        for name in self.__slots__))
+
+    @staticmethod
+    def join(parts) -> "_Paths":
+        return _Paths(*(None if getattr(parts[0], name) is None else np.concatenate([getattr(p, name) for p in parts])
+                        for name in _Paths.__slots__))
+
+
+class _Lobes:
+    """The lobes of the surfaces at some vertices (their rest frame), with the weights that
+    choose among them: diffuse, GGX (rough surfaces with a specular lobe), mirror (smooth
+    surfaces: Fresnel for dielectrics, the base colour for metals) and refraction (glass).
+    The same lobes as the Direct Light integrator's shading."""
+
+    def __init__(self, mats, base, mat, ns, view, back):
+        self.ns, self.view, self.base, self.mat = ns, view, base, mat
+        n = len(mat)
+        metallic = mats.metallic[mat]
+        cos_v = np.clip(rows.dot(ns, view), 0.0, 1.0)
+        self.diffuse = rows.scale(base, mats.diffuse_weight[mat] * np.pi)  # albedo of the diffuse lobe
+        self.glossy = mats.glossy[mat]
+        self.alpha = mats.alpha[mat]
+        self.f0 = rows.scale(base, metallic) + mats.f0_dielectric[mat][:, None]
+        self.f90 = mats.f90[mat]
+        # the delta lobes, as the Direct Light integrator traces them
+        self.eta = np.where(back, mats.ior[mat], 1.0 / mats.ior[mat])
+        fresnel = np.minimum(fresnel_dielectric(cos_v, self.eta) * mats.specular_scale[mat], 1.0)
+        mirror = mats.mirror[mat]
+        self.reflect_weight = rows.scale(fresnel[:, None] * (1.0 - metallic[:, None]) + rows.scale(base, metallic),
+                                         mirror.astype(np.float64))
+        self.transmit_weight = np.broadcast_to(((1.0 - fresnel) * mats.transmission[mat] * (1.0 - metallic))[:, None],
+                                               base.shape)
+        glossy_albedo = np.where(self.glossy[:, None], fresnel_schlick(cos_v, self.f0, self.f90), 0.0)
+        weights = np.stack([self.diffuse.mean(axis=1), glossy_albedo.mean(axis=1),
+                            self.reflect_weight.mean(axis=1), self.transmit_weight.mean(axis=1)], axis=1)
+        weights = np.maximum(weights, 0.0)
+        total = weights.sum(axis=1)
+        self.probability = np.where(total[:, None] > 0.0, weights / np.where(total > 0.0, total, 1.0)[:, None], 0.0)
+        self.any_smooth = bool(np.any(self.probability[:, _DIFFUSE] + self.probability[:, _GLOSSY] > 0.0)) and n > 0
+
+    def pdf(self, index, ns, view, light):
+        """Density per unit solid angle with which :meth:`sample` draws ``light`` at vertices
+        ``index`` (the non-delta lobes, each times its probability)."""
+        p = self.probability[index]
+        pdf = p[:, _DIFFUSE] * diffuse_pdf(ns, light)
+        glossy = np.flatnonzero(self.glossy[index])
+        if len(glossy):
+            pdf[glossy] += p[glossy, _GLOSSY] * ggx_reflection_pdf(ns[glossy], view[glossy], light[glossy],
+                                                                   self.alpha[index][glossy])
+        return pdf
+
+    def choose(self, u):
+        """A lobe per vertex drawn by the weights, and its probability (0: nothing scatters)."""
+        cdf = np.cumsum(self.probability, axis=1)
+        lobe = np.minimum((u[:, None] >= cdf).sum(axis=1), 3)
+        return lobe, self.probability[np.arange(len(lobe)), lobe]
+
+    def sample(self, lobe, probability, u1, u2):
+        """Directions from each vertex's chosen lobe: (light, weight f cos / (pdf probability)
+        (n, C), density for MIS against the world samples (inf for the delta lobes))."""
+        ns, view = self.ns, self.view
+        n = len(lobe)
+        light = np.zeros((n, 3))
+        weight = np.zeros(self.base.shape)
+        pdf = np.full(n, np.inf)
+        scale = 1.0 / np.where(probability > 0.0, probability, 1.0)
+        sel = np.flatnonzero(lobe == _DIFFUSE)
+        if len(sel):
+            light[sel], _ = sample_diffuse(ns[sel], u1[sel], u2[sel])
+            weight[sel] = rows.scale(self.diffuse[sel], scale[sel])
+        sel = np.flatnonzero(lobe == _GLOSSY)
+        if len(sel):
+            light[sel], _, g = sample_ggx_reflection(ns[sel], view[sel], self.alpha[sel], u1[sel], u2[sel])
+            h = rows.normalized(view[sel] + light[sel])
+            fresnel = fresnel_schlick(rows.dot(view[sel], h), self.f0[sel], self.f90[sel])
+            weight[sel] = rows.scale(fresnel, g * scale[sel])
+        sel = np.flatnonzero(lobe == _MIRROR)
+        if len(sel):
+            light[sel] = reflect(view[sel], ns[sel])
+            weight[sel] = rows.scale(self.reflect_weight[sel], scale[sel])
+        sel = np.flatnonzero(lobe == _TRANSMIT)
+        if len(sel):
+            light[sel], ok = refract(view[sel], ns[sel], self.eta[sel])
+            weight[sel] = rows.scale(self.transmit_weight[sel], np.where(ok, scale[sel], 0.0))
+        smooth = np.flatnonzero((lobe == _DIFFUSE) | (lobe == _GLOSSY))
+        if len(smooth):
+            pdf[smooth] = self.pdf(smooth, ns[smooth], view[smooth], light[smooth])
+        return light, weight, pdf
+
+
+def _rows(lam, index):
+    return None if lam is None else lam[index]
