@@ -1,0 +1,231 @@
+"""The Path Tracing integrator against closed forms computed here: moving Lambertian bodies in a
+uniform world, furnaces and their bounce limits, energy conservation, colour bleeding across frames."""
+
+import math
+
+import numpy as np
+import pytest
+from shapes import box, look_at_camera, quad, uv_sphere
+
+from restframe_addon.core.render import render_image
+from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity, WorldTexture
+from restframe_addon.core.validation import RenderError
+
+
+def lambert(albedo=1.0, emission=0.0):
+    return Material("lambert", base_color=(albedo,) * 3, specular_ior_level=0.0, roughness=1.0,
+                    emission=(emission,) * 3)
+
+
+def path_settings(res=(8, 8), samples=64, **kw):
+    return RenderSettings(resolution=res, samples=samples, integrator="PATH", threads=1, **kw)
+
+
+def mean_rgb(passes):
+    return passes["Combined"][..., :3].reshape(-1, 3).mean(axis=0)
+
+
+# ---------------------------------------------------------------------------- moving Lambertian faces
+def lambert_face_radiance(beta, normal, world=1.0, nodes=400):
+    """(1/pi) * integral over the rest-frame hemisphere about ``normal`` of L D^4 cos, with
+    D = 1 / (gamma (1 - beta . d)) for backward directions d (light from ahead is blue-shifted):
+    Gauss-Legendre in cos(theta), midpoints in phi."""
+    beta = np.asarray(beta, dtype=float)
+    b = np.linalg.norm(beta)
+    gamma = 1.0 / math.sqrt(1.0 - b * b)
+    normal = np.asarray(normal, dtype=float)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(normal[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    t1 = np.cross(normal, helper)
+    t1 /= np.linalg.norm(t1)
+    t2 = np.cross(normal, t1)
+    x, w = np.polynomial.legendre.leggauss(nodes)
+    mu, w_mu = 0.5 * (x + 1.0), 0.5 * w
+    phi = (np.arange(2 * nodes) + 0.5) * math.pi / nodes
+    sin = np.sqrt(1.0 - mu**2)[:, None]
+    d = (sin[..., None] * (np.cos(phi)[None, :, None] * t1 + np.sin(phi)[None, :, None] * t2)
+         + mu[:, None, None] * normal)
+    doppler = 1.0 / (gamma * (1.0 - d @ beta))
+    integrand = world * doppler**4 * mu[:, None]
+    return float(np.einsum("ij,i->", integrand, w_mu) * (math.pi / nodes) / math.pi)
+
+
+def moving_box_face(beta, normal, samples=1024):
+    """A white Lambertian cube moving at ``beta`` (x) through a uniform world of radiance 1, seen
+    head-on at ``normal``'s face by a camera moving with it: the face's mean radiance."""
+    velocity = Velocity((beta, 0.0, 0.0))
+    normal = np.asarray(normal, dtype=float)
+    camera = look_at_camera(3.0 * normal, 0.5 * normal, up=(0, 0, 1) if abs(normal[2]) < 0.9 else (0, 1, 0),
+                            fov_half_tan=0.05, velocity=velocity)
+    scene = Scene(camera=camera, meshes=[Mesh("cube", *box(size=(1, 1, 1)), velocity=velocity)],
+                  materials=[lambert()], world_color=(1.0, 1.0, 1.0))
+    return mean_rgb(render_image(scene, path_settings(samples=samples)))
+
+
+@pytest.mark.parametrize("beta", [0.5, 0.9])
+@pytest.mark.parametrize("normal", [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, 0, 1)])
+def test_moving_lambertian_faces_receive_the_aberrated_doppler_shifted_world(beta, normal):
+    expected = lambert_face_radiance((beta, 0.0, 0.0), normal)
+    assert moving_box_face(beta, normal) == pytest.approx(np.full(3, expected), rel=0.01)
+
+
+def test_face_quadrature_closed_forms():
+    """The test's own quadrature: 1 at rest, and (2 / gamma^4) int x / (1 -+ b x)^4 dx ahead / behind
+    at 0.5c (3.75 and 7/36)."""
+    assert lambert_face_radiance((0.0, 0, 0), (1, 0, 0)) == pytest.approx(1.0, rel=1e-9)
+    assert lambert_face_radiance((0.5, 0, 0), (1, 0, 0)) == pytest.approx(3.75, rel=1e-6)
+    assert lambert_face_radiance((0.5, 0, 0), (-1, 0, 0)) == pytest.approx(7.0 / 36.0, rel=1e-6)
+
+
+def test_nearly_at_rest_equals_rest():
+    rest = moving_box_face(0.0, (1, 0, 0), samples=16)
+    slow = moving_box_face(1e-12, (1, 0, 0), samples=16)
+    assert slow == pytest.approx(rest, rel=1e-9)
+    assert rest == pytest.approx(np.ones(3), rel=0.01)
+
+
+# ---------------------------------------------------------------------------- furnaces
+def furnace(albedo, emission, **kw):
+    """The mean radiance seen from inside a closed sphere of the given albedo and emission."""
+    camera = look_at_camera((0, 0, 0), (1, 0, 0), fov_half_tan=1.0)
+    scene = Scene(camera=camera, meshes=[Mesh("shell", *uv_sphere(radius=2.0, segments=24, rings=12))],
+                  materials=[lambert(albedo, emission)], world_color=(0.0, 0.0, 0.0))
+    return mean_rgb(render_image(scene, path_settings(**kw)))
+
+
+@pytest.mark.parametrize("albedo, limits, terms", [
+    (0.5, dict(max_bounces=128, diffuse_bounces=128), None),  # Le / (1 - a)
+    (0.8, dict(max_bounces=0), 2),  # Total 0: seen, and the light of one scattering
+    (0.8, dict(max_bounces=2, diffuse_bounces=8), 4),
+    (0.8, dict(max_bounces=8, diffuse_bounces=1), 3),  # the diffuse limit binds
+])
+def test_emissive_furnace_sums_its_bounces(albedo, limits, terms):
+    """Radiance Le * sum_{b < terms} a^b: each scattering adds a factor a, a limit of N bounces
+    keeps N + 2 terms (the light found by the last scattered ray counts, as in Cycles)."""
+    value = furnace(albedo, 1.0, samples=128, **limits)
+    expected = 1.0 / (1.0 - albedo) if terms is None else sum(albedo**b for b in range(terms))
+    assert value == pytest.approx(np.full(3, expected), rel=0.01)
+
+
+def test_white_furnace_conserves_energy():
+    """White Lambertian bodies (a sphere resting on a slab) in a uniform world: with unlimited
+    bounces every surface sends back exactly the world's radiance."""
+    camera = look_at_camera((0, -6, 3), (0, 0, 0.5), fov_half_tan=0.4)
+    sphere = Mesh("sphere", *uv_sphere(center=(0, 0, 1.0), radius=1.0, segments=32, rings=16))
+    slab = Mesh("slab", *box(center=(0, 0, -0.25), size=(4, 4, 0.5)))
+    scene = Scene(camera=camera, meshes=[sphere, slab], materials=[lambert()], world_color=(0.5, 0.5, 0.5))
+    passes = render_image(scene, path_settings(res=(12, 12), samples=64, max_bounces=64, diffuse_bounces=64))
+    assert mean_rgb(passes) == pytest.approx(np.full(3, 0.5), rel=0.01)
+    absorbing = dataclass_replace(scene, materials=[lambert(0.5)])
+    assert np.all(mean_rgb(render_image(absorbing, path_settings(res=(12, 12), samples=16))) < 0.5 * 0.75)
+
+
+def dataclass_replace(scene, **changes):
+    import dataclasses
+    return dataclasses.replace(scene, **changes)
+
+
+# ---------------------------------------------------------------------------- against the direct light
+def lamp_floor(world=(0.0, 0.0, 0.0)):
+    camera = look_at_camera((0, -3, 2), (0, 0, 0), fov_half_tan=0.5)
+    floor = Mesh("floor", *quad((0, 0, 0), (6, 6)))
+    block = Mesh("block", *box(center=(0.5, 0.5, 0.5)))
+    lamp = Light("lamp", "POINT", (1.0, -1.0, 3.0), power=500.0, radius=0.2)
+    return Scene(camera=camera, meshes=[floor, block], materials=[Material("grey", roughness=0.4)], lights=[lamp],
+                 world_color=world)
+
+
+def test_one_scattering_without_world_is_the_direct_light():
+    """Total 0, a black world and no emitters: the path tracer's light is the Direct Light
+    integrator's, sample for sample (the same next-event code and random numbers)."""
+    scene = lamp_floor()
+    direct = render_image(scene, RenderSettings(resolution=(12, 12), samples=4, threads=1))
+    path = render_image(scene, path_settings(res=(12, 12), samples=4, max_bounces=0))
+    np.testing.assert_array_equal(path["Combined"], direct["Combined"])
+    bounced = render_image(scene, path_settings(res=(12, 12), samples=4, max_bounces=2))
+    assert mean_rgb(bounced).sum() > mean_rgb(direct).sum()  # light bounced off the floor onto the block
+
+
+def test_world_lights_the_unlit_faces():
+    """Blender's default-scene complaint: faces turned from the lamp are black under Direct Light,
+    lit by a grey world under Path Tracing."""
+    scene = lamp_floor(world=(0.2, 0.2, 0.2))
+    direct = render_image(scene, RenderSettings(resolution=(12, 12), samples=4, threads=1))["Combined"][..., 0]
+    path = render_image(scene, path_settings(res=(12, 12), samples=16))["Combined"][..., 0]
+    shadowed = direct < 1e-6
+    assert shadowed.any() and np.all(path[shadowed] > 0.0)
+
+
+def test_clamps_cap_each_samples_light():
+    scene = lamp_floor()
+    free = mean_rgb(render_image(scene, path_settings(res=(12, 12), samples=8, max_bounces=2)))
+    clamped = mean_rgb(render_image(scene, path_settings(res=(12, 12), samples=8, max_bounces=2,
+                                                         clamp_direct=0.05, clamp_indirect=0.01)))
+    assert np.all(clamped < free)
+    assert np.all(clamped <= 0.05 + 0.01 * 2 + 1e-9)  # at most one direct and two indirect pieces per sample
+
+
+def test_bad_light_path_settings_are_refused():
+    scene = lamp_floor()
+    with pytest.raises(RenderError, match="integrator"):
+        render_image(scene, RenderSettings(resolution=(4, 4), integrator="BIDIR"))
+    with pytest.raises(RenderError, match="diffuse_bounces"):
+        render_image(scene, path_settings(diffuse_bounces=-1))
+    with pytest.raises(RenderError, match="clamp_indirect"):
+        render_image(scene, path_settings(clamp_indirect=float("nan")))
+
+
+# ---------------------------------------------------------------------------- environment
+def test_uniform_environment_image_equals_the_background_colour():
+    """An environment image of one colour lights as the plain Background colour (same estimator
+    through the image's importance sampling)."""
+    camera = look_at_camera((0, -4, 0), (0, 0, 0), fov_half_tan=0.2)
+    sphere = Mesh("sphere", *uv_sphere(radius=1.0, segments=32, rings=16))
+    plain = Scene(camera=camera, meshes=[sphere], materials=[lambert(0.8)], world_color=(0.3, 0.3, 0.3))
+    image = np.full((8, 16, 3), 0.3)
+    textured = dataclass_replace(plain, world_texture=WorldTexture(image, rotation=(0.3, 0.2, 0.1)))
+    a = mean_rgb(render_image(plain, path_settings(samples=64)))
+    b = mean_rgb(render_image(textured, path_settings(samples=64)))
+    assert b == pytest.approx(a, rel=0.01)
+
+
+def test_environment_sun_lights_from_its_direction():
+    """A bright patch in the environment image (texture +Y, rotated by the Mapping node to world -Y)
+    lights the face of a sphere turned to it."""
+    image = np.full((32, 64, 3), 0.01)
+    image[14:18, 14:18] = 500.0  # u ~ 1/4 (texture +Y), v ~ 1/2 (horizon)
+    world = WorldTexture(image, rotation=(0.0, 0.0, math.pi))  # world direction d -> texture R d: -Y -> +Y
+    sphere = Mesh("sphere", *uv_sphere(radius=1.0, segments=32, rings=16))
+    looks = {}
+    for side in (-1, 1):
+        camera = look_at_camera((0, 4 * side, 0), (0, 0, 0), fov_half_tan=0.1)
+        scene = Scene(camera=camera, meshes=[sphere], materials=[lambert()], world_texture=world)
+        looks[side] = mean_rgb(render_image(scene, path_settings(samples=16)))[0]
+    assert looks[-1] > 20.0 * looks[1]
+
+
+# ---------------------------------------------------------------------------- colour bleeding
+def bleeding(beta, samples=256):
+    """The RGB seen on a static white floor lit only by a white emissive wall beside it that
+    moves along its normal (toward the floor patch for beta > 0), Spectral mode."""
+    camera = look_at_camera((0, 0, 1.0), (0, 0, 0), up=(0, 1, 0), fov_half_tan=0.05)
+    floor = Mesh("floor", *quad((0, 0, 0), (8, 8)))
+    wall = Mesh("wall", *quad((-1.5, 0, 1.6), (3.0, 3.0), normal_axis=0), velocity=Velocity((beta, 0.0, 0.0)),
+                pivot=(-1.5, 0.0, 1.6), material_indices=np.array([1, 1]))
+    scene = Scene(camera=camera, meshes=[floor, wall], materials=[lambert(), lambert(0.0, 2.0)],
+                  world_color=(0.0, 0.0, 0.0))
+    settings = path_settings(samples=samples, max_bounces=1, doppler_mode="SPECTRAL", spectral_samples=16)
+    return mean_rgb(render_image(scene, settings))
+
+
+def test_moving_wall_bleeds_doppler_shifted_colour_onto_a_static_floor():
+    """Light from a wall moving toward the floor patch arrives blue-shifted, from one moving away
+    red-shifted (its brightness also changes with where the wall was when the light left it): the blue/red ratio moves as the Doppler factor
+    D = 1 / (gamma (1 - beta . e)) of the wall's light toward the patch (e: wall to patch)."""
+    rest = bleeding(0.0)
+    assert rest.min() > 0.0
+    toward_patch = np.array([1.5, 0.0, -1.6]) / np.hypot(1.5, 1.6)
+    for beta in (0.6, -0.6):
+        doppler = 1.0 / (math.sqrt(1.0 - beta * beta) * (1.0 - beta * toward_patch[0]))
+        moving = bleeding(beta)
+        shift = (moving[2] / moving[0]) / (rest[2] / rest[0])
+        assert (shift > 1.0) == (doppler > 1.0) and abs(math.log(shift)) > 0.1
