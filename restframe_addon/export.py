@@ -18,7 +18,7 @@ import numpy as np
 from .core.motion import Trajectory
 from .core import validation
 from .core.passes import PASSES
-from .core.scene import Camera, Light, Material, Mesh, RenderSettings, Scene, Velocity
+from .core.scene import Camera, Light, Material, Mesh, RenderSettings, Scene, Velocity, WorldTexture
 
 
 class ExportError(ValueError):
@@ -343,22 +343,27 @@ class MaterialExporter:
         if image is None:
             self.warn(f"Material '{mat.name}': the image texture node has no image")
             return None
-        width, height = image.size
-        channels = image.channels
-        if width == 0 or height == 0 or not image.has_data:
-            self.warn(f"Image '{image.name}' (material '{mat.name}') could not be loaded: "
-                      f"'{image.filepath}' is missing; using the base colour")
-            return None
-        pixels = np.empty(width * height * channels, dtype=np.float32)
-        image.pixels.foreach_get(pixels)
-        pixels = pixels.reshape(height, width, channels)
-        rgb = pixels[..., :3] if channels >= 3 else np.repeat(pixels[..., :1], 3, axis=2)
-        space = image.colorspace_settings.name
-        if not image.is_float and space not in {"Non-Color", "Linear Rec.709", "Linear", "Raw"}:
-            if "sRGB" not in space:
-                self.warn(f"Image '{image.name}': colour space '{space}' is read as sRGB")
-            rgb = _linear_from_srgb(rgb)
-        return np.ascontiguousarray(rgb, dtype=np.float32)
+        return image_rgb(image, f"material '{mat.name}'", "the base colour", self.warn)
+
+
+def image_rgb(image, owner: str, fallback: str, warn: Callable[[str], None]) -> np.ndarray | None:
+    """A Blender image's pixels as scene-linear RGB (H, W, 3) float32, row 0 = bottom; None (with
+    a warning naming ``owner`` and what is used instead) if it cannot be loaded."""
+    width, height = image.size
+    channels = image.channels
+    if width == 0 or height == 0 or not image.has_data:
+        warn(f"Image '{image.name}' ({owner}) could not be loaded: '{image.filepath}' is missing; using {fallback}")
+        return None
+    pixels = np.empty(width * height * channels, dtype=np.float32)
+    image.pixels.foreach_get(pixels)
+    pixels = pixels.reshape(height, width, channels)
+    rgb = pixels[..., :3] if channels >= 3 else np.repeat(pixels[..., :1], 3, axis=2)
+    space = image.colorspace_settings.name
+    if not image.is_float and space not in {"Non-Color", "Linear Rec.709", "Linear", "Raw"}:
+        if "sRGB" not in space:
+            warn(f"Image '{image.name}': colour space '{space}' is read as sRGB")
+        rgb = _linear_from_srgb(rgb)
+    return np.ascontiguousarray(rgb, dtype=np.float32)
 
 
 # --------------------------------------------------------------------------- meshes
@@ -536,9 +541,56 @@ def world_color(scene, warn: Callable[[str], None]) -> tuple[float, float, float
         warn(f"World '{world.name}': shader '{node.bl_label}' is not supported, using the world colour")
         return tuple(float(c) for c in world.color[:3])
     color, strength = node.inputs["Color"], node.inputs["Strength"]
-    if _upstream(color) is not None or _upstream(strength) is not None:
-        warn(f"World '{world.name}': textures on the background are not supported, using its plain colour")
+    texture = _upstream(color)
+    if (texture is not None and texture.type != 'TEX_ENVIRONMENT') or _upstream(strength) is not None:
+        warn(f"World '{world.name}': textures on the background other than an Environment Texture on its "
+             "Color are not supported, using its plain colour")
     return tuple(float(c) * float(strength.default_value) for c in color.default_value[:3])
+
+
+_ENVIRONMENT_INTERPOLATIONS = {'Linear': "Linear", 'Closest': "Closest", 'Cubic': "Linear", 'Smart': "Linear"}
+
+
+def world_texture(scene, warn: Callable[[str], None]) -> WorldTexture | None:
+    """The Environment Texture (equirectangular image, optionally rotated by a Mapping node) on the
+    world's Background Color, or None (a plain colour, or something RESTframe cannot read: warned)."""
+    world = scene.world
+    output = _output_node(world) if world is not None else None
+    node = _upstream(output.inputs["Surface"]) if output is not None else None
+    if node is None or node.type != 'BACKGROUND':
+        return None
+    texture = _upstream(node.inputs["Color"])
+    if texture is None or texture.type != 'TEX_ENVIRONMENT':
+        return None
+    label = f"World '{world.name}'"
+    if texture.projection != 'EQUIRECTANGULAR':
+        warn(f"{label}: the Environment Texture's {texture.projection.title().replace('_', ' ')} projection is not "
+             "supported (use Equirectangular); using the plain Background colour")
+        return None
+    if texture.image is None:
+        warn(f"{label}: the Environment Texture has no image; using the plain Background colour")
+        return None
+    image = image_rgb(texture.image, f"world '{world.name}'", "the plain Background colour", warn)
+    if image is None:
+        return None
+    if texture.interpolation not in ('Linear', 'Closest'):
+        warn(f"{label}: {texture.interpolation} interpolation of the Environment Texture is read as Linear")
+    rotation, vector_type = (0.0, 0.0, 0.0), "POINT"
+    mapping = _upstream(texture.inputs["Vector"])
+    if mapping is not None and mapping.type != 'MAPPING':
+        warn(f"{label}: only a Mapping node may feed the Environment Texture's Vector; '{mapping.bl_label}' is ignored")
+    elif mapping is not None:
+        vector_type = mapping.vector_type
+        inputs = mapping.inputs
+        if any(_upstream(inputs[name]) is not None for name in ("Location", "Rotation", "Scale")):
+            warn(f"{label}: the Mapping node's inputs must not be linked; using their values")
+        moved = vector_type in ('POINT', 'TEXTURE') and any(inputs["Location"].default_value)
+        if moved or tuple(inputs["Scale"].default_value) != (1.0, 1.0, 1.0):
+            warn(f"{label}: the Mapping node's location and scale are ignored (a world direction is only rotated)")
+        rotation = tuple(float(a) for a in inputs["Rotation"].default_value)
+    return WorldTexture(image=image, strength=float(node.inputs["Strength"].default_value), rotation=rotation,
+                        vector_type=vector_type, interpolation=_ENVIRONMENT_INTERPOLATIONS[texture.interpolation],
+                        name=world.name)
 
 
 # --------------------------------------------------------------------------- settings
@@ -716,12 +768,17 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
     for name in sorted(jumping):
         warn_once(f"{name}: has a velocity and a keyframed location, so it jumps between frames "
                   "(set its Motion to Animation to follow the keyframed path)")
+    environment = world_texture(scene, warn_once)
+    if environment is not None and rf.integrator == 'DIRECT':
+        warn_once(f"World '{environment.name}': Direct Light shows the plain Background colour behind the scene; "
+                  "the Environment Texture lights it with Path Tracing")
     out = Scene(
         camera=camera,
         meshes=meshes,
         materials=materials.materials,
         lights=lights,
         world_color=world_color(scene, warn_once),
+        world_texture=environment,
         tau_obs=rf.light_speed * observation_time(scene),
         light_speed=rf.light_speed,
     )
