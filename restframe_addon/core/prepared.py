@@ -189,14 +189,21 @@ def _measure_exposure(prepared: PreparedScene, should_stop) -> float:
     materials, lights = prepared.materials, prepared.lights
     plain = Shader(prepared.frames, materials, lights, RGBColour(materials, lights, prepared.scene.world_color),
                    prepared.settings.max_bounces, searchlight=False)
+    tracers = (prepared.shader, plain)
+    if prepared.path_tracer is not None:  # the same integrator, with and without the Doppler changes
+        tracers = (prepared.path_tracer, PathTracer(plain, prepared.path_tracer.world, prepared.settings))
     cache = TraceCache()
     means = []
-    for shader in (prepared.shader, plain):
+    for tracer in tracers:
         if should_stop():
             return 1.0
-        lam = shader.colour.camera_wavelengths(pixel, pixel * 0)
+        colour = tracer.colour
+        lam = colour.camera_wavelengths(pixel, pixel * 0)
         rays = prepared.rays(px, py)
-        values, _ = shader.radiance(prepared.frames.camera, *rays, 0, pixel, pixel * 0, lam, cache=cache)
-        means.append(float(np.mean(shader.colour.to_rgb(values, lam) @ _LUMINANCE)))
+        if isinstance(tracer, PathTracer):
+            values, _ = tracer.radiance(prepared.frames.camera, *rays, pixel, pixel * 0, lam, cache=cache)
+        else:
+            values, _ = tracer.radiance(prepared.frames.camera, *rays, 0, pixel, pixel * 0, lam, cache=cache)
+        means.append(float(np.mean(colour.to_rgb(values, lam) @ _LUMINANCE)))
     rendered, reference = means
     return reference / rendered if rendered > 0 and reference > 0 else 1.0

@@ -229,3 +229,16 @@ def test_moving_wall_bleeds_doppler_shifted_colour_onto_a_static_floor():
         moving = bleeding(beta)
         shift = (moving[2] / moving[0]) / (rest[2] / rest[0])
         assert (shift > 1.0) == (doppler > 1.0) and abs(math.log(shift)) > 0.1
+
+
+def test_normalised_exposure_measures_the_path_traced_image():
+    """Normalize Exposure compares the path-traced view with and without the Doppler changes: a
+    uniform world seen from a camera moving through it at 0.6c comes out as bright as at rest."""
+    sphere = Mesh("sphere", *uv_sphere(radius=1.0, segments=32, rings=16))
+    fast = Velocity((0.0, 0.6, 0.0))
+    camera = look_at_camera((0, -4, 0), (0, 0, 0), fov_half_tan=0.6, velocity=fast)
+    scene = Scene(camera=camera, meshes=[sphere], materials=[lambert(0.5)], world_color=(0.4, 0.4, 0.4))
+    raw = mean_rgb(render_image(scene, path_settings(samples=8)))
+    normalised = mean_rgb(render_image(scene, path_settings(samples=8, normalize_exposure=True)))
+    assert raw[0] > 1.5 * 0.4  # looking ahead: the world and the lit sphere blue-shifted, brighter
+    assert 0.2 < normalised[0] < 0.45
