@@ -10,7 +10,8 @@ from __future__ import annotations
 import bpy
 from bpy.types import Panel
 
-from . import export
+from . import motion_query
+from .core import validation
 from .properties import speed_of
 
 ENGINE = 'RESTFRAME'
@@ -63,7 +64,7 @@ class RESTFRAME_RENDER_PT_relativity(RestframeButtonsPanel, Panel):
         col.prop(rf, "motion_tolerance")
         col.prop(rf, "show_velocity")
         col = layout.column(align=True)
-        seconds = export.observation_time(scene)
+        seconds = motion_query.observation_time(scene)
         col.label(text=f"Frame {scene.frame_current}: t = {seconds:.6g} s, c·t = {rf.light_speed * seconds:.6g}",
                   icon='TIME')
 
@@ -200,7 +201,7 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
             if rf.is_animated:
                 box = layout.box()
                 box.label(text="World line: the keyframed location (own keys, parents static)", icon='ANIM')
-                if not export.has_animated_location(obj):
+                if not motion_query.has_animated_location(obj):
                     box.label(text="The location has no keyframes: the object stays at rest", icon='INFO')
                 if any(rf.angular_velocity):
                     box.label(text="Angular Velocity is ignored with Motion = Animation", icon='ERROR')
@@ -212,8 +213,8 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
         box = layout.box()
         col = box.column(align=True)
         try:
-            export.object_velocity(obj)
-        except export.ExportError as error:
+            validation.check_velocity(rf.velocity, rf.lorentz_factor, obj.name)
+        except ValueError as error:
             col.label(text=str(error).partition(": ")[2], icon='ERROR')
         else:
             beta, gamma, rapidity = speed_of(rf.velocity, rf.lorentz_factor)  # double precision
@@ -227,10 +228,10 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
             return
         if obj.type == 'CAMERA':
             box.label(text="Moving observer: the image forms in the camera's frame", icon='CAMERA_DATA')
-        root = export.assembly_root(obj)
+        root = motion_query.assembly_root(obj)
         if root != obj:
             box.label(text=f"Moves rigidly with its parent '{root.name}' (assembly pivot)", icon='LINKED')
-        if export.has_animated_location(obj):
+        if motion_query.has_animated_location(obj):
             warn = layout.column(align=True)
             warn.alert = True
             warn.label(text="Location is keyframed: the object will jump between frames", icon='ERROR')

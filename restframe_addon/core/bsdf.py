@@ -19,6 +19,10 @@ Conventions, as in Cycles:
   lobe's value over its discrete probability.
 * Transmission follows Cycles: no ``1/eta^2`` radiance compression (it cancels for
   closed bodies, and Cycles leaves it out).
+* Multiscatter GGX (the Principled BSDF's default) as Cycles: the single-scattering lobe
+  times :func:`ggx_energy_compensation`, from a directional-albedo table computed here by
+  quadrature; a dielectric specular layer scales the diffuse lobe under it by
+  ``1 - ggx_dielectric_albedo``.
 """
 
 from __future__ import annotations
@@ -32,7 +36,9 @@ from . import rows
 _MIN_COS = 1e-6  # keeps 1/cos finite for directions grazing the surface
 _TWO_PI = 2.0 * np.pi
 _ALBEDO_KNOTS = 33  # roughness and cos(view) knots of the albedo table (Cycles: 32 x 32)
-_ALBEDO_STRATA = 64  # stratified visible-normal samples per side and knot
+_ALBEDO_STRATA = 64  # Gauss-Legendre nodes in theta_h per knot (twice as many in phi)
+_SPECULAR_KNOTS = 17  # roughness, cos(view) and sqrt(|(ior - 1) / (ior + 1)|) knots (Cycles: 16^3)
+_SPECULAR_STRATA = 32
 
 
 # ---------------------------------------------------------------------------- Fresnel
@@ -230,8 +236,9 @@ def sample_ggx_reflection(n, view, alpha, u1, u2):
     light = reflect(view, h)
     cos_v = np.maximum(rows.dot(n, view), _MIN_COS)
     cos_l = rows.dot(n, light)
-    pdf = ggx_g1(cos_v, alpha) * ggx_ndf(rows.dot(n, h), alpha) / (4.0 * cos_v)
-    weight = np.where(cos_l > 0.0, ggx_g2(cos_v, cos_l, alpha) / ggx_g1(cos_v, alpha), 0.0)
+    masking = 1.0 + ggx_lambda(cos_v, alpha)  # 1 / G1(v)
+    pdf = ggx_ndf(rows.dot(n, h), alpha) / (4.0 * cos_v * masking)
+    weight = np.where(cos_l > 0.0, masking / (masking + ggx_lambda(np.maximum(cos_l, _MIN_COS), alpha)), 0.0)
     return light, pdf, weight
 
 
@@ -336,39 +343,44 @@ def fresnel_average_dielectric(eta):
     return mu_c[..., 0] ** 2 + (1.0 - mu_c[..., 0]) * np.sum(values * mu * w, axis=-1)
 
 
+def _microfacet_quadrature(alpha, mu, strata):
+    """Nodes of the integral over microfacet normals h about n = z, seen from cos_v = mu (in the
+    x-z plane): (v.h, cos_l, cos_h, weight), each broadcast to (mu, s, phi), where weight
+    includes D(h) dOmega_h.  tan(theta_h) = alpha tan(pi s / 2), Gauss-Legendre in s, makes
+    D(h) dOmega_h bounded and smooth, heavy GGX tail included (a midpoint grid of the
+    visible-normal sampler misses that tail)."""
+    x, w_s = np.polynomial.legendre.leggauss(strata)
+    s = 0.5 * (x + 1.0)
+    phi = (np.arange(2 * strata) + 0.5) * (np.pi / strata)  # [0, 2 pi), midpoints
+    t = np.tan(0.5 * np.pi * s)[None, :, None]
+    tan_h = alpha * t
+    cos_h = 1.0 / np.sqrt(1.0 + tan_h * tan_h)
+    sin_h = tan_h * cos_h
+    mu = np.asarray(mu)[:, None, None]
+    v_h = np.sqrt(1.0 - mu * mu) * sin_h * np.cos(phi)[None, None, :] + mu * cos_h
+    cos_l = 2.0 * v_h * cos_h - mu
+    # D(h) sin(theta_h) dtheta_h / ds, simplified, times the Gauss-Legendre and phi weights
+    weight = t / (2.0 * cos_h * (1.0 + t * t)) * (0.5 * w_s)[None, :, None] * (np.pi / strata)
+    return v_h, cos_l, weight
+
+
+def _albedo_integrand(alpha, mu, v_h, cos_l):
+    """(v.h)+ G2(v, l) / cos_v where l is above the surface: the F = 1 albedo per unit D dOmega_h."""
+    g2 = 1.0 / (1.0 + ggx_lambda(mu, alpha) + ggx_lambda(np.maximum(cos_l, _MIN_COS), alpha))
+    return np.where((v_h > 0.0) & (cos_l > 0.0), v_h * g2 / mu, 0.0)
+
+
 @lru_cache(maxsize=1)
 def _albedo_tables():
     """E(roughness, cos_v): the single-scattering albedo of GGX with F = 1 on a knot grid, and
-    E_avg(roughness) = 2 int E mu dmu.
-
-    E = integral over microfacet normals h of (v.h)+ D(h) G2(v, l) / cos_v, l = reflect(v, h)
-    above the surface.  The polar angle of h is integrated in s with tan(theta_h) = alpha
-    tan(pi s / 2) (Gauss-Legendre): it makes D(h) dOmega_h bounded and smooth, heavy GGX tail
-    included (a midpoint grid of the visible-normal sampler misses that tail).
-    """
+    E_avg(roughness) = 2 int E mu dmu."""
     knots = np.linspace(0.0, 1.0, _ALBEDO_KNOTS)
-    mu = np.maximum(knots, 1e-4)[:, None, None]
-    x, w_s = np.polynomial.legendre.leggauss(_ALBEDO_STRATA)
-    s = 0.5 * (x + 1.0)
-    w_s = 0.5 * w_s
-    phi = (np.arange(2 * _ALBEDO_STRATA) + 0.5) * (np.pi / _ALBEDO_STRATA)  # [0, 2 pi), midpoints
-    w_phi = np.pi / _ALBEDO_STRATA
-    t = np.tan(0.5 * np.pi * s)[None, :, None]
-    cos_phi = np.cos(phi)[None, None, :]
-    sin_v = np.sqrt(1.0 - mu * mu)
+    mu = np.maximum(knots, 1e-4)
     albedo = np.empty((len(knots), len(knots)))
     for i, roughness in enumerate(knots):
         alpha = max(roughness * roughness, 1e-4)
-        tan_h = alpha * t
-        cos_h = 1.0 / np.sqrt(1.0 + tan_h * tan_h)
-        sin_h = tan_h * cos_h
-        # D(h) sin(theta_h) dtheta_h / ds, simplified: bounded as s -> 1
-        measure = t / (2.0 * cos_h * (1.0 + t * t))
-        v_h = sin_v * sin_h * cos_phi + mu * cos_h  # view in the x-z plane
-        cos_l = 2.0 * v_h * cos_h - mu
-        g2 = 1.0 / (1.0 + ggx_lambda(mu, alpha) + ggx_lambda(np.maximum(cos_l, _MIN_COS), alpha))
-        integrand = np.where((v_h > 0.0) & (cos_l > 0.0), v_h * g2 / mu, 0.0) * measure
-        albedo[i] = np.einsum("msp,s->m", integrand, w_s) * w_phi
+        v_h, cos_l, weight = _microfacet_quadrature(alpha, mu, _ALBEDO_STRATA)
+        albedo[i] = np.sum(_albedo_integrand(alpha, mu[:, None, None], v_h, cos_l) * weight, axis=(1, 2))
     x, w = np.polynomial.legendre.leggauss(24)
     nodes = 0.5 * (x + 1.0)
     average = np.array([np.sum(np.interp(nodes, knots, row) * nodes * w) for row in albedo])
@@ -391,6 +403,64 @@ def ggx_average_albedo(alpha):
     """Cosine-weighted average albedo E_avg of the single-scattering GGX lobe with F = 1."""
     knots, _, average = _albedo_tables()
     return np.interp(np.sqrt(alpha), knots, average)
+
+
+def fresnel_average_principled_dielectric(eta, f0, f90):
+    """The hemispherical average of :func:`fresnel_principled_dielectric` (as Cycles: the real
+    curve's average remapped like the curve itself)."""
+    real_f0 = dielectric_f0(eta)
+    s = np.clip((fresnel_average_dielectric(eta) - real_f0) / np.maximum(1.0 - real_f0, 1e-300), 0.0, 1.0)
+    return rows.scale(f0, 1.0 - s) + (f90 * s)[:, None]
+
+
+@lru_cache(maxsize=1)
+def _dielectric_albedo_table():
+    """s(roughness, cos_v, z): over the reflected light of a GGX lobe seen from cos_v, the average
+    of the Principled Fresnel's interpolation weight (F_real - F0_real) / (1 - F0_real), for
+    light arriving from outside a dielectric of ior = (1 + z^2) / (1 - z^2)."""
+    knots = np.linspace(0.0, 1.0, _SPECULAR_KNOTS)
+    mu = np.maximum(knots, 1e-4)
+    z = np.minimum(knots, 0.99)[:, None, None, None]
+    eta = (1.0 - z * z) / (1.0 + z * z)  # n_outside / n_inside
+    real_f0 = dielectric_f0(eta)
+    table = np.empty((len(knots), len(knots), len(knots)))
+    for i, roughness in enumerate(knots):
+        alpha = max(roughness * roughness, 1e-4)
+        v_h, cos_l, weight = _microfacet_quadrature(alpha, mu, _SPECULAR_STRATA)
+        albedo = _albedo_integrand(alpha, mu[:, None, None], v_h, cos_l) * weight
+        shape = np.clip((fresnel_dielectric(v_h[None], eta) - real_f0) / (1.0 - real_f0), 0.0, 1.0)
+        table[i] = (np.sum(shape * albedo[None], axis=(2, 3)) / np.sum(albedo, axis=(1, 2))[None, :]).T
+    return knots, table
+
+
+def _trilinear(table, knots, a, b, c):
+    """Trilinear interpolation of table[i, j, k] on the same knots along each axis, at (a, b, c) in [0, 1]."""
+    last = len(knots) - 1
+    out = 0.0
+    corners = []
+    for x in (a, b, c):
+        x = np.clip(x, 0.0, 1.0) * last
+        x0 = np.minimum(np.floor(x).astype(np.int64), last - 1)
+        corners.append((x0, x - x0))
+    (i, fi), (j, fj), (k, fk) = corners
+    for di, wi in ((0, 1.0 - fi), (1, fi)):
+        for dj, wj in ((0, 1.0 - fj), (1, fj)):
+            for dk, wk in ((0, 1.0 - fk), (1, fk)):
+                out = out + wi * wj * wk * table[i + di, j + dj, k + dk]
+    return out
+
+
+def ggx_dielectric_albedo(cos_v, alpha, eta, f0, f90):
+    """Directional albedo (n, C) of an energy-compensated GGX lobe with the Principled dielectric
+    Fresnel (``fresnel_principled_dielectric`` from f0 (n, C) to f90 (n,)), as Cycles estimates it
+    to layer the lobe over the diffuse one (which it scales by 1 - albedo): f0 + (f90 - f0) s,
+    s from a table.  For light from outside (eta = n_view / n_other < 1); eta > 1 is read as
+    its reciprocal."""
+    knots, table = _dielectric_albedo_table()
+    ior = np.where(eta < 1.0, 1.0 / eta, eta)
+    z = np.sqrt(np.abs((ior - 1.0) / (ior + 1.0)))
+    s = _trilinear(table, knots, np.sqrt(alpha), cos_v, z)
+    return rows.scale(f0, 1.0 - s) + (f90 * s)[:, None]
 
 
 def ggx_energy_compensation(cos_v, alpha, fresnel_average):

@@ -17,7 +17,7 @@ offset, each valid only between two of the body's simultaneity slices (a
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 
 import numpy as np
@@ -531,7 +531,8 @@ def _add_segments(frames, meshes, scene: Scene, settings: MotionSettings, warnin
     geometry = _geometry(parts, should_stop)
     if geometry is None:  # cancelled
         return
-    trajectory.body_radius = max(trajectory.body_radius, geometry.radius)
+    if geometry.radius > trajectory.body_radius:  # built for a smaller body: round the corners for this one
+        trajectory = replace(trajectory, body_radius=geometry.radius, warnings=[])
     warnings.extend(trajectory.warnings)
     segments = motion.segment_world_line(trajectory, trajectory.tau[0], trajectory.tau[-1], settings.tolerance)
     name = meshes[0].name

@@ -32,6 +32,7 @@ from .bsdf import sample_diffuse
 
 LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709, Blender's scene-linear default
 INTERPOLATIONS = ("Linear", "Closest")
+_IDENTITY = np.eye(3)
 _FOUR_PI = 4.0 * np.pi
 
 
@@ -83,23 +84,33 @@ def _polar(z, phi):
 
 def image_lookup(image, u, v, interpolation: str = "Linear"):
     """Colours (n, C) of an (H, W, C) image at (u, v), repeating in both directions as Cycles'
-    environment lookups: bilinear between pixel centres, or the nearest pixel (Closest)."""
-    h, w = image.shape[:2]
+    environment lookups: bilinear between pixel centres, or the nearest pixel (Closest).
+    Gathers and blends one channel at a time (flat indices; see :mod:`.rows`)."""
+    h, w, channels = image.shape
+    out = np.empty((len(u), channels), dtype=np.result_type(image, np.float64))
     if interpolation == "Closest":
-        x = np.floor(u * w).astype(np.int64) % w
-        y = np.floor(v * h).astype(np.int64) % h
-        return image[y, x]
+        index = (np.floor(v * h).astype(np.int64) % h) * w + np.floor(u * w).astype(np.int64) % w
+        for c in range(channels):
+            out[:, c] = image[..., c].ravel()[index]
+        return out
     x = u * w - 0.5
     y = v * h - 0.5
-    x0 = np.floor(x).astype(np.int64)
-    y0 = np.floor(y).astype(np.int64)
-    fx = (x - x0)[:, None]
-    fy = (y - y0)[:, None]
-    x0, x1 = x0 % w, (x0 + 1) % w
-    y0, y1 = y0 % h, (y0 + 1) % h
-    top = image[y1, x0] * (1 - fx) + image[y1, x1] * fx
-    bottom = image[y0, x0] * (1 - fx) + image[y0, x1] * fx
-    return bottom * (1 - fy) + top * fy
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx, fy = x - x0, y - y0
+    x0 = x0.astype(np.int64) % w
+    y0 = y0.astype(np.int64) % h
+    x1 = (x0 + 1) % w
+    row0, row1 = y0 * w, ((y0 + 1) % h) * w
+    corners = (row0 + x0, row0 + x1, row1 + x0, row1 + x1)
+    weights = ((1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy)
+    for c in range(channels):
+        plane = image[..., c].ravel()
+        total = weights[0] * plane[corners[0]]
+        for corner, weight in zip(corners[1:], weights[1:]):
+            total += weight * plane[corner]
+        out[:, c] = total
+    return out
 
 
 # ---------------------------------------------------------------------------- worlds
@@ -146,12 +157,13 @@ class EnvironmentWorld:
         if interpolation not in INTERPOLATIONS:
             raise ValueError(f"{name}: environment interpolation {interpolation!r} is not supported "
                              f"(use one of {', '.join(INTERPOLATIONS)})")
-        mapping = np.eye(3) if mapping is None else np.asarray(mapping, dtype=np.float64)
+        mapping = _IDENTITY if mapping is None else np.asarray(mapping, dtype=np.float64)
         if mapping.shape != (3, 3) or not np.allclose(mapping @ mapping.T, np.eye(3), atol=1e-9) \
                 or np.linalg.det(mapping) < 0.0:
             raise ValueError(f"{name}: the environment mapping must be a rotation (no scale, shear or mirror)")
         self.image = np.maximum(image[..., :3], 0.0) * float(strength)
         self.mapping = mapping
+        self._unmapping = mapping if mapping is _IDENTITY else mapping.T  # texture -> world directions
         self.interpolation = interpolation
         h, w = self.image.shape[:2]
         luminance = self.image @ LUMINANCE_RGB
@@ -192,7 +204,7 @@ class EnvironmentWorld:
 
     def radiance(self, d):
         """Radiance (n, 3) arriving from backward world directions d."""
-        u, v = direction_to_equirectangular(d @ self.mapping.T)
+        u, v = direction_to_equirectangular(_rotate(self.mapping, d))
         return image_lookup(self.image, u, v, self.interpolation)
 
     def _cell(self, t):
@@ -204,7 +216,7 @@ class EnvironmentWorld:
 
     def pdf(self, d):
         """Density per unit solid angle of world directions d under :meth:`sample`."""
-        row, column = self._cell(d @ self.mapping.T)
+        row, column = self._cell(_rotate(self.mapping, d))
         return self._cell_pdf[row, column]
 
     def sample(self, u1, u2):
@@ -218,13 +230,37 @@ class EnvironmentWorld:
         row = np.minimum(np.searchsorted(self._row_cdf, u1, side="right"), rows_count - 1)
         row_start = np.where(row > 0, self._row_cdf[np.maximum(row - 1, 0)], 0.0)
         along_z = np.clip((u1 - row_start) / self._row_probability[row], 0.0, 1.0)
-        flat = np.searchsorted(self._column_cdf, row + u2, side="right")
-        column = np.clip(flat - row * w, 0, w - 1)
+        column = np.minimum(_search_within_rows(self._column_cdf, row, w, row + u2), w - 1)
         along_phi = np.clip((u2 - self._column_start[row, column]) / self._column_probability[row, column], 0.0, 1.0)
         z = self._z_edges[row] + along_z * (self._z_edges[row + 1] - self._z_edges[row])
         u = self._u_offset + (column + along_phi) / w
         t = _polar(z, np.pi * (1.0 - 2.0 * u))
-        return t @ self.mapping, self._cell_pdf[row, column]
+        return _rotate(self._unmapping, t), self._cell_pdf[row, column]
+
+
+def _rotate(matrix, d):
+    """Rows ``matrix @ d_i``, column by column (an (n, 3) @ (3, 3) product is slow in numpy)."""
+    if matrix is _IDENTITY:
+        return d
+    out = np.empty((len(d), 3))
+    for i in range(3):
+        out[:, i] = d[:, 0] * matrix[i, 0] + d[:, 1] * matrix[i, 1] + d[:, 2] * matrix[i, 2]
+    return out
+
+
+def _search_within_rows(table, row, width, key):
+    """Per key, the first column of its row of ``table`` (rows of ``width`` sorted entries, flat)
+    whose entry exceeds the key: a binary search vectorised over keys.  numpy's searchsorted
+    over the whole flat table costs a cache miss per step on large images (10x slower)."""
+    lo = row * width
+    hi = lo + width
+    for _ in range(int(np.ceil(np.log2(width + 1)))):
+        active = lo < hi
+        mid = (lo + hi) >> 1
+        right = table[np.minimum(mid, len(table) - 1)] <= key
+        lo = np.where(active & right, mid + 1, lo)
+        hi = np.where(active & ~right, mid, hi)
+    return lo - row * width
 
 
 # ---------------------------------------------------------------------------- moving receivers
