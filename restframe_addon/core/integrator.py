@@ -29,11 +29,10 @@ from __future__ import annotations
 import numpy as np
 
 from . import mis, rows, sampling
-from .bsdf import (diffuse_pdf, fresnel_dielectric, fresnel_schlick, ggx_reflection_pdf, reflect, refract,
-                   sample_diffuse, sample_ggx_reflection)
+from .bsdf import diffuse_pdf, ggx_reflection_pdf, reflect, refract, sample_diffuse, sample_ggx_reflection
 from .passes import hit_doppler, hit_times
 from .scene import RenderSettings, Scene
-from .shading import Shader
+from .shading import LayeredLobes, Shader
 from .tracer import Hits, TraceCache, frames_hit, occluded, trace_nearest
 from .world import EnvironmentWorld, UniformWorld, mapping_rotation
 
@@ -294,37 +293,19 @@ class _Paths:
                         for name in _Paths.__slots__))
 
 
-class _Lobes:
-    """The lobes of the surfaces at some vertices (their rest frame), with the weights that
-    choose among them: diffuse, GGX (rough surfaces with a specular lobe), mirror (smooth
-    surfaces: Fresnel for dielectrics, the base colour for metals) and refraction (glass).
-    The same lobes as the Direct Light integrator's shading."""
+class _Lobes(LayeredLobes):
+    """The surfaces' lobes at some vertices with the weights that choose among them: diffuse,
+    rough specular (multiscatter GGX), mirror and refraction (:class:`~.shading.LayeredLobes`)."""
 
     def __init__(self, mats, base, mat, ns, view, back):
-        self.ns, self.view, self.base, self.mat = ns, view, base, mat
-        n = len(mat)
-        metallic = mats.metallic[mat]
-        cos_v = np.clip(rows.dot(ns, view), 0.0, 1.0)
-        self.diffuse = rows.scale(base, mats.diffuse_weight[mat] * np.pi)  # albedo of the diffuse lobe
-        self.glossy = mats.glossy[mat]
-        self.alpha = mats.alpha[mat]
-        self.f0 = rows.scale(base, metallic) + mats.f0_dielectric[mat][:, None]
-        self.f90 = mats.f90[mat]
-        # the delta lobes, as the Direct Light integrator traces them
-        self.eta = np.where(back, mats.ior[mat], 1.0 / mats.ior[mat])
-        fresnel = np.minimum(fresnel_dielectric(cos_v, self.eta) * mats.specular_scale[mat], 1.0)
-        mirror = mats.mirror[mat]
-        self.reflect_weight = rows.scale(fresnel[:, None] * (1.0 - metallic[:, None]) + rows.scale(base, metallic),
-                                         mirror.astype(np.float64))
-        self.transmit_weight = np.broadcast_to(((1.0 - fresnel) * mats.transmission[mat] * (1.0 - metallic))[:, None],
-                                               base.shape)
-        glossy_albedo = np.where(self.glossy[:, None], fresnel_schlick(cos_v, self.f0, self.f90), 0.0)
-        weights = np.stack([self.diffuse.mean(axis=1), glossy_albedo.mean(axis=1),
+        super().__init__(mats, base, mat, ns, view, back)
+        glossy_albedo = np.where(self.glossy[:, None], self.fresnel(self.cos_v), 0.0)
+        weights = np.stack([(self.diffuse * np.pi).mean(axis=1), glossy_albedo.mean(axis=1),
                             self.reflect_weight.mean(axis=1), self.transmit_weight.mean(axis=1)], axis=1)
         weights = np.maximum(weights, 0.0)
         total = weights.sum(axis=1)
         self.probability = np.where(total[:, None] > 0.0, weights / np.where(total > 0.0, total, 1.0)[:, None], 0.0)
-        self.any_smooth = bool(np.any(self.probability[:, _DIFFUSE] + self.probability[:, _GLOSSY] > 0.0)) and n > 0
+        self.any_smooth = bool(np.any(self.probability[:, _DIFFUSE] + self.probability[:, _GLOSSY] > 0.0))
 
     def pdf(self, index, ns, view, light):
         """Density per unit solid angle with which :meth:`sample` draws ``light`` at vertices
@@ -355,12 +336,12 @@ class _Lobes:
         sel = np.flatnonzero(lobe == _DIFFUSE)
         if len(sel):
             light[sel], _ = sample_diffuse(ns[sel], u1[sel], u2[sel])
-            weight[sel] = rows.scale(self.diffuse[sel], scale[sel])
+            weight[sel] = rows.scale(self.diffuse[sel], np.pi * scale[sel])  # f cos / pdf = f pi
         sel = np.flatnonzero(lobe == _GLOSSY)
         if len(sel):
             light[sel], _, g = sample_ggx_reflection(ns[sel], view[sel], self.alpha[sel], u1[sel], u2[sel])
             h = rows.normalized(view[sel] + light[sel])
-            fresnel = fresnel_schlick(rows.dot(view[sel], h), self.f0[sel], self.f90[sel])
+            fresnel = self.take(sel).fresnel(rows.dot(view[sel], h))
             weight[sel] = rows.scale(fresnel, g * scale[sel])
         sel = np.flatnonzero(lobe == _MIRROR)
         if len(sel):
@@ -368,7 +349,7 @@ class _Lobes:
             weight[sel] = rows.scale(self.reflect_weight[sel], scale[sel])
         sel = np.flatnonzero(lobe == _TRANSMIT)
         if len(sel):
-            light[sel], ok = refract(view[sel], ns[sel], self.eta[sel])
+            light[sel], ok = refract(view[sel], ns[sel], self.refraction_eta[sel])
             weight[sel] = rows.scale(self.transmit_weight[sel], np.where(ok, scale[sel], 0.0))
         smooth = np.flatnonzero((lobe == _DIFFUSE) | (lobe == _GLOSSY))
         if len(smooth):

@@ -136,7 +136,8 @@ def _build(scene: Scene, settings: RenderSettings, should_stop: Callable[[], boo
         colour = SpectralColour(materials, lights, scene.world_color, settings.spectral_samples)
     else:
         colour = RGBColour(materials, lights, scene.world_color)
-    shader = Shader(frames, materials, lights, colour, settings.max_bounces, settings.searchlight)
+    shader = Shader(frames, materials, lights, colour, settings.max_bounces, settings.searchlight,
+                    layered=settings.integrator == "PATH")
     path_tracer = None
     if settings.integrator == "PATH":
         try:
@@ -188,7 +189,7 @@ def _measure_exposure(prepared: PreparedScene, should_stop) -> float:
     pixel = np.arange(len(px), dtype=np.int64)
     materials, lights = prepared.materials, prepared.lights
     plain = Shader(prepared.frames, materials, lights, RGBColour(materials, lights, prepared.scene.world_color),
-                   prepared.settings.max_bounces, searchlight=False)
+                   prepared.settings.max_bounces, searchlight=False, layered=prepared.shader.layered)
     tracers = (prepared.shader, plain)
     if prepared.path_tracer is not None:  # the same integrator, with and without the Doppler changes
         tracers = (prepared.path_tracer, PathTracer(plain, prepared.path_tracer.world, prepared.settings))

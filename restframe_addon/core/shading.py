@@ -25,7 +25,8 @@ from types import MappingProxyType
 import numpy as np
 
 from . import rows, sampling, spectral
-from .bsdf import dielectric_f0, fresnel_dielectric, ggx_reflection
+from .bsdf import (dielectric_f0, fresnel_average_f82_tint, fresnel_average_principled_dielectric, fresnel_dielectric,
+                   fresnel_f82_tint, ggx_dielectric_albedo, ggx_energy_compensation, ggx_g2, ggx_ndf, ggx_reflection)
 from .frames import FrameSet, shift_into_frame
 from .passes import facing_normals, hit_doppler, hit_times
 from .scene import Light, Material, Scene
@@ -71,6 +72,10 @@ class MaterialTable:
         self.f0_dielectric = np.minimum(dielectric_f0(self.ior) * self.specular_scale, 1.0) * (1.0 - self.metallic)
         self.f90 = np.minimum(self.specular_scale, 1.0) * (1.0 - self.metallic) + self.metallic
         self.alpha = np.maximum(self.roughness**2, _MIN_ALPHA)
+        # the Principled BSDF as Cycles adjusts it: Specular IOR Level scales F0, which sets the IOR
+        f0_adjusted = np.minimum(dielectric_f0(self.ior) * self.specular_scale, 1.0 - 1e-9)
+        self.f0_adjusted = f0_adjusted
+        self.ior_adjusted = (1.0 + np.sqrt(f0_adjusted)) / (1.0 - np.sqrt(f0_adjusted))
         # rough surfaces with a specular lobe get GGX highlights (Specular IOR Level 0, not metallic: none)
         self.glossy = ~self.mirror & ((self.f90 > 0.0) | (self.f0_dielectric > 0.0) | (self.metallic > 0.0))
 
@@ -136,11 +141,89 @@ def prepare_lights(scene: Scene, frames: FrameSet) -> list[PreparedLight]:
     return prepared
 
 
+class LayeredLobes:
+    """The Principled BSDF's lobes at some surface points, layered as Cycles does (the Path
+    Tracing integrator's BSDF; Direct Light keeps :meth:`Shader.brdf`'s plain sum).
+
+    Metallic m mixes a metal (F82-Tint Fresnel from the base colour) with a dielectric whose
+    specular layer (real Fresnel of the IOR as Specular IOR Level adjusts it) lies over glass
+    (Transmission) or over the diffuse base, which it dims by its directional albedo; rough
+    specular lobes are multiscatter GGX (energy-compensated), smooth ones (roughness below
+    ``MIRROR_ROUGHNESS``) delta reflections.  All in the surfaces' rest frame; ``view`` toward
+    the viewer, ``back``: the back of a transmissive surface was hit (light inside it).
+    """
+
+    def __init__(self, mats: MaterialTable, base, mat, ns, view, back=None):
+        self.ns, self.view, self.base, self.mat = ns, view, base, mat
+        n, channels = base.shape
+        self.metallic = mats.metallic[mat]
+        self.alpha = mats.alpha[mat]
+        self.glossy = mats.glossy[mat]
+        self.mirror = mats.mirror[mat]
+        ior = mats.ior_adjusted[mat]
+        self.eta = 1.0 / ior  # n_outside / n_inside
+        cos_v = np.clip(rows.dot(ns, view), 1e-6, 1.0)
+        self.cos_v = cos_v
+        f0 = np.broadcast_to(mats.f0_adjusted[mat][:, None], (n, channels))
+        ones = np.ones(n)
+        white = np.ones((n, channels))
+        dielectric_albedo = ggx_dielectric_albedo(cos_v, self.alpha, ior, f0, ones)
+        self.diffuse = rows.scale(base, mats.diffuse_weight[mat]) * (1.0 - dielectric_albedo)  # f, not albedo
+        self.compensation_dielectric = ggx_energy_compensation(
+            cos_v, self.alpha, fresnel_average_principled_dielectric(ior, f0, ones))
+        self.compensation_metal = ggx_energy_compensation(cos_v, self.alpha, fresnel_average_f82_tint(base, white))
+        self.white = white
+        # the delta lobes
+        reflectance = self.fresnel(cos_v, compensated=False)
+        self.reflect_weight = rows.scale(reflectance, self.mirror.astype(np.float64))
+        inside = back if back is not None else np.zeros(n, dtype=bool)
+        self.refraction_eta = np.where(inside, ior, self.eta)
+        transmission = mats.transmission[mat] * (1.0 - self.metallic)
+        through = (1.0 - fresnel_dielectric(cos_v, self.refraction_eta)) * transmission
+        self.transmit_weight = np.broadcast_to(through[:, None], (n, channels))
+
+    def fresnel(self, cos_h, compensated: bool = True):
+        """The specular reflectance (n, C) at microfacet angle cos_h: dielectric and metal mixed by Metallic."""
+        dielectric = fresnel_dielectric(cos_h, self.eta) * (1.0 - self.metallic)
+        metal = rows.scale(fresnel_f82_tint(cos_h, self.base, self.white), self.metallic)
+        if compensated:
+            return self.compensation_dielectric * dielectric[:, None] + self.compensation_metal * metal
+        return metal + dielectric[:, None]
+
+    def value(self, light):
+        """f (n, C), without the cosine: the diffuse and the rough specular lobes."""
+        value = self.diffuse.copy()
+        r = np.flatnonzero(self.glossy)
+        if len(r):
+            ns, view, light_r = self.ns[r], self.view[r], light[r]
+            h = rows.normalized(view + light_r)
+            cos_l = rows.dot(ns, light_r)
+            cos_v = rows.dot(ns, view)
+            above = (cos_v > 0.0) & (cos_l > 0.0)
+            cos_l = np.clip(cos_l, 1e-6, 1.0)
+            alpha = self.alpha[r]
+            single = ggx_ndf(rows.dot(ns, h), alpha) * ggx_g2(self.cos_v[r], cos_l, alpha) / (4.0 * self.cos_v[r] * cos_l)
+            value[r] += rows.scale(self.take(r).fresnel(rows.dot(view, h)), np.where(above, single, 0.0))
+        return value
+
+    def take(self, index) -> "LayeredLobes":
+        """The lobes of some of the points (an index array)."""
+        part = object.__new__(LayeredLobes)
+        for name, value in vars(self).items():
+            setattr(part, name, value[index] if isinstance(value, np.ndarray) else value)
+        return part
+
+
 class Shader:
-    """Traces and shades backward rays for one prepared scene (thread-safe: read-only state)."""
+    """Traces and shades backward rays for one prepared scene (thread-safe: read-only state).
+
+    ``layered``: evaluate surfaces with :class:`LayeredLobes` (Path Tracing) instead of the
+    direct-light integrator's plain sum of lobes.
+    """
 
     def __init__(self, frames: FrameSet, materials: MaterialTable, lights: list[PreparedLight],
-                 colour, max_bounces: int, searchlight: bool):
+                 colour, max_bounces: int, searchlight: bool, layered: bool = False):
+        self.layered = layered
         self.frames = frames
         self.materials = materials
         self.lights = tuple(lights)
@@ -234,9 +317,12 @@ class Shader:
     # ------------------------------------------------------------------ direct light
     def brdf(self, ns, view, light, base, mat):
         """The surfaces' non-delta BSDF f (n, C) (without the cosine), in their rest frame: the
-        diffuse lobe and, on rough surfaces with a specular lobe, GGX highlights.  Mirror
+        diffuse lobe and, on rough surfaces with a specular lobe, GGX highlights (``layered``: as
+        :class:`LayeredLobes`).  Mirror
         reflection and refraction are delta lobes, traced instead (DIRECT: ``_secondary``)."""
         mats = self.materials
+        if self.layered:
+            return LayeredLobes(mats, base, mat, ns, view).value(light)
         value = rows.scale(base, mats.diffuse_weight[mat])
         rough = mats.glossy[mat]
         r = np.flatnonzero(rough)

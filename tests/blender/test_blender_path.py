@@ -5,11 +5,11 @@ Images are compared by region means (8 x 8 pixel blocks), so that a few hundred 
 pixel are enough on two cores; RESTframe's error against Cycles must stay within twice the
 difference between two Cycles renders with different seeds.  Both use box pixels.
 
-Documented shading differences kept out of these scenes: the materials are diffuse (Specular
-IOR Level 0), since RESTframe adds its rough specular lobe on top of the diffuse one where
-Cycles' Principled BSDF layers the diffuse under it (less diffuse light by the specular
-albedo); and soft point lamps stay several radii from every surface, since RESTframe lights
-from a disc facing the surface where Cycles has a sphere (2-3 % brighter at 2 radii).
+Path Tracing shades with Cycles' layered Principled BSDF (``core.shading.LayeredLobes``).
+Documented differences kept out of the strict comparisons: soft point lamps light from a disc
+facing the surface where Cycles has a sphere (2-3 % brighter at 2 radii from a surface, so the
+Cornell lamp stays several radii away; about 1 % on the lamp-lit glossy cube), hence the
+strict scenes are diffuse (Specular IOR Level 0) and the default material is checked to 1.5 %.
 """
 
 from __future__ import annotations
@@ -154,6 +154,18 @@ def test_default_scene_matches_cycles(addon, tmp_path, bounces):
     print(f"default scene, {bounces} bounces: RESTframe-Cycles {ours:.3g}, Cycles seeds {seeds:.3g}, "
           f"mean {reference.mean():.3g}")
     assert ours <= 2.0 * seeds
+
+
+def test_default_scene_with_its_principled_material_is_near_cycles(addon, tmp_path):
+    """The startup cube's own Principled BSDF (Specular IOR Level 0.5, roughness 0.5): RESTframe's
+    Path Tracing layers it as Cycles does (specular over diffuse, multiscatter GGX).  The faces
+    under the world alone agree to 0.3 %; the lamp-lit ones are up to 1.2 % darker (the soft
+    point lamp's model, see the module docstring; measured 0.6 .. 1.2 %)."""
+    scene = default_scene()
+    images = render_pair(scene, tmp_path, samples=128, bounces=4, seeds=(1,))
+    ours, reference = regions(images["restframe"]), regions(images["cycles1"])
+    lit = reference > 0.01
+    assert np.max(np.abs(ours[lit] / reference[lit] - 1.0)) < 0.015
 
 
 def cornell_box():

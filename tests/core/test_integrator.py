@@ -125,19 +125,19 @@ def dataclass_replace(scene, **changes):
 
 
 # ---------------------------------------------------------------------------- against the direct light
-def lamp_floor(world=(0.0, 0.0, 0.0)):
+def lamp_floor(world=(0.0, 0.0, 0.0), material=Material("grey", roughness=0.4)):
     camera = look_at_camera((0, -3, 2), (0, 0, 0), fov_half_tan=0.5)
     floor = Mesh("floor", *quad((0, 0, 0), (6, 6)))
     block = Mesh("block", *box(center=(0.5, 0.5, 0.5)))
     lamp = Light("lamp", "POINT", (1.0, -1.0, 3.0), power=500.0, radius=0.2)
-    return Scene(camera=camera, meshes=[floor, block], materials=[Material("grey", roughness=0.4)], lights=[lamp],
-                 world_color=world)
+    return Scene(camera=camera, meshes=[floor, block], materials=[material], lights=[lamp], world_color=world)
 
 
 def test_one_scattering_without_world_is_the_direct_light():
-    """Total 0, a black world and no emitters: the path tracer's light is the Direct Light
-    integrator's, sample for sample (the same next-event code and random numbers)."""
-    scene = lamp_floor()
+    """Total 0, a black world and no emitters: on diffuse surfaces (where the layered Principled
+    BSDF of Path Tracing is the plain one of Direct Light) the path tracer's light is the Direct
+    Light integrator's, sample for sample (the same next-event code and random numbers)."""
+    scene = lamp_floor(material=lambert(0.6))
     direct = render_image(scene, RenderSettings(resolution=(12, 12), samples=4, threads=1))
     path = render_image(scene, path_settings(res=(12, 12), samples=4, max_bounces=0))
     np.testing.assert_array_equal(path["Combined"], direct["Combined"])
@@ -242,3 +242,20 @@ def test_normalised_exposure_measures_the_path_traced_image():
     normalised = mean_rgb(render_image(scene, path_settings(samples=8, normalize_exposure=True)))
     assert raw[0] > 1.5 * 0.4  # looking ahead: the world and the lit sphere blue-shifted, brighter
     assert 0.2 < normalised[0] < 0.45
+
+
+@pytest.mark.parametrize("material", [
+    Material("white metal", base_color=(1.0, 1.0, 1.0), metallic=1.0, roughness=0.6),
+    Material("white plastic", base_color=(1.0, 1.0, 1.0), roughness=0.5),
+    Material("white mirror", base_color=(1.0, 1.0, 1.0), metallic=1.0, roughness=0.0),
+], ids=["metal", "plastic", "mirror"])
+def test_principled_white_furnace(material):
+    """The Path Tracing BSDF is Cycles' layered, energy-compensated Principled BSDF: a white sphere
+    of it (rough white metal, white plastic whose diffuse base the specular layer dims by its
+    albedo, a white mirror) in a uniform world sends the world's radiance back (within the
+    albedo tables' interpolation)."""
+    camera = look_at_camera((0, -4, 0), (0, 0, 0), fov_half_tan=0.2)
+    sphere = Mesh("sphere", *uv_sphere(radius=1.0, segments=48, rings=24))
+    scene = Scene(camera=camera, meshes=[sphere], materials=[material], world_color=(0.5, 0.5, 0.5))
+    value = mean_rgb(render_image(scene, path_settings(res=(8, 8), samples=256, max_bounces=8, glossy_bounces=8)))
+    assert value == pytest.approx(np.full(3, 0.5), rel=0.02)
