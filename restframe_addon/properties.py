@@ -305,9 +305,30 @@ class RestframeSceneSettings(PropertyGroup):
         del bpy.types.Scene.restframe
 
 
+class RestframeViewLayerSettings(PropertyGroup):
+    """Per view layer render data (``ViewLayer.restframe``)."""
+
+    denoising_store_passes: BoolProperty(
+        name="Denoising Data",
+        description="Store the Denoising Albedo and Denoising Normal passes (sample averages of the "
+        "first surface seen), for the compositor's Denoise node as with Cycles",
+        default=False,
+    )
+
+    @classmethod
+    def register(cls):
+        bpy.types.ViewLayer.restframe = PointerProperty(
+            name="RESTframe", description="RESTframe view layer settings", type=cls)
+
+    @classmethod
+    def unregister(cls):
+        del bpy.types.ViewLayer.restframe
+
+
 classes = (
     RestframeObjectSettings,
     RestframeSceneSettings,
+    RestframeViewLayerSettings,
 )
 
 

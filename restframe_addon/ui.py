@@ -177,6 +177,8 @@ class RESTFRAME_VIEWLAYER_PT_passes(RestframeButtonsPanel, Panel):
         col.prop(view_layer, "use_pass_z")
         col.prop(view_layer, "use_pass_normal")
         col.prop(view_layer, "use_pass_object_index")
+        col = layout.column(heading="Denoising", align=True)
+        col.prop(view_layer.restframe, "denoising_store_passes", text="Denoising Data")
         col = layout.column(align=True)
         col.label(text="Doppler, Emission Time and Object Time are always rendered", icon='INFO')
 

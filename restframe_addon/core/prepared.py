@@ -22,7 +22,7 @@ from .camera import CameraRays
 from .colour import RGBColour, SpectralColour
 from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
 from .integrator import PathTracer, scene_world
-from .passes import EXTRA_PASSES, ray_doppler
+from .passes import DEFAULT_PASSES, EXTRA_PASSES, ray_doppler
 from .scene import RenderSettings, Scene
 from .shading import MaterialTable, PreparedLight, Shader, prepare_lights
 from .tracer import TraceCache, trace_nearest
@@ -153,7 +153,7 @@ def _build(scene: Scene, settings: RenderSettings, should_stop: Callable[[], boo
         shader=shader, path_tracer=path_tracer,
         camera_tau=float(tau),
         camera_rays=CameraRays(scene.camera, settings.resolution, shift_into_frame(camera_boost, position)),
-        passes=tuple(EXTRA_PASSES) if settings.passes is None else tuple(settings.passes),
+        passes=tuple(DEFAULT_PASSES) if settings.passes is None else tuple(settings.passes),
         doppler_range=settings.doppler_range, exposure=1.0)
 
 

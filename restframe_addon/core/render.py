@@ -21,7 +21,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from . import blas, sampling
-from .passes import ALL_PASSES, EXTRA_PASSES, PASSES, pixel_passes, ray_doppler  # noqa: F401 (PASSES: public name)
+from .passes import ALL_PASSES, DENOISING_PASSES, EXTRA_PASSES, PASSES, pixel_passes, ray_doppler  # noqa: F401 (PASSES: public name)
 from .prepared import PreparedScene, prepare
 from .scene import RenderSettings, Scene
 from .tracer import TraceCache, trace_nearest
@@ -62,6 +62,7 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     samples = max(int(settings.samples), 1)
     rgb = np.zeros((n, 3))
     coverage = np.zeros(n)
+    denoising = {name: np.zeros((n, 3)) for name in DENOISING_PASSES if name in prepared.passes}
     complete = True
     for index, (part, first, count) in enumerate(_batches(n, samples, prepared.colour.channels)):
         if index and should_stop():  # Esc between sample batches of a long tile
@@ -78,11 +79,17 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
             hits = trace_nearest(frames, frames.camera, *rays, cache=cache)
         color, hit = _sample(prepared, rays, hits, pix, smp, cache)
         rgb[part] += color.reshape(m, count, 3).sum(axis=1)
+        if denoising:
+            for name, values in prepared.shader.denoising_data(hits).items():
+                if name in denoising:
+                    denoising[name][part] += values.reshape(m, count, 3).sum(axis=1)
         coverage[part] += hit.reshape(m, count).sum(axis=1)
     rgb *= prepared.exposure / samples
     coverage /= samples
     alpha = coverage if settings.film_transparent else np.ones(n)
     passes["Combined"] = np.concatenate([rgb, alpha[:, None]], axis=1)
+    for name, total in denoising.items():
+        passes[name] = total / samples
     return Tile(x0, y0, x1, y1, {k: v.reshape(h, w, -1).astype(np.float32) for k, v in passes.items()}, complete)
 
 

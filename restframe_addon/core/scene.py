@@ -201,4 +201,4 @@ class RenderSettings:
     threads: int = 0  # 0 = all cores
     doppler_range: tuple[float, float] | None = None  # FACTOR display: None = the frame's own range
     doppler_levels: int = 0  # FACTOR display: quantise to N grey levels (0 = continuous)
-    passes: tuple[str, ...] | None = None  # passes to fill besides Combined (passes.EXTRA_PASSES names); None = all
+    passes: tuple[str, ...] | None = None  # passes to fill besides Combined (passes.EXTRA_PASSES names); None = passes.DEFAULT_PASSES

@@ -249,6 +249,29 @@ class Shader:
             return np.ones_like(doppler)
         return doppler ** (exponent + self.colour.extra_power)
 
+    # ------------------------------------------------------------------ denoising data
+    def denoising_data(self, hits):
+        """Cycles' denoising passes of camera rays: the first surface's albedo (RGB, diffuse plus
+        specular reflectance plus transmission as its BSDF weighs them, at most 1) and its
+        shading normal (the surface's frame, as the Normal pass); 0 where nothing is hit."""
+        n = len(hits.frame)
+        albedo, normal = np.zeros((n, 3)), np.zeros((n, 3))
+        for k in frames_hit(hits):
+            sel = np.flatnonzero(hits.frame == k)
+            frame = self.frames.frames[int(k)]
+            prim, u, v, d_k = hits.prim[sel], hits.u[sel], hits.v[sel], hits.d_frame[sel]
+            _, _, ns, mat, back = self.surface_info(int(k), prim, u, v, d_k, hit_times(hits, sel))
+            uv = None
+            if frame.geometry.corner_uvs is not None:
+                cuv = frame.geometry.corner_uvs[prim]
+                uu, vv = u[:, None], v[:, None]
+                uv = (1.0 - uu - vv) * cuv[:, 0] + uu * cuv[:, 1] + vv * cuv[:, 2]
+            lobes = LayeredLobes(self.materials, self.materials.base_color(mat, uv), mat, ns, -d_k, back)
+            specular = np.where(lobes.glossy[:, None], lobes.fresnel(lobes.cos_v), lobes.reflect_weight)
+            albedo[sel] = np.minimum(lobes.diffuse * np.pi + specular + lobes.transmit_weight, 1.0)
+            normal[sel] = ns
+        return {"Denoising Albedo": albedo, "Denoising Normal": normal}
+
     # ------------------------------------------------------------------ rays
     def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, depth: int, pixel, sample, lam, hits=None,
                  cache: TraceCache | None = None):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..core.passes import PASSES
+from ..core.passes import DENOISING_PASSES, PASSES
 from ..core.scene import RenderSettings
 from .errors import ExportError
 
@@ -29,8 +29,9 @@ def border_region(scene, resolution) -> tuple[int, int, int, int] | None:
 def core_passes(view_layer) -> tuple[str, ...]:
     """The core passes a render of this view layer fills besides Combined: Blender's where the
     view layer enables them, RESTframe's own always."""
+    denoising = view_layer.restframe.denoising_store_passes
     blender = (("Depth", view_layer.use_pass_z), ("Normal", view_layer.use_pass_normal),
-               ("IndexOB", view_layer.use_pass_object_index))
+               ("IndexOB", view_layer.use_pass_object_index)) + tuple((name, denoising) for name in DENOISING_PASSES)
     return tuple(name for name, used in blender if used) + tuple(PASSES)
 
 

@@ -259,3 +259,19 @@ def test_principled_white_furnace(material):
     scene = Scene(camera=camera, meshes=[sphere], materials=[material], world_color=(0.5, 0.5, 0.5))
     value = mean_rgb(render_image(scene, path_settings(res=(8, 8), samples=256, max_bounces=8, glossy_bounces=8)))
     assert value == pytest.approx(np.full(3, 0.5), rel=0.02)
+
+
+def test_denoising_passes_hold_the_first_surfaces_albedo_and_normal():
+    """Asked for by name: per pixel, the sample average of the first surface's albedo (diffuse
+    base colour where it has no specular lobe) and shading normal; 0 on the background."""
+    camera = look_at_camera((0, 0, 3), (0, 0, 0), up=(0, 1, 0), fov_half_tan=1.0)
+    floor = Mesh("floor", *quad((0, 0, 0), (2, 2)))
+    scene = Scene(camera=camera, meshes=[floor], materials=[Material("red", (0.6, 0.2, 0.1), specular_ior_level=0.0)],
+                  world_color=(0.1, 0.1, 0.1))
+    passes = render_image(scene, path_settings(res=(12, 12), samples=4,
+                                               passes=("Denoising Albedo", "Denoising Normal", "Depth")))
+    albedo, normal = passes["Denoising Albedo"], passes["Denoising Normal"]
+    np.testing.assert_allclose(albedo[6, 6], (0.6, 0.2, 0.1), rtol=1e-6)
+    np.testing.assert_allclose(normal[6, 6], (0.0, 0.0, 1.0), atol=1e-6)
+    assert np.all(albedo[0, 0] == 0.0)  # the corner sees the world beside the floor
+    assert "Denoising Albedo" not in render_image(scene, path_settings(res=(4, 4)))
