@@ -27,6 +27,8 @@ _EXCLUDE_PANELS = {
 }
 # Engine-specific Blender panels that are right for RESTframe too (node-based surfaces).
 _EXTRA_PANELS = (
+    'DATA_PT_camera_dof',  # the camera's Depth of Field, read as Cycles reads it
+    'DATA_PT_camera_dof_aperture',
     'EEVEE_MATERIAL_PT_context_material',
     'EEVEE_MATERIAL_PT_surface',
     'EEVEE_WORLD_PT_surface',
@@ -133,6 +135,50 @@ class RESTFRAME_RENDER_PT_doppler(RestframeButtonsPanel, Panel):
         row.prop(rf, "doppler_range", index=0, text="Black")
         row.prop(rf, "doppler_range", index=1, text="White")
         sub.prop(rf, "doppler_levels")
+
+
+class RESTFRAME_RENDER_PT_motion_blur(RestframeButtonsPanel, Panel):
+    """Blender's Motion Blur settings and the rolling shutter, as Cycles shows them."""
+
+    bl_label = "Motion Blur"
+    bl_context = "render"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw_header(self, context):
+        self.layout.prop(context.scene.render, "use_motion_blur", text="")
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        render, rf = context.scene.render, context.scene.restframe
+        layout.active = render.use_motion_blur
+        col = layout.column()
+        col.prop(render, "motion_blur_position", text="Position")
+        col.prop(render, "motion_blur_shutter")
+        col.separator()
+        col.prop(rf, "rolling_shutter_type", text="Rolling Shutter")
+        sub = col.column()
+        sub.active = rf.rolling_shutter_type != 'NONE'
+        sub.prop(rf, "rolling_shutter_duration")
+        col.label(text="Shutter times run on the camera's own clock", icon='TIME')
+
+
+class RESTFRAME_RENDER_PT_motion_blur_curve(RestframeButtonsPanel, Panel):
+    bl_label = "Shutter Curve"
+    bl_parent_id = "RESTFRAME_RENDER_PT_motion_blur"
+    bl_context = "render"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        render = context.scene.render
+        layout.active = render.use_motion_blur
+        layout.template_curve_mapping(render, "motion_blur_shutter_curve")
+        row = layout.row(align=True)
+        for shape, icon in (('SMOOTH', 'SMOOTHCURVE'), ('ROUND', 'SPHERECURVE'), ('ROOT', 'ROOTCURVE'),
+                            ('SHARP', 'SHARPCURVE'), ('LINE', 'LINCURVE'), ('MAX', 'NOCURVE')):
+            row.operator("render.shutter_curve_preset", icon=icon, text="").shape = shape
 
 
 class RESTFRAME_RENDER_PT_film(RestframeButtonsPanel, Panel):
@@ -289,6 +335,8 @@ classes = (
     RESTFRAME_RENDER_PT_sampling,
     RESTFRAME_RENDER_PT_light_paths,
     RESTFRAME_RENDER_PT_doppler,
+    RESTFRAME_RENDER_PT_motion_blur,
+    RESTFRAME_RENDER_PT_motion_blur_curve,
     RESTFRAME_RENDER_PT_film,
     RESTFRAME_RENDER_PT_performance,
     RESTFRAME_VIEWLAYER_PT_passes,

@@ -18,6 +18,7 @@ from typing import Callable
 
 import numpy as np
 
+from . import lens
 from .camera import CameraRays
 from .colour import RGBColour, SpectralColour
 from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
@@ -44,7 +45,7 @@ class PreparedScene:
     colour: RGBColour | SpectralColour
     shader: Shader
     path_tracer: PathTracer | None  # the Path Tracing integrator (None: Direct Light, the shader alone)
-    camera_tau: float  # camera-frame time of the observation event: every primary ray starts then
+    camera_tau: float  # camera-frame time of the observation event: primary rays start then (motion blur: about it)
     camera_rays: CameraRays
     passes: tuple[str, ...]  # the passes to fill besides Combined
     doppler_range: tuple[float, float] | None  # FACTOR display: D shown as black .. white
@@ -87,11 +88,23 @@ class PreparedScene:
         return xs, ys, ys * self.settings.resolution[0] + xs
 
     # ------------------------------------------------------------------ rays
-    def rays(self, px, py, grid: bool = False):
+    @property
+    def samples_vary(self) -> bool:
+        """Whether a pixel's camera samples differ by more than their place in the pixel (a lens, a shutter)."""
+        return self.camera_rays.has_lens or self.scene.camera.has_motion_blur
+
+    def rays(self, px, py, grid: bool = False, keys=None):
         """Camera rays (tau, x, d, s_lo, s_hi) through image points (px, py) (pixels; ``grid``:
-        every px with every py); rays outside a panorama get s_hi = -inf (they hit nothing)."""
-        origins, d, s_lo, s_hi, valid = self.camera_rays(px, py, grid)
-        tau = np.broadcast_to(self.camera_tau, (len(d),))  # read-only views: every ray starts at this time
+        every px with every py); rays outside a panorama get s_hi = -inf (they hit nothing).
+        With ``keys`` = (pixel ids, sample numbers, samples per pixel) they are camera samples:
+        through the lens, and with motion blur each at its own time of the camera's clock."""
+        origins, d, s_lo, s_hi, valid = self.camera_rays(px, py, grid, keys)
+        camera = self.scene.camera
+        if keys is not None and camera.has_motion_blur:
+            # an inertial camera's rest-frame time runs with its own clock (tau = c t)
+            tau = self.camera_tau + self.scene.light_speed * lens.shutter_times(camera, *keys, self.settings.resolution)
+        else:
+            tau = np.broadcast_to(self.camera_tau, (len(d),))  # read-only views: every ray starts at this time
         return tau, origins, d, s_lo, s_hi if valid.all() else np.where(valid, s_hi, -np.inf)
 
     def centre_rays(self, rect):

@@ -3,9 +3,12 @@
 The observer is the camera's rest frame (S itself for a camera at rest).  Its
 observation event is the camera's position at world time ``tau_obs``; every
 primary ray starts there (orthographic rays start on the image plane, all at the
-same camera-frame time).  Tiles are independent and every random number is keyed
-by (pixel, sample), so any split into tiles, regions, threads or machines gives the
-same image.  Memory is bounded by the tile size (and samples are batched).
+same camera-frame time; with depth of field each sample starts at its aperture
+point, with motion blur at its own time of the camera's clock: see
+docs/physics-camera.md).  The passes other than Combined are those of the
+pixel-centre ray at the observation event.  Tiles are independent and every
+random number is keyed by (pixel, sample), so any split into tiles, regions,
+threads or machines gives the same image.  Memory is bounded by the tile size (and samples are batched).
 
 Pass arrays are float32 ``(h, w, C)`` with row 0 at the bottom (Blender's order).
 """
@@ -71,11 +74,12 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
         m = part.stop - part.start
         pix = np.repeat(pixel[part], count)
         smp = np.tile(np.arange(first, first + count), m)
-        if samples == 1:  # the one sample is the pixel-centre ray, already traced
+        if samples == 1 and not prepared.samples_vary:  # the one sample is the pixel-centre ray, already traced
             rays, hits = tuple(a[part] for a in centre), centre_hits.take(part)
         else:
             ox, oy = sampling.stratified_offsets(pix, smp, samples)
-            rays = prepared.rays(np.repeat(xs[part], count) + ox, np.repeat(ys[part], count) + oy)
+            rays = prepared.rays(np.repeat(xs[part], count) + ox, np.repeat(ys[part], count) + oy,
+                                 keys=(pix, smp, samples))
             hits = trace_nearest(frames, frames.camera, *rays, cache=cache)
         color, hit = _sample(prepared, rays, hits, pix, smp, cache)
         rgb[part] += color.reshape(m, count, 3).sum(axis=1)

@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 from fractions import Fraction
 
+import numpy as np
+
 
 class RenderError(ValueError):
     """The scene or settings cannot be rendered; the message says what to change."""
@@ -77,6 +79,40 @@ def check_region(region, resolution) -> None:
         raise RenderError(f"the render region {region} is empty or outside the {width}x{height} image")
 
 
+ROLLING_SHUTTER_TYPES = ("NONE", "TOP")
+
+
+def check_shutter_curve(curve) -> None:
+    """Raises ValueError unless the motion-blur shutter curve (its values over the shutter) opens somewhere."""
+    curve = np.asarray(curve, dtype=np.float64)
+    if curve.ndim != 1 or len(curve) < 2 or not np.all(np.isfinite(curve)) or not np.any(curve != 0.0):
+        raise ValueError("the motion blur shutter curve is zero everywhere (the shutter never opens): "
+                         "raise it in Motion Blur > Shutter Curve")
+
+
+def check_camera_optics(camera) -> None:
+    """Raises ValueError naming the camera unless its lens (depth of field) and shutter (motion
+    blur) settings can be rendered."""
+    if not (math.isfinite(camera.aperture_radius) and camera.aperture_radius >= 0.0):
+        raise ValueError(f"{camera.name}: the aperture radius must be a length of 0 or more (got {camera.aperture_radius})")
+    if camera.aperture_radius > 0.0 and not (math.isfinite(camera.focus_distance) and camera.focus_distance > 0.0
+                                             and math.isfinite(camera.aperture_ratio) and camera.aperture_ratio > 0.0):
+        raise ValueError(f"{camera.name}: depth of field needs a focus distance and an aperture ratio above 0")
+    if camera.shutter_interval is None:
+        return
+    opens, closes = camera.shutter_interval
+    if not (math.isfinite(opens) and math.isfinite(closes) and opens <= closes):
+        raise ValueError(f"{camera.name}: the shutter interval {camera.shutter_interval} is not an interval of time")
+    if camera.rolling_shutter_type not in ROLLING_SHUTTER_TYPES:
+        raise ValueError(f"{camera.name}: rolling shutter type {camera.rolling_shutter_type!r} is not one of "
+                         f"{ROLLING_SHUTTER_TYPES}")
+    if not 0.0 <= camera.rolling_shutter_duration <= 1.0:
+        raise ValueError(f"{camera.name}: the rolling shutter duration must be between 0 and 1 "
+                         f"(got {camera.rolling_shutter_duration})")
+    if camera.shutter_curve is not None:
+        check_shutter_curve(camera.shutter_curve)
+
+
 def check_render(scene, settings, known_passes) -> None:
     """Raises RenderError for a scene and settings that cannot be rendered (``known_passes``:
     the pass names settings.passes may ask for)."""
@@ -107,3 +143,7 @@ def check_render(scene, settings, known_passes) -> None:
         value = float(getattr(settings, name))
         if not (math.isfinite(value) and value >= 0.0):
             raise RenderError(f"the light-path clamp {name} must be 0 (off) or a positive number (got {value:g})")
+    try:
+        check_camera_optics(scene.camera)
+    except ValueError as error:
+        raise RenderError(str(error)) from None

@@ -1,12 +1,14 @@
-"""The camera: Blender's camera object -> the core Camera, with its image plane and velocity."""
+"""The camera: Blender's camera object -> the core Camera, with its image plane, velocity, lens
+(Depth of Field) and shutter (Motion Blur), as Cycles reads them."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..core import lens, validation
 from ..core.scene import Camera
 from .errors import ExportError
-from .motion import object_velocity
+from .motion import object_velocity, shutter_frames
 
 
 _PANORAMAS = {"EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID"}
@@ -21,6 +23,58 @@ def _fitted_sensor(cam, aspect: float) -> tuple[float, float]:
     else:
         size = cam.sensor_width if fit == 'HORIZONTAL' else cam.sensor_height
     return (size, size / aspect) if fit == 'HORIZONTAL' else (size * aspect, size)
+
+
+def depth_of_field(camera_object) -> dict:
+    """The core Camera's lens fields from Blender's Depth of Field panel, as Cycles reads them:
+    aperture radius from the F-stop (half the focal length, in mm read as 1e-3 scene units,
+    over the F-stop; 1 / (2 F-stop) for an orthographic camera), the focus object's distance
+    along the view axis (its bone's, with a subtarget).  Nothing (a pinhole) without Depth of Field."""
+    cam = camera_object.data
+    dof = cam.dof
+    if not dof.use_dof:
+        return {}
+    focus = float(dof.focus_distance)
+    if dof.focus_object is not None:
+        target = dof.focus_object.matrix_world
+        bone = getattr(dof, "focus_subtarget", "")
+        if bone and dof.focus_object.pose is not None and bone in dof.focus_object.pose.bones:
+            target = target @ dof.focus_object.pose.bones[bone].matrix
+        view_axis = np.array(camera_object.matrix_world.col[2][:3])
+        offset = np.array(camera_object.matrix_world.translation) - np.array(target.translation)
+        focus = abs(float(offset @ view_axis)) / float(np.linalg.norm(view_axis))
+    return dict(
+        aperture_radius=lens.aperture_radius(dof.aperture_fstop, None if cam.type == 'ORTHO' else cam.lens),
+        focus_distance=max(focus, 1e-5),
+        aperture_blades=int(dof.aperture_blades),  # Blender's 0 (or the core's < 3): round
+        aperture_rotation=float(dof.aperture_rotation),
+        aperture_ratio=float(dof.aperture_ratio),
+    )
+
+
+SHUTTER_CURVE_POINTS = 256  # the shutter curve tabulated as Cycles does (RAMP_TABLE_SIZE)
+
+
+def motion_blur(scene) -> dict:
+    """The core Camera's shutter fields: the interval in seconds of the camera's own clock, the
+    shutter curve's openness (None when flat) and the rolling shutter; nothing without motion blur."""
+    frames = shutter_frames(scene)
+    if frames is None:
+        return {}
+    seconds_per_frame = scene.render.fps_base / scene.render.fps
+    mapping = scene.render.motion_blur_shutter_curve
+    curve = np.array([mapping.evaluate(mapping.curves[0], x) for x in np.linspace(0.0, 1.0, SHUTTER_CURVE_POINTS)])
+    try:
+        validation.check_shutter_curve(curve)
+    except ValueError as error:
+        raise ExportError(str(error)) from None
+    rf = scene.restframe
+    return dict(
+        shutter_interval=(frames[0] * seconds_per_frame, frames[1] * seconds_per_frame),
+        shutter_curve=None if np.all(curve == curve[0]) else curve,
+        rolling_shutter_type=rf.rolling_shutter_type,
+        rolling_shutter_duration=float(rf.rolling_shutter_duration),
+    )
 
 
 def export_camera(camera_object, scene) -> Camera:
@@ -43,6 +97,8 @@ def export_camera(camera_object, scene) -> Camera:
         sensor_size=_fitted_sensor(cam, aspect),
         velocity=object_velocity(camera_object),
         name=camera_object.name,
+        **depth_of_field(camera_object),
+        **motion_blur(scene),
     )
     if cam.type == 'PANO':
         ptype = getattr(cam, "panorama_type", None) or getattr(getattr(cam, "cycles", None), "panorama_type", None)

@@ -13,6 +13,19 @@ from ..motion_query import fcurves, has_animated_location
 from .errors import ExportCancelled, ExportError
 
 
+_SHUTTER_OPENS = {'START': 0.0, 'CENTER': -0.5, 'END': -1.0}  # the frame's place in the shutter, in shutters
+
+
+def shutter_frames(scene) -> tuple[float, float] | None:
+    """The shutter interval in frames from the rendered frame (Blender's Motion Blur panel:
+    shutter length and position), or None without motion blur."""
+    render = scene.render
+    if not render.use_motion_blur or render.motion_blur_shutter <= 0.0:
+        return None
+    opens = _SHUTTER_OPENS[render.motion_blur_position] * render.motion_blur_shutter
+    return opens, opens + render.motion_blur_shutter
+
+
 def object_velocity(obj) -> Velocity:
     """The object's ``restframe`` velocity, checked: raises ExportError naming the object."""
     rf = obj.restframe
@@ -109,7 +122,7 @@ def object_trajectory(root, scene, camera_position, radius: float, *, should_sto
 
     current = scene.frame_current + scene.frame_subframe
     first = min(float(scene.frame_start), current)
-    end = current + 1.0
+    end = current + 1.0 + max((shutter_frames(scene) or (0.0, 0.0))[1], 0.0)  # past the shutter's closing
     # how far back light can come from: the farthest sampled position, plus the body's radius
     coarse = np.linspace(first, end, int(min(end - first, 2000)) + 2)
     reach = float(np.linalg.norm(world(coarse) - np.asarray(camera_position), axis=1).max()) + radius
