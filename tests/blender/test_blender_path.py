@@ -296,3 +296,49 @@ def test_glossy_and_metal_under_an_hdri_match_cycles(addon, tmp_path):
     ours, seeds, reference = region_errors(images)
     print(f"HDRI scene: RESTframe-Cycles {ours:.3g}, Cycles seeds {seeds:.3g}, mean {reference.mean():.3g}")
     assert ours <= 2.0 * seeds
+
+
+# --------------------------------------------------------------------------- denoising
+def test_denoise_node_takes_the_denoising_passes(addon, tmp_path):
+    """Blender's Denoise node fed with RESTframe's Denoising Albedo and Normal passes brings a
+    16-sample Cornell box much closer to a 256-sample render (at 1024 samples and 64 x 64 pixels
+    the error falls 2.9x, measured; here, smaller and against a noisier reference, 1.9x: at least 1.6x)."""
+    from restframe_addon.denoise import use_denoiser
+
+    scene = cornell_box()
+    scene.render.engine = 'RESTFRAME'
+    scene.render.resolution_x = scene.render.resolution_y = SIZE
+    scene.render.resolution_percentage = 100
+    scene.view_settings.view_transform = 'Standard'
+    rf = scene.restframe
+    rf.integrator, rf.samples = 'PATH', 256
+    reference = render_rgba(scene, tmp_path / "reference.exr")[..., :3]
+    rf.samples = 16
+    raw = render_rgba(scene, tmp_path / "raw.exr")[..., :3]
+    use_denoiser(scene)
+    assert all(layer.restframe.denoising_store_passes for layer in scene.view_layers)
+    denoised = render_rgba(scene, tmp_path / "denoised.exr")[..., :3]
+    rmse = lambda image: float(np.sqrt(np.mean((image - reference) ** 2)))  # noqa: E731
+    print(f"denoise: raw {rmse(raw):.4g}, denoised {rmse(denoised):.4g}")
+    assert rmse(denoised) < rmse(raw) / 1.6
+
+
+def test_the_command_line_denoises(addon, tmp_path):
+    import subprocess
+    import sys
+
+    from test_blender_cli import ROOT
+
+    scene = cornell_box()
+    scene.render.engine = 'RESTFRAME'
+    scene.render.resolution_x = scene.render.resolution_y = 16
+    scene.restframe.samples = 4
+    blend = tmp_path / "box.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    run = lambda *extra: subprocess.run([sys.executable, "-m", "restframe_addon", "render", str(blend), *extra],  # noqa: E731
+                                        cwd=ROOT, capture_output=True, text=True, timeout=300)
+    done = run("-o", str(tmp_path / "box.png"), "--denoise")
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "box.png").stat().st_size > 0
+    refused = run("-o", str(tmp_path / "farm.png"), "--denoise", "--regions", "2")
+    assert refused.returncode == 1 and "--denoise works on whole frames rendered here" in refused.stderr
