@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import mis, rows, sampling
+from .emitters import EmitterTable, solid_angle_pdf
 from .bsdf import diffuse_pdf, ggx_reflection_pdf, reflect, refract, sample_diffuse, sample_ggx_reflection
 from .passes import hit_doppler, hit_times
 from .scene import RenderSettings, Scene
@@ -68,6 +69,10 @@ class PathTracer:
         self.clamp_indirect = float(settings.clamp_indirect)
         mats = self.materials
         self.emissive = bool(np.any(mats.emission > 0.0))
+        self.emitters = _emitter_tables(self.frames, mats) if self.emissive else {}
+        power = np.array([table.total for table, _ in self.emitters.values()])
+        self.emitter_frames = np.array(list(self.emitters), dtype=np.int64)
+        self.emitter_choice = power / power.sum() if len(power) else power  # probability of each frame
         # a ray past the limits is still traced for what it finds: only worth it if there is something
         self.findable = self.emissive or not world.is_black
 
@@ -168,6 +173,64 @@ class PathTracer:
         total[sel] = rows.scale(f * values, weight)
         return total
 
+    # ------------------------------------------------------------------ emissive surfaces
+    def _emitter_pdf(self, j, prim, distance, cos_emit, doppler):
+        """Density per unit solid angle of the receiving frame with which :meth:`_sample_emitters`
+        draws points of triangles ``prim`` of frame j seen at path length ``distance`` (frame j)
+        under ``cos_emit``, their light's Doppler factor ``doppler`` (frame j to the receiver)."""
+        table, rows_of_prim = self.emitters[j]
+        row = rows_of_prim[prim]
+        choice = self.emitter_choice[np.searchsorted(self.emitter_frames, j)]
+        pdf_area = np.where(row >= 0, table.pdf_area(np.maximum(row, 0)), 0.0)
+        cos = np.abs(cos_emit)
+        pdf = np.where(cos > 0.0, choice * pdf_area * distance**2 / np.maximum(cos, 1e-300), 0.0)
+        return pdf * doppler**2
+
+    def _sample_emitters(self, k, tau, origin, ng, ns, view, base, mat, lobes, pixel, sample, lam, dim, cache):
+        """Next-event estimate of the emissive triangles: a frame of emitters drawn by power, a
+        triangle by area x luminance and a point on it.  An emitter is static in its frame: the
+        hit event mapped there sees it where it is (its retarded position), as a lamp."""
+        n = len(tau)
+        total = np.zeros((n, self.colour.channels))
+        pick = np.minimum(np.searchsorted(np.cumsum(self.emitter_choice), sampling.uniform(pixel, sample, dim),
+                                          side="right"), len(self.emitter_frames) - 1)
+        for slot, j in enumerate(self.emitter_frames):
+            sel = np.flatnonzero(pick == slot)
+            if not len(sel):
+                continue
+            table, _ = self.emitters[int(j)]
+            row, point, normal, pdf_area = table.sample(sampling.uniform(pixel[sel], sample[sel], dim + 1),
+                                                        sampling.uniform(pixel[sel], sample[sel], dim + 2),
+                                                        sampling.uniform(pixel[sel], sample[sel], dim + 3))
+            tau_j, x_j = self.frames.map(k, int(j)).events(tau[sel], origin[sel])
+            e_j, r_j, pdf_j = solid_angle_pdf(pdf_area, x_j, point, normal)
+            light, doppler = self.frames.map(int(j), k).rays(e_j)  # w = nu_k / nu_j: D of the emitter seen here
+            pdf = self.emitter_choice[slot] * pdf_j * doppler**2
+            cos = rows.dot(ns[sel], light)
+            ok = (cos > 0.0) & (rows.dot(ng[sel], light) > 0.0) & (pdf > 0.0)
+            sel, light, doppler, pdf, cos, r_j, tau_j = (a[ok] for a in (sel, light, doppler, pdf, cos, r_j, tau_j))
+            row = row[ok]
+            if not len(sel):
+                continue
+            eps = self.shader.epsilon[k]
+            reach = doppler * r_j * (1.0 - 1e-6) - 2.0 * eps  # stop short of the emitter itself
+            blocked = occluded(self.frames, k, tau[sel], origin[sel], light, eps, reach, cache)
+            sel, light, doppler, pdf, cos, r_j, tau_j, row = (a[~blocked] for a in
+                                                               (sel, light, doppler, pdf, cos, r_j, tau_j, row))
+            if not len(sel):
+                continue
+            emitter_mat = self.materials.clamp(self.frames.frames[int(j)].geometry.tri_material[table.prims[row]])
+            emitted = np.array(self.colour.emission(emitter_mat, self.colour.shift(_rows(lam, sel), doppler)),
+                               dtype=np.float64)
+            if self.materials.emission_curves:  # the emitter's clock when the light left it
+                clock = self.frames.frames[int(j)].object_clock(tau_j - r_j, table.prims[row])
+                emitted *= self.materials.emission_factor(emitter_mat, clock)[:, None]
+            emitted = rows.scale(emitted, self.shader._power(doppler, 4))
+            f = self.shader.brdf(ns[sel], view[sel], light, base[sel], mat[sel])
+            weight = mis.power_heuristic(pdf, lobes.pdf(sel, ns[sel], view[sel], light)) * cos / pdf
+            total[sel] = rows.scale(f * emitted, weight)
+        return total
+
     # ------------------------------------------------------------------ vertices
     def _vertices(self, out, path, state, hits, bounce, pixel, sample, cache):
         """Light at the surfaces hit and the scattered rays that continue the paths."""
@@ -205,7 +268,12 @@ class PathTracer:
             emitted = np.array(colour.emission(mat, lam), dtype=np.float64)
             if mats.emission_curves:
                 emitted *= mats.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
-            self._accumulate(out, path, throughput * emitted, None, bounce)
+            weight = None
+            if bounce and k in self.emitters:  # also drawn by the emitter samples of the last vertex
+                pdf_light = self._emitter_pdf(k, prim, hits.s_frame, rows.dot(frame.geometry.face_normals[prim], d_k),
+                                              doppler)
+                weight = mis.power_heuristic(state.pdf, pdf_light)
+            self._accumulate(out, path, throughput * emitted, weight, bounce)
         live = np.flatnonzero(~state.terminal)
         if not len(live):
             return None
@@ -228,6 +296,10 @@ class PathTracer:
             world = self._sample_world(k, tau, origin, ng, ns, view, base, mat, lobes, eps, pixel, sample, lam,
                                        dim + 3, cache)
             direct = world if direct is None else direct + world
+        if self.emitters and lobes.any_smooth:
+            glow = self._sample_emitters(k, tau, origin, ng, ns, view, base, mat, lobes, pixel, sample, lam,
+                                         dim + 6, cache)
+            direct = glow if direct is None else direct + glow
         if direct is not None:
             self._accumulate(out, path, throughput * direct, None, bounce + 1)
         # scattering: one lobe chosen by its weight, a direction from its sampler
@@ -269,6 +341,30 @@ class PathTracer:
             total = np.abs(self.colour.to_rgb(values, None)).sum(axis=1)
             values = rows.scale(values, np.minimum(1.0, limit / np.maximum(total, 1e-300)))
         out[path] += values  # a path is one camera sample: no index repeats
+
+
+def _emitter_tables(frames, mats) -> dict:
+    """frame -> (EmitterTable of its emissive triangles in frame coordinates, table row of each
+    triangle or -1), for the frames where emitters stay put: inertial, not spinning (emitters
+    of spinning or accelerated bodies light others only when bounce rays hit them)."""
+    tables = {}
+    for k in frames.geometry:
+        frame = frames.frames[k]
+        if frame.spin is not None or frame.window is not None:
+            continue
+        geometry = frame.geometry
+        emission = mats.emission[mats.clamp(geometry.tri_material)]
+        prims = np.flatnonzero(np.any(emission > 0.0, axis=1))
+        if not len(prims):
+            continue
+        corners = geometry.vertices[geometry.triangles[prims]] + frame.offset
+        table = EmitterTable(corners, emission[prims], prims)
+        if table.is_empty:
+            continue
+        rows_of_prim = np.full(len(geometry.triangles), -1, dtype=np.int64)
+        rows_of_prim[prims] = np.arange(len(prims))
+        tables[k] = (table, rows_of_prim)
+    return tables
 
 
 class _Paths:
