@@ -166,7 +166,7 @@ class PathTracer:
         sel = sel[~blocked]
         if not len(sel):
             return total
-        f = self.shader.brdf(ns[sel], view[sel], light[sel], base[sel], mat[sel])
+        f = self.shader.brdf(ns[sel], view[sel], light[sel], base[sel], mat[sel], mix.take(sel))
         values = self._world_values(d_world[sel], self.colour.shift(_rows(lam, sel), doppler[sel]))
         values = rows.scale(values, self.shader._power(doppler[sel], 4))
         weight = mis.power_heuristic(pdf[sel], mix.pdf(sel, ns[sel], view[sel], light[sel])) * cos[sel] / pdf[sel]
@@ -226,7 +226,7 @@ class PathTracer:
                 clock = self.frames.frames[int(j)].object_clock(tau_j - r_j, table.prims[row])
                 emitted *= self.materials.emission_factor(emitter_mat, clock)[:, None]
             emitted = rows.scale(emitted, self.shader._power(doppler, 4))
-            f = self.shader.brdf(ns[sel], view[sel], light, base[sel], mat[sel])
+            f = self.shader.brdf(ns[sel], view[sel], light, base[sel], mat[sel], lobes.take(sel))
             weight = mis.power_heuristic(pdf, lobes.pdf(sel, ns[sel], view[sel], light)) * cos / pdf
             total[sel] = rows.scale(f * emitted, weight)
         return total
@@ -291,7 +291,8 @@ class PathTracer:
         # next-event estimation: lamps (the direct-light integrator's own code) and the world
         direct = None
         if shader.lights:
-            direct = shader._direct(k, tau, position, ng, ns, view, base, mat, bounce, pixel, sample, lam, cache)
+            direct = shader._direct(k, tau, position, ng, ns, view, base, mat, bounce, pixel, sample, lam, cache,
+                                    lobes)
         if not self.world.is_black and lobes.any_smooth:
             world = self._sample_world(k, tau, origin, ng, ns, view, base, mat, lobes, eps, pixel, sample, lam,
                                        dim + 3, cache)

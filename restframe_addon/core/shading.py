@@ -76,6 +76,9 @@ class MaterialTable:
         f0_adjusted = np.minimum(dielectric_f0(self.ior) * self.specular_scale, 1.0 - 1e-9)
         self.f0_adjusted = f0_adjusted
         self.ior_adjusted = (1.0 + np.sqrt(f0_adjusted)) / (1.0 - np.sqrt(f0_adjusted))
+        # its hemispherical Fresnel average (for the multiscatter compensation), once per material
+        self.fresnel_average_dielectric = fresnel_average_principled_dielectric(
+            self.ior_adjusted, f0_adjusted[:, None], np.ones(len(materials)))[:, 0]
         # rough surfaces with a specular lobe get GGX highlights (Specular IOR Level 0, not metallic: none)
         self.glossy = ~self.mirror & ((self.f90 > 0.0) | (self.f0_dielectric > 0.0) | (self.metallic > 0.0))
 
@@ -169,8 +172,8 @@ class LayeredLobes:
         white = np.ones((n, channels))
         dielectric_albedo = ggx_dielectric_albedo(cos_v, self.alpha, ior, f0, ones)
         self.diffuse = rows.scale(base, mats.diffuse_weight[mat]) * (1.0 - dielectric_albedo)  # f, not albedo
-        self.compensation_dielectric = ggx_energy_compensation(
-            cos_v, self.alpha, fresnel_average_principled_dielectric(ior, f0, ones))
+        average = np.broadcast_to(mats.fresnel_average_dielectric[mat][:, None], (n, channels))
+        self.compensation_dielectric = ggx_energy_compensation(cos_v, self.alpha, average)
         self.compensation_metal = ggx_energy_compensation(cos_v, self.alpha, fresnel_average_f82_tint(base, white))
         self.white = white
         # the delta lobes
@@ -198,11 +201,10 @@ class LayeredLobes:
             ns, view, light_r = self.ns[r], self.view[r], light[r]
             h = rows.normalized(view + light_r)
             cos_l = rows.dot(ns, light_r)
-            cos_v = rows.dot(ns, view)
-            above = (cos_v > 0.0) & (cos_l > 0.0)
+            above = (rows.dot(ns, view) > 0.0) & (cos_l > 0.0)
             cos_l = np.clip(cos_l, 1e-6, 1.0)
-            alpha = self.alpha[r]
-            single = ggx_ndf(rows.dot(ns, h), alpha) * ggx_g2(self.cos_v[r], cos_l, alpha) / (4.0 * self.cos_v[r] * cos_l)
+            alpha, cos_v = self.alpha[r], self.cos_v[r]
+            single = ggx_ndf(rows.dot(ns, h), alpha) * ggx_g2(cos_v, cos_l, alpha) / (4.0 * cos_v * cos_l)
             value[r] += rows.scale(self.take(r).fresnel(rows.dot(view, h)), np.where(above, single, 0.0))
         return value
 
@@ -338,14 +340,14 @@ class Shader:
         return values
 
     # ------------------------------------------------------------------ direct light
-    def brdf(self, ns, view, light, base, mat):
+    def brdf(self, ns, view, light, base, mat, lobes: LayeredLobes | None = None):
         """The surfaces' non-delta BSDF f (n, C) (without the cosine), in their rest frame: the
         diffuse lobe and, on rough surfaces with a specular lobe, GGX highlights (``layered``: as
-        :class:`LayeredLobes`).  Mirror
+        :class:`LayeredLobes`; ``lobes``: those of these very points, if already made).  Mirror
         reflection and refraction are delta lobes, traced instead (DIRECT: ``_secondary``)."""
         mats = self.materials
         if self.layered:
-            return LayeredLobes(mats, base, mat, ns, view).value(light)
+            return (lobes if lobes is not None else LayeredLobes(mats, base, mat, ns, view)).value(light)
         value = rows.scale(base, mats.diffuse_weight[mat])
         rough = mats.glossy[mat]
         r = np.flatnonzero(rough)
@@ -355,7 +357,7 @@ class Shader:
             value[rough] += ggx_reflection(ns[r], view[r], light[r], mats.alpha[m], f0, mats.f90[m])
         return value
 
-    def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache):
+    def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache, lobes=None):
         eps = self.epsilon[k]
         origin = position + eps * ng
         total = np.zeros_like(base)
@@ -374,7 +376,8 @@ class Shader:
             sel = sel[~blocked]
             if len(sel) == 0:
                 continue
-            brdf = self.brdf(ns[sel], view[sel], e_k[sel], base[sel], mat[sel])
+            part = None if lobes is None else lobes.take(sel)
+            brdf = self.brdf(ns[sel], view[sel], e_k[sel], base[sel], mat[sel], part)
             emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel))
             total[sel] += rows.scale(brdf * emitted, strength[sel] * cos_n[sel])
         return total

@@ -175,9 +175,9 @@ def cornell_box():
     scene = bpy.context.scene
     world = bpy.data.worlds.new("Black")
     world.color = (0.0, 0.0, 0.0)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        world.use_nodes = False
+    if bpy.app.version < (5, 0, 0):
+        world.use_nodes = True
+    world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
     scene.world = world
 
     def material(name, color):
