@@ -6,30 +6,50 @@ Each engine renders SAMPLES and REFERENCE_SAMPLES per pixel (same bounce limits,
 2 threads); the error is the relative RMSE against the engine's own reference; the time ratio at
 equal noise assumes error ~ time^-1/2.
 """
-import sys, pathlib, tempfile, time
-sys.path[:0] = [str(__import__("pathlib").Path(__file__).resolve().parents[1] / "blender")]
-import numpy as np, bpy, restframe_addon
-restframe_addon.register()
-import test_blender_path as t
-from blender_helpers import render_rgba
-scene = t.cornell_box()
-size = int(sys.argv[1]); spp = int(sys.argv[2]); ref_spp = int(sys.argv[3])
-tmp = pathlib.Path(tempfile.mkdtemp())
-t.SIZE = size
-t.render_pair(scene, tmp, samples=1, bounces=4, seeds=(1,))  # set everything up (and warm caches)
-out = {}
-for engine in ("CYCLES", "RESTFRAME"):
-    scene.render.engine = engine
-    for n in (spp, ref_spp):
-        if engine == "CYCLES": scene.cycles.samples = n; scene.cycles.seed = 7 if n == ref_spp else 3
-        else: scene.restframe.samples = n
-        t0 = time.perf_counter(); img = render_rgba(scene, tmp / f"{engine}{n}.exr")[..., :3]; dt = time.perf_counter() - t0
-        out[(engine, n)] = (img, dt)
-for engine in ("CYCLES", "RESTFRAME"):
-    img, dt = out[(engine, spp)]; ref, dref = out[(engine, ref_spp)]
-    err = np.sqrt(np.mean((img - ref) ** 2)) / ref.mean()
-    print(engine, f"{spp} spp {dt:.2f} s rel RMSE {err:.4f}; ref {ref_spp} spp {dref:.2f} s")
-    out[engine] = (err, dt)
-(ec, tc), (er, tr) = out["CYCLES"], out["RESTFRAME"]
-print("time at equal noise RESTframe / Cycles:", tr * (er / ec) ** 2 / tc)
-print("references differ (rel):", np.sqrt(np.mean((out[('CYCLES', ref_spp)][0] - out[('RESTFRAME', ref_spp)][0])**2)) / out[('CYCLES', ref_spp)][0].mean())
+
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "blender")]
+
+
+def main():
+    import restframe_addon
+    import test_blender_path as path_tests
+    from blender_helpers import render_rgba
+
+    size, samples, reference_samples = (int(a) for a in sys.argv[1:4])
+    restframe_addon.register()
+    scene = path_tests.cornell_box()
+    folder = Path(tempfile.mkdtemp())
+    path_tests.SIZE = size
+    path_tests.render_pair(scene, folder, samples=1, bounces=4, seeds=(1,))  # both engines set up alike
+    results = {}
+    for engine in ("CYCLES", "RESTFRAME"):
+        scene.render.engine = engine
+        images = {}
+        for count in (samples, reference_samples):
+            if engine == "CYCLES":
+                scene.cycles.samples, scene.cycles.seed = count, 7 if count == reference_samples else 3
+            else:
+                scene.restframe.samples = count
+            started = time.perf_counter()
+            images[count] = render_rgba(scene, folder / f"{engine}{count}.exr")[..., :3], time.perf_counter() - started
+        (image, seconds), (reference, reference_seconds) = images[samples], images[reference_samples]
+        error = float(np.sqrt(np.mean((image - reference) ** 2)) / reference.mean())
+        results[engine] = error, seconds, reference
+        print(f"{engine}: {samples} spp {seconds:.2f} s, rel. RMSE {error:.4f}; "
+              f"{reference_samples} spp {reference_seconds:.2f} s")
+    (cycles_error, cycles_seconds, cycles_reference), (error, seconds, reference) = results["CYCLES"], results["RESTFRAME"]
+    print(f"time at equal noise, RESTframe / Cycles: {seconds * (error / cycles_error) ** 2 / cycles_seconds:.2f}")
+    difference = np.sqrt(np.mean((reference - cycles_reference) ** 2)) / cycles_reference.mean()
+    print(f"the references differ by a relative RMSE of {difference:.4f}")
+
+
+if __name__ == "__main__":
+    main()
