@@ -321,3 +321,19 @@ def test_emitter_samples_and_bounce_rays_agree_across_frames(monkeypatch):
     found = mean_rgb(render_image(scene, settings))
     assert found == pytest.approx(sampled, rel=0.03)
     assert sampled[0] > 0.0
+
+
+@pytest.mark.parametrize("beta", [0.5, 0.9])
+def test_energy_density_seen_by_a_moving_panorama(beta):
+    """A full-sphere equirectangular camera moving at beta through a uniform world of radiance L:
+    the solid-angle average of what it sees is gamma^2 (1 + beta^2 / 3) L (the energy density of
+    isotropic radiation in a moving frame), by the midpoint rule over its pixel centres."""
+    from restframe_addon.core.scene import Camera
+
+    camera = Camera(matrix=np.eye(4), kind="PANO", panorama_type="EQUIRECTANGULAR",
+                    velocity=Velocity((0.0, 0.0, beta)), clip_start=1e-3, clip_end=1e3)
+    scene = Scene(camera=camera, meshes=[], materials=[lambert()], world_color=(0.25, 0.25, 0.25))
+    image = render_image(scene, path_settings(res=(128, 64), samples=1))["Combined"][..., 0]
+    latitude = -0.5 * math.pi + (np.arange(64) + 0.5) * math.pi / 64  # row 0 at the bottom
+    average = float((image.mean(axis=1) * np.cos(latitude)).sum() / np.cos(latitude).sum())
+    assert average == pytest.approx(0.25 / (1.0 - beta**2) * (1.0 + beta**2 / 3.0), rel=2e-3)
