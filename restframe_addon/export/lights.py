@@ -7,21 +7,45 @@ from typing import Callable
 import numpy as np
 
 from ..core.scene import Light, Velocity, WorldTexture
-from .materials import image_rgb, output_node, upstream
+from .images import ImageMissing, image_texture
+from .materials import output_node, upstream
 
 
-def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot) -> Light:
+def node_emission(data, name: str, warn: Callable[[str], None]) -> tuple[np.ndarray, float]:
+    """(colour, strength) of the Emission node in a light's node tree, which Cycles multiplies
+    into the light's own colour and power; (white, 1) without nodes, black when nothing feeds
+    the Light Output."""
+    tree = data.node_tree
+    if tree is None or not data.use_nodes:
+        return np.ones(3), 1.0
+    output = tree.get_output_node('CYCLES')
+    if output is None:
+        return np.ones(3), 1.0
+    node = upstream(output.inputs["Surface"])
+    if node is None:
+        return np.zeros(3), 0.0
+    if node.type != 'EMISSION':
+        warn(f"Light '{name}': shader '{node.bl_label}' in its node tree is not supported, ignored")
+        return np.ones(3), 1.0
+    color, strength = node.inputs["Color"], node.inputs["Strength"]
+    if upstream(color) is not None or upstream(strength) is not None:
+        warn(f"Light '{name}': links into its Emission node are not supported, using their values")
+    return np.asarray(color.default_value[:3], dtype=np.float64), float(strength.default_value)
+
+
+def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Callable[[str], None] = print) -> Light:
     data = obj.data
     rotation = matrix[:3, :3] / np.linalg.norm(matrix[:3, :3], axis=0)
+    tint, strength = node_emission(data, obj.name, warn)
     light = Light(
         name=obj.name,
         kind=data.type,
         position=tuple(matrix[:3, 3]),
         matrix=rotation,
-        color=tuple(float(c) for c in data.color[:3]),
+        color=tuple(float(c) for c in np.asarray(data.color[:3], dtype=np.float64) * tint),
         # a black body (a spectrum the core Doppler-shifts), tinted by the colour
         temperature=float(data.temperature) if getattr(data, "use_temperature", False) else 0.0,
-        power=float(data.energy) * 2.0 ** float(getattr(data, "exposure", 0.0)),
+        power=float(data.energy) * 2.0 ** float(getattr(data, "exposure", 0.0)) * strength,
         velocity=velocity,
         pivot=pivot,
     )
@@ -84,9 +108,16 @@ def world_texture(scene, warn: Callable[[str], None]) -> WorldTexture | None:
     if texture.image is None:
         warn(f"{label}: the Environment Texture has no image; using the plain Background colour")
         return None
-    image = image_rgb(texture.image, f"world '{world.name}'", "the plain Background colour", warn)
-    if image is None:
+    try:
+        image = image_texture(texture.image, texture.image_user, scene.frame_current, warn)
+    except ImageMissing as missing:
+        warn(f"Image '{texture.image.name}' (world '{world.name}') could not be loaded: '{missing}' is missing; "
+             "using the plain Background colour")
         return None
+    if image.tiles != (1, 1):
+        warn(f"{label}: a tiled (UDIM) image cannot be an environment; using the plain Background colour")
+        return None
+    image = image.pixels
     if texture.interpolation not in ('Linear', 'Closest'):
         warn(f"{label}: {texture.interpolation} interpolation of the Environment Texture is read as Linear")
     rotation, vector_type = (0.0, 0.0, 0.0), "POINT"

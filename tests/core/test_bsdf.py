@@ -169,7 +169,7 @@ def test_ggx_ndf_projected_area_is_one(alpha):
 @pytest.mark.parametrize("theta_v", (0.0, 0.7, 1.4))
 def test_visible_normal_pdf_integrates_to_one(alpha, theta_v):
     """integral of G1(v) max(v.h, 0) D(h) / cos_v dh = 1: Smith's G1 in closed form (Heitz 2014)."""
-    d, w, _, _ = sphere_grid(NORMAL, 3000, 400, math.pi / 2)
+    d, w, _, _ = sphere_grid(NORMAL, 2000, 200, math.pi / 2)
     m = len(d)
     view = rows_of(direction(NORMAL, theta_v), m)
     pdf = bsdf.ggx_vndf_pdf(rows_of(NORMAL, m), view, d, np.full(m, alpha))
@@ -394,7 +394,7 @@ def test_dielectric_specular_albedo_and_layering_conserve_energy(alpha, theta_v,
     specular lobe as compensated to albedo 1: the multiply scattered light that the Fresnel
     lets through to the diffuse base is not added there)."""
     view_dir = direction(NORMAL, theta_v)
-    d, w, _, _ = sphere_grid(mirror(view_dir), 2000, 300)
+    d, w, _, _ = sphere_grid(mirror(view_dir), 1500, 200)
     m = len(d)
     normal, view = rows_of(NORMAL, m), rows_of(view_dir, m)
     f_ss = bsdf.ggx_reflection(normal, view, d, np.full(m, alpha), np.ones((m, 3)), np.ones(m))[:, 0]
