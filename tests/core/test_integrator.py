@@ -337,3 +337,30 @@ def test_energy_density_seen_by_a_moving_panorama(beta):
     latitude = -0.5 * math.pi + (np.arange(64) + 0.5) * math.pi / 64  # row 0 at the bottom
     average = float((image.mean(axis=1) * np.cos(latitude)).sum() / np.cos(latitude).sum())
     assert average == pytest.approx(0.25 / (1.0 - beta**2) * (1.0 + beta**2 / 3.0), rel=2e-3)
+
+
+def test_path_traced_tiles_threads_and_pickles_give_the_same_bits():
+    """Every random number is keyed by (pixel, sample, dimension): any tile split, two threads or a
+    pickled copy (as sent to another process) render the same bits."""
+    import pickle
+
+    from restframe_addon.core.prepared import prepare
+    from restframe_addon.core.render import render_tiles
+
+    scene = lamp_floor(world=(0.2, 0.3, 0.4))
+    scene.meshes.append(Mesh("glow", *quad((-1.0, 1.0, 1.0), (0.5, 0.5)), velocity=Velocity((0.0, -0.4, 0.0)),
+                             pivot=(-1.0, 1.0, 1.0), material_indices=np.array([1, 1])))
+    scene.materials.append(lambert(0.0, 3.0))
+
+    def image(prepared, threads):
+        width, height = prepared.settings.resolution
+        out = np.zeros((height, width, 4), np.float32)
+        for tile in render_tiles(prepared, threads=threads):
+            out[tile.y0:tile.y1, tile.x0:tile.x1] = tile.passes["Combined"]
+        return out
+
+    whole = render_image(scene, path_settings(res=(20, 14), samples=3, tile_size=64))["Combined"]
+    prepared = prepare(scene, path_settings(res=(20, 14), samples=3, tile_size=6))
+    np.testing.assert_array_equal(image(prepared, 1), whole)
+    np.testing.assert_array_equal(image(prepared, 2), whole)
+    np.testing.assert_array_equal(image(pickle.loads(pickle.dumps(prepared)), 1), whole)
