@@ -446,7 +446,7 @@ class _Lobes(LayeredLobes):
             weight[sel] = rows.scale(self.reflect_weight[sel], scale[sel])
         sel = np.flatnonzero(lobe == _TRANSMIT)
         if len(sel):
-            light[sel], ok = refract(view[sel], ns[sel], self.refraction_eta[sel])
+            light[sel], ok = refract(view[sel], ns[sel], self.eta[sel])
             weight[sel] = rows.scale(self.transmit_weight[sel], np.where(ok, scale[sel], 0.0))
         smooth = np.flatnonzero((lobe == _DIFFUSE) | (lobe == _GLOSSY))
         if len(smooth):

@@ -155,7 +155,7 @@ class LayeredLobes:
     (Transmission) or over the diffuse base, which it dims by its directional albedo; rough
     specular lobes are multiscatter GGX (energy-compensated), smooth ones (roughness below
     ``MIRROR_ROUGHNESS``) delta reflections.  All in the surfaces' rest frame; ``view`` toward
-    the viewer, ``back``: the back of a transmissive surface was hit (light inside it).
+    the viewer, ``back``: the back of the surface was hit (for a transmissive one: from inside).
     """
 
     def __init__(self, mats: MaterialTable, base, mat, ns, view, back=None):
@@ -166,7 +166,9 @@ class LayeredLobes:
         self.glossy = mats.glossy[mat]
         self.mirror = mats.mirror[mat]
         ior = mats.ior_adjusted[mat]
-        self.eta = 1.0 / ior  # n_outside / n_inside
+        # n_view / n_other: light inside a transmissive body sees the interface from within
+        inside = (back if back is not None else np.zeros(n, dtype=bool)) & (mats.transmission[mat] > 0.0)
+        self.eta = np.where(inside, ior, 1.0 / ior)
         cos_v = np.clip(rows.dot(ns, view), 1e-6, 1.0)
         self.cos_v = cos_v
         f0 = np.broadcast_to(mats.f0_adjusted[mat][:, None], (n, channels))
@@ -181,10 +183,8 @@ class LayeredLobes:
         # the delta lobes
         reflectance = self.fresnel(cos_v, compensated=False)
         self.reflect_weight = rows.scale(reflectance, self.mirror.astype(np.float64))
-        inside = back if back is not None else np.zeros(n, dtype=bool)
-        self.refraction_eta = np.where(inside, ior, self.eta)
         transmission = mats.transmission[mat] * (1.0 - self.metallic)
-        through = (1.0 - fresnel_dielectric(cos_v, self.refraction_eta)) * transmission
+        through = (1.0 - fresnel_dielectric(cos_v, self.eta)) * transmission
         self.transmit_weight = np.broadcast_to(through[:, None], (n, channels))
 
     def fresnel(self, cos_h, compensated: bool = True):

@@ -364,3 +364,15 @@ def test_path_traced_tiles_threads_and_pickles_give_the_same_bits():
     np.testing.assert_array_equal(image(prepared, 1), whole)
     np.testing.assert_array_equal(image(prepared, 2), whole)
     np.testing.assert_array_equal(image(pickle.loads(pickle.dumps(prepared)), 1), whole)
+
+
+def test_glass_white_furnace():
+    """A clear glass ball (Fresnel reflection and refraction, total internal reflection inside) in a
+    uniform world absorbs nothing: it sends back the world's radiance."""
+    camera = look_at_camera((0, -4, 0), (0, 0, 0), fov_half_tan=0.2)
+    sphere = Mesh("ball", *uv_sphere(radius=1.0, segments=48, rings=24))
+    glass = Material("glass", base_color=(1.0, 1.0, 1.0), roughness=0.0, transmission=1.0, ior=1.5)
+    scene = Scene(camera=camera, meshes=[sphere], materials=[glass], world_color=(0.5, 0.5, 0.5))
+    value = mean_rgb(render_image(scene, path_settings(res=(8, 8), samples=64, max_bounces=32, glossy_bounces=32,
+                                                       transmission_bounces=32)))
+    assert value == pytest.approx(np.full(3, 0.5), rel=0.01)
