@@ -175,16 +175,18 @@ def test_bad_light_path_settings_are_refused():
 
 
 # ---------------------------------------------------------------------------- environment
-def test_uniform_environment_image_equals_the_background_colour():
+@pytest.mark.parametrize("mode", ["OFF", "SPECTRAL"])
+def test_uniform_environment_image_equals_the_background_colour(mode):
     """An environment image of one colour lights as the plain Background colour (same estimator
-    through the image's importance sampling)."""
+    through the image's importance sampling; in Spectral mode its pixels become spectra per ray)."""
     camera = look_at_camera((0, -4, 0), (0, 0, 0), fov_half_tan=0.2)
     sphere = Mesh("sphere", *uv_sphere(radius=1.0, segments=32, rings=16))
-    plain = Scene(camera=camera, meshes=[sphere], materials=[lambert(0.8)], world_color=(0.3, 0.3, 0.3))
-    image = np.full((8, 16, 3), 0.3)
-    textured = dataclass_replace(plain, world_texture=WorldTexture(image, rotation=(0.3, 0.2, 0.1)))
-    a = mean_rgb(render_image(plain, path_settings(samples=64)))
-    b = mean_rgb(render_image(textured, path_settings(samples=64)))
+    colour = (0.45, 0.3, 0.3)
+    plain = Scene(camera=camera, meshes=[sphere], materials=[lambert(0.8)], world_color=colour)
+    textured = dataclass_replace(plain, world_texture=WorldTexture(np.tile(colour, (8, 16, 1)), rotation=(0.3, 0.2, 0.1)))
+    settings = path_settings(samples=64, doppler_mode=mode, spectral_samples=16)
+    a = mean_rgb(render_image(plain, settings))
+    b = mean_rgb(render_image(textured, settings))
     assert b == pytest.approx(a, rel=0.01)
 
 
