@@ -45,7 +45,8 @@ def main():
         results[engine] = error, seconds, reference
         print(f"{engine}: {samples} spp {seconds:.2f} s, rel. RMSE {error:.4f}; "
               f"{reference_samples} spp {reference_seconds:.2f} s")
-    (cycles_error, cycles_seconds, cycles_reference), (error, seconds, reference) = results["CYCLES"], results["RESTFRAME"]
+    cycles_error, cycles_seconds, cycles_reference = results["CYCLES"]
+    error, seconds, reference = results["RESTFRAME"]
     print(f"time at equal noise, RESTframe / Cycles: {seconds * (error / cycles_error) ** 2 / cycles_seconds:.2f}")
     difference = np.sqrt(np.mean((reference - cycles_reference) ** 2)) / cycles_reference.mean()
     print(f"the references differ by a relative RMSE of {difference:.4f}")

@@ -183,7 +183,8 @@ def test_uniform_environment_image_equals_the_background_colour(mode):
     sphere = Mesh("sphere", *uv_sphere(radius=1.0, segments=32, rings=16))
     colour = (0.45, 0.3, 0.3)
     plain = Scene(camera=camera, meshes=[sphere], materials=[lambert(0.8)], world_color=colour)
-    textured = dataclass_replace(plain, world_texture=WorldTexture(np.tile(colour, (8, 16, 1)), rotation=(0.3, 0.2, 0.1)))
+    texture = WorldTexture(np.tile(colour, (8, 16, 1)), rotation=(0.3, 0.2, 0.1))
+    textured = dataclass_replace(plain, world_texture=texture)
     settings = path_settings(samples=64, doppler_mode=mode, spectral_samples=16)
     a = mean_rgb(render_image(plain, settings))
     b = mean_rgb(render_image(textured, settings))
@@ -221,7 +222,8 @@ def bleeding(beta, samples=256):
 
 def test_moving_wall_bleeds_doppler_shifted_colour_onto_a_static_floor():
     """Light from a wall moving toward the floor patch arrives blue-shifted, from one moving away
-    red-shifted (its brightness also changes with where the wall was when the light left it): the blue/red ratio moves as the Doppler factor
+    red-shifted (its brightness also changes with where the wall was when the light left it): the
+    blue/red ratio moves as the Doppler factor
     D = 1 / (gamma (1 - beta . e)) of the wall's light toward the patch (e: wall to patch)."""
     rest = bleeding(0.0)
     assert rest.min() > 0.0
