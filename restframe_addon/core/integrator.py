@@ -4,7 +4,7 @@ Every scattering event happens in the rest frame k of the surface hit: there the
 picks the next incoming direction (cosine for diffuse, GGX visible normals for glossy,
 mirror and Fresnel-weighted refraction for the delta lobes), and the bounce ray is traced
 backward from the hit event across every frame, exactly as a camera ray is from the
-camera's (``trace_nearest(frames, k, ...)``).  Light crossing from the frame it comes
+camera's (``Shader.trace(k, ...)``: visibility, cut-outs).  Light crossing from the frame it comes
 from into frame k is carried by the Doppler factor D between them: radiance times D^4
 (RGB), or D^5 at wavelengths multiplied by D (Spectral): the factors multiply along the
 path, each path keeping its throughput and its wavelengths in the current frame
@@ -32,9 +32,9 @@ from . import mis, rows, sampling
 from .emitters import EmitterTable, solid_angle_pdf
 from .bsdf import diffuse_pdf, ggx_reflection_pdf, reflect, refract, sample_diffuse, sample_ggx_reflection
 from .passes import hit_doppler, hit_times
-from .scene import RenderSettings, Scene
-from .shading import LayeredLobes, Shader
-from .tracer import Hits, TraceCache, frames_hit, occluded, trace_nearest
+from .scene import RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_TRANSMISSION, RenderSettings, Scene
+from .shading import LayeredLobes, Shader, _cutout_dimension, hit_uv
+from .tracer import Hits, TraceCache, frames_hit, occluded
 from .world import EnvironmentWorld, UniformWorld, mapping_rotation
 
 RR_START = 3  # bounces without Russian roulette
@@ -42,6 +42,8 @@ _DIMENSION = 1 << 20  # first random-number dimension of the path tracer (the di
 _DIMENSIONS_PER_BOUNCE = 16
 _DIFFUSE, _GLOSSY, _MIRROR, _TRANSMIT = range(4)  # lobes
 _KIND_OF_LOBE = np.array([1, 2, 2, 3])  # bounce counters: 0 total, 1 diffuse, 2 glossy (mirror too), 3 transmission
+_RAY_OF_LOBE = np.array([RAY_DIFFUSE, RAY_GLOSSY, RAY_GLOSSY, RAY_TRANSMISSION])  # what the bounce ray is (visibility)
+_WORLD_STREAM, _EMITTER_STREAM = 6, 7  # cut-out streams of the shadow rays toward the world and the emitters
 
 
 def scene_world(scene: Scene):
@@ -84,14 +86,15 @@ class PathTracer:
         Returns (values, hits of the first rays)."""
         n = len(d)
         if hits is None:
-            hits = trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi, cache)
+            hits = self.shader.trace(src, tau0, x0, d, s_lo, s_hi, RAY_CAMERA, pixel, sample, 0, cache)
         first_hits = hits
         out = np.zeros((n, self.colour.channels))
         path = np.arange(n)
         state = _Paths(
             src=np.full(n, src, dtype=np.int64), d=np.asarray(d, dtype=np.float64), lam=lam,
             throughput=np.ones((n, self.colour.channels)), pdf=np.full(n, np.inf),
-            counts=np.zeros((n, 4), dtype=np.int64), terminal=np.zeros(n, dtype=bool), reference=np.ones(n))
+            counts=np.zeros((n, 4), dtype=np.int64), terminal=np.zeros(n, dtype=bool), reference=np.ones(n),
+            ray=np.full(n, RAY_CAMERA, dtype=np.int64))
         bounce = 0
         while len(path):
             self._add_world(out, path, state, hits, bounce)
@@ -99,18 +102,20 @@ class PathTracer:
             bounce += 1
             if not len(path):
                 break
-            hits = self._trace(state.src, *rays, cache)
+            hits = self._trace(state, *rays, pixel[path], sample[path], bounce, cache)
         return out, first_hits
 
-    def _trace(self, src, tau, origin, d, s_lo, cache):
-        """Nearest hits of bounce rays starting in different frames (one trace per frame)."""
+    def _trace(self, state, tau, origin, d, s_lo, pixel, sample, depth: int, cache):
+        """Nearest hits of bounce rays starting in different frames, of different types (one
+        trace per frame and type: ray visibility and cut-outs as the shader's)."""
         n = len(d)
         hits = Hits(frame=np.full(n, -1, dtype=np.int32), s=np.full(n, np.inf), s_frame=np.full(n, np.inf),
                     w=np.ones(n), prim=np.full(n, -1, dtype=np.int32), u=np.zeros(n, dtype=np.float32),
                     v=np.zeros(n, dtype=np.float32), d_frame=d.copy(), tau_frame=tau.copy())
-        for k in np.unique(src):
-            sel = np.flatnonzero(src == k)
-            part = trace_nearest(self.frames, int(k), tau[sel], origin[sel], d[sel], s_lo[sel], np.inf, cache)
+        for k, ray in {(int(k), int(r)) for k, r in zip(state.src, state.ray)}:
+            sel = np.flatnonzero((state.src == k) & (state.ray == ray))
+            part = self.shader.trace(k, tau[sel], origin[sel], d[sel], s_lo[sel], np.inf, ray, pixel[sel],
+                                     sample[sel], depth, cache)
             for name in ("frame", "s", "s_frame", "w", "prim", "u", "v", "d_frame", "tau_frame"):
                 getattr(hits, name)[sel] = getattr(part, name)
         return hits
@@ -146,7 +151,8 @@ class PathTracer:
             weight = mis.power_heuristic(pdf_bsdf, pdf_world) if bounce else np.ones(len(sel))
             self._accumulate(out, path[sel], state.throughput[sel] * light, weight, bounce)
 
-    def _sample_world(self, k, tau, origin, ng, ns, view, base, mat, mix, eps, pixel, sample, lam, dim, cache):
+    def _sample_world(self, k, tau, origin, ng, ns, view, base, mat, mix, eps, pixel, sample, lam, dim, depth,
+                      cache):
         """Next-event estimate of the world at vertices of frame k: a direction drawn from the
         world's own density in the world frame, seen from frame k (density times D^2)."""
         u1, u2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
@@ -162,7 +168,9 @@ class PathTracer:
         total = np.zeros((len(u1), self.colour.channels))
         if not len(sel):
             return total
-        blocked = occluded(self.frames, k, tau[sel], origin[sel], light[sel], eps, np.inf, cache)
+        blocked = occluded(self.frames, k, tau[sel], origin[sel], light[sel], eps, np.inf, cache,
+                           see_through=self.shader.cutouts(pixel[sel], sample[sel],
+                                                           _cutout_dimension(depth, _WORLD_STREAM)))
         sel = sel[~blocked]
         if not len(sel):
             return total
@@ -186,7 +194,8 @@ class PathTracer:
         pdf = np.where(cos > 0.0, choice * pdf_area * distance**2 / np.maximum(cos, 1e-300), 0.0)
         return pdf * doppler**2
 
-    def _sample_emitters(self, k, tau, origin, ng, ns, view, base, mat, lobes, pixel, sample, lam, dim, cache):
+    def _sample_emitters(self, k, tau, origin, ng, ns, view, base, mat, lobes, pixel, sample, lam, dim, depth,
+                         cache):
         """Next-event estimate of the emissive triangles: a frame of emitters drawn by power, a
         triangle by area x luminance and a point on it.  An emitter is static in its frame: the
         hit event mapped there sees it where it is (its retarded position), as a lamp."""
@@ -214,7 +223,9 @@ class PathTracer:
                 continue
             eps = self.shader.epsilon[k]
             reach = doppler * r_j * (1.0 - 1e-6) - 2.0 * eps  # stop short of the emitter itself
-            blocked = occluded(self.frames, k, tau[sel], origin[sel], light, eps, reach, cache)
+            see_through = self.shader.cutouts(pixel[sel], sample[sel], _cutout_dimension(depth, _EMITTER_STREAM))
+            blocked = occluded(self.frames, k, tau[sel], origin[sel], light, eps, reach, cache,
+                               see_through=see_through)
             sel, light, doppler, pdf, cos, r_j, tau_j, row = (a[~blocked] for a in
                                                                (sel, light, doppler, pdf, cos, r_j, tau_j, row))
             if not len(sel):
@@ -235,8 +246,11 @@ class PathTracer:
     def _vertices(self, out, path, state, hits, bounce, pixel, sample, cache):
         """Light at the surfaces hit and the scattered rays that continue the paths."""
         pieces = []
+        held = self.shader.held_out(hits) if self.shader.has_holdouts else None  # holdouts end paths, dark
         for k in frames_hit(hits):
-            sel = np.flatnonzero(hits.frame == k)
+            sel = np.flatnonzero(hits.frame == k if held is None else (hits.frame == k) & ~held)
+            if not len(sel):
+                continue
             piece = self._vertex(int(k), out, path[sel], state.take(sel), hits.take(sel), bounce,
                                  pixel[path[sel]], sample[path[sel]], cache)
             if piece is not None:
@@ -259,11 +273,7 @@ class PathTracer:
         if bounce == 0:  # Russian roulette compares throughputs with the camera hit's
             state.reference = np.maximum(throughput.max(axis=1), 1e-300)
         position, ng, ns, mat, back = shader.surface_info(k, prim, u, v, d_k, tau)
-        uv = None
-        if frame.geometry.corner_uvs is not None:
-            cuv = frame.geometry.corner_uvs[prim]
-            uu, vv = u[:, None], v[:, None]
-            uv = (1.0 - uu - vv) * cuv[:, 0] + uu * cuv[:, 1] + vv * cuv[:, 2]
+        uv = hit_uv(frame, prim, u, v)
         if self.emissive:
             emitted = np.array(colour.emission(mat, lam), dtype=np.float64)
             if mats.emission_curves:
@@ -295,11 +305,11 @@ class PathTracer:
                                     lobes)
         if not self.world.is_black and lobes.any_smooth:
             world = self._sample_world(k, tau, origin, ng, ns, view, base, mat, lobes, eps, pixel, sample, lam,
-                                       dim + 3, cache)
+                                       dim + 3, bounce, cache)
             direct = world if direct is None else direct + world
         if self.emitters and lobes.any_smooth:
             glow = self._sample_emitters(k, tau, origin, ng, ns, view, base, mat, lobes, pixel, sample, lam,
-                                         dim + 6, cache)
+                                         dim + 6, bounce, cache)
             direct = glow if direct is None else direct + glow
         if direct is not None:
             self._accumulate(out, path, throughput * direct, None, bounce + 1)
@@ -328,7 +338,7 @@ class PathTracer:
         ray_origin = position[go] + rows.scale(ng[go], side[go] * eps)
         nxt = _Paths(src=np.full(len(go), k, dtype=np.int64), d=light[go], lam=None if lam is None else lam[go],
                      throughput=throughput[go], pdf=pdf[go], counts=counts[go], terminal=terminal[go],
-                     reference=state.reference[go])
+                     reference=state.reference[go], ray=_RAY_OF_LOBE[lobe[go]])
         return path[go], nxt, (tau[go], ray_origin, light[go], np.full(len(go), eps))
 
     # ------------------------------------------------------------------ accumulation
@@ -372,13 +382,13 @@ class _Paths:
     """The state of live paths (rows): the frame their next ray starts in and its direction,
     wavelengths in that frame (None: RGB), throughput, the BSDF density of the direction (inf:
     a delta lobe or a camera ray), bounce counters, whether the next vertex is past the limits,
-    and the Russian roulette reference throughput."""
+    the Russian roulette reference throughput and the ray's type (``RAY_*``)."""
 
-    __slots__ = ("src", "d", "lam", "throughput", "pdf", "counts", "terminal", "reference")
+    __slots__ = ("src", "d", "lam", "throughput", "pdf", "counts", "terminal", "reference", "ray")
 
-    def __init__(self, src, d, lam, throughput, pdf, counts, terminal, reference):
+    def __init__(self, src, d, lam, throughput, pdf, counts, terminal, reference, ray):
         self.src, self.d, self.lam, self.throughput = src, d, lam, throughput
-        self.pdf, self.counts, self.terminal, self.reference = pdf, counts, terminal, reference
+        self.pdf, self.counts, self.terminal, self.reference, self.ray = pdf, counts, terminal, reference, ray
 
     def take(self, index) -> "_Paths":
         return _Paths(*(None if getattr(self, name) is None else getattr(self, name)[index]
