@@ -138,7 +138,8 @@ def report(name: str, results: dict[bool, dict]) -> None:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeats", type=int, default=3, help="runs per scene and mode (default 3)")
-    parser.add_argument("--frames", default="1-25", help="frames of the bars animation (default 1-25, the file's range)")
+    parser.add_argument("--frames", default="1-25",
+                        help="frames of the bars animation (default 1-25, the file's range)")
     parser.add_argument("--heavy-frames", default="1-6", help="frames of the heavy sphere (default 1-6)")
     parser.add_argument("--no-heavy", action="store_true", help="only the bars")
     parser.add_argument("--worker", nargs=4, help=argparse.SUPPRESS)

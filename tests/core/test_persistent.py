@@ -121,7 +121,8 @@ def test_a_cancelled_build_keeps_what_was_built_and_forgets_nothing(builds):
     cube = next(m for m in scene.meshes if m.name == "cube")
     frame = at(scene, FRAME_TIMES[1], cube={"vertices": cube.vertices * 1.1})
     builds.clear()
-    frames_module.build_frames(frame, should_stop=lambda: (2,) in builds, geometry_cache=cache)  # Esc in the cube's build
+    stop_in_the_cubes_build = lambda: (2,) in builds  # noqa: E731
+    frames_module.build_frames(frame, should_stop=stop_in_the_cubes_build, geometry_cache=cache)
     assert builds == [(2,)] and len(cache) == 5  # the cancelled build not kept, the unvisited bodies not forgotten
     builds.clear()
     frames_module.build_frames(frame, geometry_cache=cache)
