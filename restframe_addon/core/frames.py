@@ -24,7 +24,7 @@ import numpy as np
 from embreex import rtcore, rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
-from . import motion, rows
+from . import embree_direct, motion, rows
 from .lorentz import Boost
 from .scene import REST, Scene, Velocity
 
@@ -425,10 +425,11 @@ def _embree_device():
     return _DEVICE
 
 
-# Triangles per embree geometry.  embreex copies a mesh into embree element by element while
-# holding the GIL (1.6 s for a million triangles in one piece), which keeps the engine from
-# polling Esc; a piece of 2**14 triangles takes about 35 ms.  Embree still builds one BVH
-# over all pieces of a scene, so tracing is as fast as with one piece.
+# Triangles per embree geometry, so that Esc is polled between pieces: with embreex's own
+# TriangleMesh, which copies a mesh into embree element by element while holding the GIL (1.6 s
+# for a million triangles in one piece), a piece of 2**14 triangles takes about 35 ms; handed
+# over directly (embree_direct) about 1 ms.  Embree still builds one BVH over all pieces of a
+# scene, so tracing is as fast as with one piece.
 _PIECE_TRIANGLES = 2**14
 
 
@@ -473,7 +474,7 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
 
 def _attach_piece(scene, vertices, triangles, claimed_by) -> None:
     """Add triangles to an embreex scene as one geometry holding only the vertices they use
-    (embreex copies every vertex it is given).
+    (embree gets a copy of every vertex it is given).
 
     The used vertices are renumbered without sorting (np.unique costs 3x as much): each is
     claimed by one of its corners in ``claimed_by`` (scratch, one entry per vertex), and the
@@ -485,14 +486,26 @@ def _attach_piece(scene, vertices, triangles, claimed_by) -> None:
     claimant = claimed_by[corners]
     claims = claimant == corner_index
     new_number = np.cumsum(claims, dtype=np.int32) - 1
-    TriangleMesh(scene, vertices[corners[claims]], new_number[claimant].reshape(-1, 3))
+    piece_vertices, piece_triangles = vertices[corners[claims]], new_number[claimant].reshape(-1, 3)
+    if not embree_direct.attach(scene, _embree_device(), piece_vertices, piece_triangles):
+        TriangleMesh(scene, piece_vertices, piece_triangles)
 
 
 def _clusters(vertices, triangles, depth: int = 4) -> np.ndarray:
     """Bounding spheres of up to 2**depth groups of triangles (median splits of their centroids
-    along the longest axis): a tighter outline than one sphere, for culling whole ray bundles."""
-    tri = vertices[triangles]
-    centroids = tri.mean(axis=1)
+    along the longest axis): a tighter outline than one sphere, for culling whole ray bundles.
+
+    Worked on one coordinate at a time (numpy is slow along a length-3 axis): a group's
+    box is the box of its triangles' own boxes.
+    """
+    corner_index = [np.ascontiguousarray(triangles[:, j]) for j in range(3)]
+    centroids, tri_lo, tri_hi = [], [], []  # per axis: of each triangle
+    for axis in range(3):
+        column = np.ascontiguousarray(vertices[:, axis])
+        a, b, c = (column[i] for i in corner_index)
+        centroids.append((a + b + c) / 3.0)
+        tri_lo.append(np.minimum(np.minimum(a, b), c))
+        tri_hi.append(np.maximum(np.maximum(a, b), c))
     groups = [np.arange(len(triangles))]
     for _ in range(depth):
         split = []
@@ -500,15 +513,15 @@ def _clusters(vertices, triangles, depth: int = 4) -> np.ndarray:
             if len(group) < 64:
                 split.append(group)
                 continue
-            c = centroids[group]
-            axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
-            order = np.argpartition(c[:, axis], len(group) // 2)
+            c = [centroid[group] for centroid in centroids]
+            axis = int(np.argmax([ca.max() - ca.min() for ca in c]))
+            order = np.argpartition(c[axis], len(group) // 2)
             split += [group[order[: len(group) // 2]], group[order[len(group) // 2:]]]
         groups = split
     spheres = []
     for group in groups:
-        points = tri[group].reshape(-1, 3)
-        lo, hi = points.min(axis=0), points.max(axis=0)
+        lo = np.array([low[group].min() for low in tri_lo])
+        hi = np.array([high[group].max() for high in tri_hi])
         spheres.append([*(0.5 * (lo + hi)), 0.5 * float(np.linalg.norm(hi - lo))])
     return np.array(spheres)
 

@@ -1,0 +1,95 @@
+"""Section 6: building a mesh's rest frame against raw embreex building the same triangles (issue 20).
+
+    tools/dev.sh tests/bench/bench_build.py            # this section alone, printed (Markdown)
+    tools/dev.sh tests/bench/bench_build.py --smoke    # tiny sizes
+
+**RESTframe** = `build_frames` of a scene with one UV sphere moving at (0.5, 0.2, 0) c: the
+mesh checked and placed in its rest frame, handed to embree in pieces (Esc is polled between
+them), the BVH built, the culling clusters.  **raw** = the fastest way embreex offers to build
+the same float32 triangles: one `TriangleMesh(scene, vertices, indices)` and the commit.
+embreex copies both arrays into embree element by element through Python indexing whatever
+their layout or dtype, so that copy is part of the floor; **Embree BVH** is the commit alone.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+
+from bench_common import Context, Goal, Section, interleaved, load, look_at_camera, uv_sphere
+from embreex import rtcore_scene
+from embreex.mesh_construction import TriangleMesh
+from restframe_addon.core import frames
+from restframe_addon.core.scene import Mesh, Scene, Velocity
+
+GOAL = 2.0  # RESTframe's build at most this many times raw embreex's
+
+
+def sphere_scene(segments: int) -> Scene:
+    v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, segments, segments // 2)
+    camera = look_at_camera((0.0, -3.2, 0.0), (0.0, 0.0, 0.0), fov_half_tan=0.45)
+    return Scene(camera=camera, meshes=[Mesh("ball", v, t, velocity=Velocity((0.5, 0.2, 0.0)))])
+
+
+def raw_build(vertices: np.ndarray, triangles: np.ndarray) -> float:
+    """Build an embreex scene of the triangles; returns how long the commit (Embree's BVH build) took."""
+    scene = rtcore_scene.EmbreeScene(frames._embree_device())
+    TriangleMesh(scene, vertices, triangles)
+    t0 = time.perf_counter()
+    scene.run(np.zeros((1, 3), np.float32), np.array([[1.0, 0.0, 0.0]], np.float32))  # commits
+    return time.perf_counter() - t0
+
+
+def longest_stretch_without_esc(scene: Scene) -> tuple[float, int]:
+    """(longest time between two `should_stop` polls of one build, the number of polls)."""
+    polls = []
+    frames.build_frames(scene, should_stop=lambda: polls.append(time.perf_counter()) and False)
+    polls.append(time.perf_counter())
+    return float(np.max(np.diff(polls))), len(polls) - 1
+
+
+def run(ctx: Context) -> Section:
+    sec = Section("6. Building rest frames against raw embreex")
+    repeats = ctx.pick(5, 1)
+    rows = []
+    worst = 0.0
+    load_start = load()
+    for segments in ctx.pick((512, 1024), (32, 64)):
+        scene = sphere_scene(segments)
+        geometry = next(f.geometry for f in frames.build_frames(scene).frames if f.has_geometry)
+        vertices = (geometry.vertices - geometry.anchor).astype(np.float32)  # the frame's own triangles
+        triangles = geometry.triangles.astype(np.int32)
+        commits = []
+        t = interleaved({"restframe": lambda: frames.build_frames(scene),
+                         "raw": lambda: commits.append(raw_build(vertices, triangles))}, repeats)
+        stretch, polls = longest_stretch_without_esc(scene)
+        ratio = t["restframe"]["min"] / t["raw"]["min"]
+        worst = max(worst, ratio)
+        n = len(triangles)
+        rows.append([n, t["restframe"]["min"], t["raw"]["min"], min(commits), ratio, stretch, polls])
+        sec.number(f"build_ratio_{n}", ratio)
+        sec.number(f"build_esc_gap_{n}", stretch)
+        ctx.log(f"  {n} triangles: restframe {t['restframe']['min']:.3f} s, raw {t['raw']['min']:.3f} s, "
+                f"ratio {ratio:.2f}, longest stretch without Esc {stretch * 1e3:.0f} ms")
+    sec.add(__doc__.split("\n\n", 2)[2].strip().replace("\n", " "))
+    sec.add("")
+    sec.add(f"Min of {repeats} interleaved repeats; load average {load_start:.2f} at the start, {load():.2f} at the "
+            "end. **longest without Esc** = the longest stretch of one build between two polls of "
+            "`should_stop` (the engine's Esc), mostly the BVH build, which embreex cannot split.")
+    sec.add("")
+    sec.table(["triangles", "RESTframe build (s)", "raw embreex (s)", "of which Embree BVH (s)",
+               "RESTframe / raw", "longest without Esc (s)", "Esc polls"], rows)
+    sec.goals.append(Goal("rest-frame build / raw embreex build", f"<= {GOAL:g}", f"{worst:.2f} (worst)",
+                          worst <= GOAL))
+    return sec
+
+
+if __name__ == "__main__":
+    context = Context(smoke="--smoke" in sys.argv, out_dir=None, plot_prefix="",
+                      log=lambda *a: print(*a, file=sys.stderr, flush=True))
+    section = run(context)
+    print("\n".join([f"## {section.title}", "", *section.body]))
+    for goal in section.goals:
+        print(f"- {goal.name}: {goal.target}, measured {goal.measured}, met: {goal.met}")
