@@ -7,13 +7,14 @@ embreex does not expose its scene or device handle, so this module reads them fr
 ``EmbreeScene`` and ``EmbreeDevice`` objects (Cython objects whose fields follow the Python
 object header) and calls the functions embreex itself calls -- ``rtcNewGeometry``,
 ``rtcSetNewGeometryBuffer``, ``rtcCommitGeometry``, ``rtcAttachGeometry``,
-``rtcReleaseGeometry`` -- in the embree library embreex has already loaded.  The buffers then
-hold exactly what embreex would have written, so embree builds the same BVH.
+``rtcReleaseGeometry``, ``rtcCommitScene`` -- in the embree library embreex has already loaded.
+The buffers then hold exactly what embreex would have written, so embree builds the same BVH;
+the commit runs without the GIL, so the caller can keep polling Esc meanwhile.
 
 Before first use the route is proved on a probe scene: the objects' sizes, two fields read back
 at their offsets, and one triangle attached this way and hit by a ray through embreex.  Where
 anything fails (another embreex build, the library not loaded under a known name),
-:func:`attach` returns False and the caller uses ``TriangleMesh``.
+:func:`ready` and :func:`attach` return False and the caller uses embreex's own ways.
 """
 
 from __future__ import annotations
@@ -34,17 +35,29 @@ _TRIANGLE, _INDEX, _VERTEX, _UINT3, _FLOAT3 = 0, 0, 1, 0x5003, 0x9003  # embree4
 _library = None  # the proved embree library (ctypes), False once the route failed
 
 
+def ready(device) -> bool:
+    """Can triangles go to embree directly on this device (proved once per process)?"""
+    global _library
+    if _library is None:
+        _library = _proved_library(device) or False
+    return bool(_library)
+
+
 def attach(scene, device, vertices: np.ndarray, triangles: np.ndarray) -> bool:
     """Attach float32 vertices (n, 3) and triangles (m, 3, vertex indices) to an embreex scene
     made on ``device`` as one triangle geometry, as ``TriangleMesh(scene, vertices, triangles)``
     would; False (nothing attached) where the direct route is not available."""
-    global _library
-    if _library is None:
-        _library = _proved_library(device) or False
-    if not _library or _field(scene, _SCENE_DEVICE) != id(device):
+    if not ready(device) or _field(scene, _SCENE_DEVICE) != id(device):
         return False
     _attach(_library, scene, device, vertices, triangles)
     return True
+
+
+def commit(scene) -> None:
+    """Build the BVH of an embreex scene now, as its first query would, but without holding the
+    GIL (a ctypes call releases it); only once :func:`ready` is true."""
+    _library.rtcCommitScene(_field(scene, _SCENE_HANDLE))
+    scene.is_committed = 1  # embreex's own flag: its queries do not commit again
 
 
 def _field(obj, offset: int) -> int:
@@ -84,7 +97,7 @@ def _proved_library(device):
     for name, result, args in (("rtcNewGeometry", void, [void, ctypes.c_int]),
                                ("rtcSetNewGeometryBuffer", void, [void, ctypes.c_int, uint, ctypes.c_int, size, size]),
                                ("rtcCommitGeometry", None, [void]), ("rtcAttachGeometry", uint, [void, void]),
-                               ("rtcReleaseGeometry", None, [void])):
+                               ("rtcReleaseGeometry", None, [void]), ("rtcCommitScene", None, [void])):
         function = getattr(lib, name, None)
         if function is None:
             return None

@@ -17,6 +17,7 @@ offset, each valid only between two of the body's simultaneity slices (a
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -439,7 +440,8 @@ _PIECE_TRIANGLES = 2**14
 
 def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     """The parts' triangles in one embreex scene; None once ``should_stop()`` is true
-    (checked before the culling clusters and between pieces of ``_PIECE_TRIANGLES``)."""
+    (checked before the culling clusters, between pieces of ``_PIECE_TRIANGLES`` and while
+    embree builds the BVH)."""
     offsets = np.cumsum([0] + [len(p["vertices"]) for p in parts[:-1]])
     vertices = np.concatenate([p["vertices"] for p in parts])
     triangles = np.concatenate([p["triangles"] + o for p, o in zip(parts, offsets)])
@@ -466,9 +468,8 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
         if should_stop():
             return None
         _attach_piece(scene, local_vertices, triangles[start:start + _PIECE_TRIANGLES], claimed_by)
-    # commit now (embreex commits lazily on the first query, which is not thread-safe); the BVH
-    # build holds the GIL too (about 0.4 s per million triangles) and embreex cannot split it
-    scene.run(np.zeros((1, 3), np.float32), np.array([[1, 0, 0]], np.float32))
+    if not _commit(scene, len(triangles), should_stop):
+        return None
     return Geometry(
         clusters=clusters, radius=radius,
         vertices=vertices, triangles=triangles,
@@ -478,6 +479,33 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
         corner_normals=normals, corner_uvs=uvs, lo=lo, hi=hi, anchor=anchor, embree=scene,
         piece_start=piece_start,
     )
+
+
+_COMMIT_POLL = 0.02  # seconds between polls of should_stop while embree builds a large BVH
+_POLLED_COMMIT = 2**17  # triangles from which that is worth a helper thread (a build of ~50 ms)
+
+
+def _commit(scene, triangle_count: int, should_stop) -> bool:
+    """Build the scene's BVH now (embreex commits lazily on the first query, which is not
+    thread-safe); False once ``should_stop()`` is true.
+
+    Directly (embree_direct) the build runs without the GIL, a large one in a helper thread
+    while Esc is polled here (a cancelled build finishes there and is dropped).  Through
+    embreex it holds the GIL (about 0.4 s per million triangles) and cannot be interrupted.
+    """
+    if not embree_direct.ready(_embree_device()):
+        scene.run(np.zeros((1, 3), np.float32), np.array([[1, 0, 0]], np.float32))
+        return True
+    if triangle_count < _POLLED_COMMIT:
+        embree_direct.commit(scene)
+        return True
+    build = threading.Thread(target=embree_direct.commit, args=(scene,), name="restframe-bvh")
+    build.start()
+    while build.is_alive():
+        if should_stop():
+            return False
+        build.join(_COMMIT_POLL)
+    return True
 
 
 def _attach_piece(scene, vertices, triangles, claimed_by) -> None:

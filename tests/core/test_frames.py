@@ -1,6 +1,8 @@
 """Building rest frames: a large mesh goes to embree in pieces (issue 9, Esc during the build),
 handed over directly or through embreex (issue 20), with the culling clusters."""
 
+import threading
+
 import numpy as np
 import pytest
 from embreex.mesh_construction import TriangleMesh
@@ -79,6 +81,24 @@ def test_a_mesh_in_many_pieces_occludes_where_it_is(monkeypatch):
     assert np.array_equal(blocked, (x > 0) & (x < CELLS))
 
 
+def test_esc_while_embree_builds_the_bvh_drops_the_build(monkeypatch):
+    """A large mesh's BVH is built in a helper thread while Esc is polled: Esc then returns
+    without the geometry, and the build finishes in the background."""
+    monkeypatch.setattr(frames, "_POLLED_COMMIT", 0)
+    building, finished = threading.Event(), threading.Event()
+
+    def slow_commit(scene):
+        building.set()
+        finished.wait(10.0)  # until the test has seen the cancelled build
+        commit(scene)
+
+    commit = embree_direct.commit
+    monkeypatch.setattr(embree_direct, "commit", slow_commit)
+    frame_set = build_frames(grid_scene(), should_stop=building.is_set)
+    finished.set()
+    assert not any(frame.has_geometry for frame in frame_set.frames)
+
+
 def straight_line(velocity=(0.3, 0.0, 0.0)):
     tau = np.linspace(-50.0, 50.0, 5)
     return Trajectory(tau, np.outer(tau, velocity), name="grid")
@@ -127,10 +147,12 @@ def shuffled_sphere():
     return moved, renumber[triangles[rng.permutation(len(triangles))]]
 
 
-def test_triangles_handed_to_embree_directly_hit_exactly_as_through_embreex(monkeypatch):
+@pytest.mark.parametrize("polled", [False, True], ids=["commit in line", "commit in a helper thread"])
+def test_triangles_handed_to_embree_directly_hit_exactly_as_through_embreex(monkeypatch, polled):
     """The direct route (one memory copy per buffer) fills embree's buffers as embreex's own
     TriangleMesh does: every hit, its triangle and barycentrics are the same."""
     monkeypatch.setattr(frames, "_PIECE_TRIANGLES", PIECE)
+    monkeypatch.setattr(frames, "_POLLED_COMMIT", 0 if polled else 10**9)
     scene = grid_scene(shuffled_sphere())
     meshes = []
     monkeypatch.setattr(frames, "TriangleMesh", lambda *args: meshes.append(TriangleMesh(*args)))
