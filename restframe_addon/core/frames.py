@@ -440,8 +440,8 @@ _PIECE_TRIANGLES = 2**14
 
 def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     """The parts' triangles in one embreex scene; None once ``should_stop()`` is true
-    (checked before the culling clusters, between pieces of ``_PIECE_TRIANGLES`` and while
-    embree builds the BVH)."""
+    (checked while the culling clusters are split, between pieces of ``_PIECE_TRIANGLES`` and
+    while embree builds the BVH)."""
     offsets = np.cumsum([0] + [len(p["vertices"]) for p in parts[:-1]])
     vertices = np.concatenate([p["vertices"] for p in parts])
     triangles = np.concatenate([p["triangles"] + o for p, o in zip(parts, offsets)])
@@ -457,9 +457,6 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     lo, hi = np.array([x.min(), y.min(), z.min()]), np.array([x.max(), y.max(), z.max()])
     radius = float(np.sqrt(np.max(x * x + y * y + z * z)))
     anchor = 0.5 * (lo + hi)
-    if should_stop():
-        return None
-    clusters = _clusters(vertices, triangles)
     scene = rtcore_scene.EmbreeScene(_embree_device())
     local_vertices = (vertices - anchor).astype(np.float32)
     piece_start = np.arange(0, len(triangles), _PIECE_TRIANGLES, dtype=np.int32)
@@ -468,8 +465,10 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
         if should_stop():
             return None
         _attach_piece(scene, local_vertices, triangles[start:start + _PIECE_TRIANGLES], claimed_by)
-    if not _commit(scene, len(triangles), should_stop):
-        return None
+    build = _start_commit(scene, len(triangles))
+    clusters = _clusters(vertices, triangles, should_stop)  # while embree builds, if it can
+    if clusters is None or not _committed(build, should_stop):
+        return None  # a build still running finishes in its thread and is dropped
     return Geometry(
         clusters=clusters, radius=radius,
         vertices=vertices, triangles=triangles,
@@ -485,23 +484,28 @@ _COMMIT_POLL = 0.02  # seconds between polls of should_stop while embree builds 
 _POLLED_COMMIT = 2**17  # triangles from which that is worth a helper thread (a build of ~50 ms)
 
 
-def _commit(scene, triangle_count: int, should_stop) -> bool:
-    """Build the scene's BVH now (embreex commits lazily on the first query, which is not
-    thread-safe); False once ``should_stop()`` is true.
+def _start_commit(scene, triangle_count: int) -> threading.Thread | None:
+    """Start building the scene's BVH now (embreex commits lazily on the first query, which is
+    not thread-safe): the helper thread building it, or None once it is built.
 
-    Directly (embree_direct) the build runs without the GIL, a large one in a helper thread
-    while Esc is polled here (a cancelled build finishes there and is dropped).  Through
-    embreex it holds the GIL (about 0.4 s per million triangles) and cannot be interrupted.
+    Directly (embree_direct) the build runs without the GIL, a large one in a helper thread,
+    so that the caller can work and poll Esc meanwhile.  Through embreex it holds the GIL
+    (about 0.4 s per million triangles) and cannot be interrupted.
     """
     if not embree_direct.ready(_embree_device()):
         scene.run(np.zeros((1, 3), np.float32), np.array([[1, 0, 0]], np.float32))
-        return True
+        return None
     if triangle_count < _POLLED_COMMIT:
         embree_direct.commit(scene)
-        return True
+        return None
     build = threading.Thread(target=embree_direct.commit, args=(scene,), name="restframe-bvh")
     build.start()
-    while build.is_alive():
+    return build
+
+
+def _committed(build: threading.Thread | None, should_stop) -> bool:
+    """Wait for a BVH build from :func:`_start_commit`; False once ``should_stop()`` is true."""
+    while build is not None and build.is_alive():
         if should_stop():
             return False
         build.join(_COMMIT_POLL)
@@ -527,9 +531,10 @@ def _attach_piece(scene, vertices, triangles, claimed_by) -> None:
         TriangleMesh(scene, piece_vertices, piece_triangles)
 
 
-def _clusters(vertices, triangles, depth: int = 4) -> np.ndarray:
+def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) -> np.ndarray | None:
     """Bounding spheres of up to 2**depth groups of triangles (median splits of their centroids
     along the longest axis): a tighter outline than one sphere, for culling whole ray bundles.
+    None once ``should_stop()`` is true (checked between the splits).
 
     Worked on one coordinate at a time (numpy is slow along a length-3 axis): a group's
     box is the box of its triangles' own boxes.
@@ -544,6 +549,8 @@ def _clusters(vertices, triangles, depth: int = 4) -> np.ndarray:
         tri_hi.append(np.maximum(np.maximum(a, b), c))
     groups = [np.arange(len(triangles))]
     for _ in range(depth):
+        if should_stop():
+            return None
         split = []
         for group in groups:
             if len(group) < 64:
@@ -554,6 +561,8 @@ def _clusters(vertices, triangles, depth: int = 4) -> np.ndarray:
             order = np.argpartition(c[axis], len(group) // 2)
             split += [group[order[: len(group) // 2]], group[order[len(group) // 2:]]]
         groups = split
+    if should_stop():
+        return None
     spheres = []
     for group in groups:
         lo = np.array([low[group].min() for low in tri_lo])
