@@ -7,9 +7,11 @@ embreex does not expose its scene or device handle, so this module reads them fr
 ``EmbreeScene`` and ``EmbreeDevice`` objects (Cython objects whose fields follow the Python
 object header) and calls the functions embreex itself calls -- ``rtcNewGeometry``,
 ``rtcSetNewGeometryBuffer``, ``rtcCommitGeometry``, ``rtcAttachGeometry``,
-``rtcReleaseGeometry``, ``rtcCommitScene`` -- in the embree library embreex has already loaded.
-The buffers then hold exactly what embreex would have written, so embree builds the same BVH;
-the commit runs without the GIL, so the caller can keep polling Esc meanwhile.
+``rtcReleaseGeometry``, ``rtcCommitScene`` -- in the embree library embreex has already loaded,
+and embree's shared buffers (``rtcNewBuffer``, ``rtcSetGeometryBuffer``) so that the pieces of
+a mesh use one copy of its vertices.  The triangles then have the vertices embreex would have
+given them, in the same order, so embree builds the same BVH; the commit runs without the GIL,
+so the caller can keep polling Esc meanwhile.
 
 Before first use the route is proved on a probe scene: the objects' sizes, two fields read back
 at their offsets, and one triangle attached this way and hit by a ray through embreex.  Where
@@ -43,14 +45,37 @@ def ready(device) -> bool:
     return bool(_library)
 
 
-def attach(scene, device, vertices: np.ndarray, triangles: np.ndarray) -> bool:
-    """Attach float32 vertices (n, 3) and triangles (m, 3, vertex indices) to an embreex scene
-    made on ``device`` as one triangle geometry, as ``TriangleMesh(scene, vertices, triangles)``
-    would; False (nothing attached) where the direct route is not available."""
+def attach(scene, device, vertices, triangles: np.ndarray) -> bool:
+    """Attach triangles (m, 3, vertex indices) to an embreex scene made on ``device`` as one
+    triangle geometry, as ``TriangleMesh(scene, vertices, triangles)`` would; ``vertices`` are
+    float32 (n, 3) or :class:`SharedVertices`.  False (nothing attached) where the direct route
+    is not available."""
     if not ready(device) or _field(scene, _SCENE_DEVICE) != id(device):
         return False
     _attach(_library, scene, device, vertices, triangles)
     return True
+
+
+def shared_vertices(device, vertices: np.ndarray) -> SharedVertices | None:
+    """float32 vertices (n, 3) in one embree buffer for the geometries :func:`attach` makes
+    from them; None where the direct route is not available."""
+    return SharedVertices(_library, device, vertices) if ready(device) else None
+
+
+class SharedVertices:
+    """Vertices copied once into one embree buffer that many geometries use (each holds its own
+    reference to it; this object's ends with :meth:`release`)."""
+
+    def __init__(self, lib, device, vertices: np.ndarray):
+        self.lib, self.count = lib, len(vertices)
+        padded = _padded(vertices)
+        self.buffer = lib.rtcNewBuffer(_field(device, _DEVICE_HANDLE), max(padded.nbytes, 16))
+        if not self.buffer:
+            raise MemoryError(f"embree could not allocate {padded.nbytes} bytes for vertices")
+        ctypes.memmove(lib.rtcGetBufferData(self.buffer), padded.ctypes.data, padded.nbytes)
+
+    def release(self) -> None:
+        self.lib.rtcReleaseBuffer(self.buffer)
 
 
 def commit(scene) -> None:
@@ -65,15 +90,24 @@ def _field(obj, offset: int) -> int:
     return ctypes.c_void_p.from_address(id(obj) + offset).value or 0
 
 
+def _padded(vertices) -> np.ndarray:
+    """Vertices in embree's layout: x, y, z and an unused fourth float each."""
+    padded = np.zeros((len(vertices), 4), dtype=np.float32)
+    padded[:, :3] = vertices
+    return padded
+
+
 def _attach(lib, scene, device, vertices, triangles) -> None:
     geometry = lib.rtcNewGeometry(_field(device, _DEVICE_HANDLE), _TRIANGLE)
     if not geometry:
         raise MemoryError("embree could not create a triangle geometry")
     try:
-        padded = np.zeros((len(vertices), 4), dtype=np.float32)  # embree's vertex layout: x, y, z, unused
-        padded[:, :3] = vertices
-        indices = np.ascontiguousarray(triangles, dtype=np.uint32)
-        for kind, form, stride, data in ((_VERTEX, _FLOAT3, 16, padded), (_INDEX, _UINT3, 12, indices)):
+        buffers = [(_INDEX, _UINT3, 12, np.ascontiguousarray(triangles, dtype=np.uint32))]
+        if isinstance(vertices, SharedVertices):
+            lib.rtcSetGeometryBuffer(geometry, _VERTEX, 0, _FLOAT3, vertices.buffer, 0, 16, vertices.count)
+        else:
+            buffers.append((_VERTEX, _FLOAT3, 16, _padded(vertices)))
+        for kind, form, stride, data in buffers:
             buffer = lib.rtcSetNewGeometryBuffer(geometry, kind, 0, form, stride, len(data))
             if not buffer:
                 raise MemoryError(f"embree could not allocate {data.nbytes} bytes for a geometry")
@@ -97,7 +131,11 @@ def _proved_library(device):
     for name, result, args in (("rtcNewGeometry", void, [void, ctypes.c_int]),
                                ("rtcSetNewGeometryBuffer", void, [void, ctypes.c_int, uint, ctypes.c_int, size, size]),
                                ("rtcCommitGeometry", None, [void]), ("rtcAttachGeometry", uint, [void, void]),
-                               ("rtcReleaseGeometry", None, [void]), ("rtcCommitScene", None, [void])):
+                               ("rtcReleaseGeometry", None, [void]), ("rtcCommitScene", None, [void]),
+                               ("rtcNewBuffer", void, [void, size]), ("rtcGetBufferData", void, [void]),
+                               ("rtcReleaseBuffer", None, [void]),
+                               ("rtcSetGeometryBuffer", None, [void, ctypes.c_int, uint, ctypes.c_int, void, size, size,
+                                                               size])):
         function = getattr(lib, name, None)
         if function is None:
             return None
@@ -108,11 +146,16 @@ def _proved_library(device):
     probe.is_committed = 0
     if seen != 0x2F5A or _field(probe, _SCENE_DEVICE) != id(device) or not _field(probe, _SCENE_HANDLE):
         return None
-    _attach(lib, probe, device, np.array([[0, 0, 2], [1, 0, 2], [0, 1, 2]], np.float32), np.array([[0, 1, 2]]))
-    out = probe.run(np.array([[0.25, 0.25, 0.0]], np.float32), np.array([[0, 0, 1]], np.float32), output=1)
-    if not (out["geomID"][0] == 0 and out["primID"][0] == 0 and abs(out["tfar"][0] - 2.0) < 1e-6):
-        return None
-    return lib
+    # two triangles at z = 2 and z = 3, one with its own vertices, one with shared ones
+    corners = np.array([[0, 0, 2], [1, 0, 2], [0, 1, 2], [0, 0, 3], [1, 0, 3], [0, 1, 3]], np.float32)
+    _attach(lib, probe, device, corners[:3], np.array([[0, 1, 2]]))
+    shared = SharedVertices(lib, device, corners)
+    _attach(lib, probe, device, shared, np.array([[5, 4, 3]]))
+    shared.release()
+    out = probe.run(np.array([[0.25, 0.25, 0.0], [0.25, 0.25, 2.5]], np.float32), np.array([[0, 0, 1]], np.float32),
+                    output=1)
+    hit = (out["geomID"].tolist(), out["primID"].tolist(), np.abs(out["tfar"] - [2.0, 0.5]).max())
+    return lib if hit[:2] == ([0, 1], [0, 0]) and hit[2] < 1e-6 else None
 
 
 def _loaded_embree():

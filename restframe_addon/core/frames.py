@@ -460,11 +460,16 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     scene = rtcore_scene.EmbreeScene(_embree_device())
     local_vertices = (vertices - anchor).astype(np.float32)
     piece_start = np.arange(0, len(triangles), _PIECE_TRIANGLES, dtype=np.int32)
-    claimed_by = np.empty(len(vertices), dtype=np.intp)  # scratch for _attach_piece
-    for start in piece_start:
-        if should_stop():
-            return None
-        _attach_piece(scene, local_vertices, triangles[start:start + _PIECE_TRIANGLES], claimed_by)
+    shared = embree_direct.shared_vertices(_embree_device(), local_vertices)
+    claimed_by = np.empty(len(vertices), dtype=np.intp) if shared is None else None  # scratch for _attach_piece
+    try:
+        for start in piece_start:
+            if should_stop():
+                return None
+            _attach_piece(scene, local_vertices, triangles[start:start + _PIECE_TRIANGLES], claimed_by, shared)
+    finally:
+        if shared is not None:
+            shared.release()
     build = _start_commit(scene, len(triangles))
     clusters = _clusters(vertices, triangles, should_stop)  # while embree builds, if it can
     if clusters is None or not _committed(build, should_stop):
@@ -512,29 +517,31 @@ def _committed(build: threading.Thread | None, should_stop) -> bool:
     return True
 
 
-def _attach_piece(scene, vertices, triangles, claimed_by) -> None:
-    """Add triangles to an embreex scene as one geometry holding only the vertices they use
-    (embree gets a copy of every vertex it is given).
+def _attach_piece(scene, vertices, triangles, claimed_by, shared=None) -> None:
+    """Add triangles to an embreex scene as one geometry: directly, on the mesh's
+    :class:`embree_direct.SharedVertices` when given, else through embreex, holding only the
+    vertices they use (embreex copies every vertex it is given).
 
-    The used vertices are renumbered without sorting (np.unique costs 3x as much): each is
-    claimed by one of its corners in ``claimed_by`` (scratch, one entry per vertex), and the
-    claiming corners, in order, number them.
+    For embreex the used vertices are renumbered without sorting (np.unique costs 3x as much):
+    each is claimed by one of its corners in ``claimed_by`` (scratch, one entry per vertex),
+    and the claiming corners, in order, number them.
     """
+    if shared is not None:
+        embree_direct.attach(scene, _embree_device(), shared, triangles)
+        return
     corners = triangles.ravel()
     corner_index = np.arange(len(corners))
     claimed_by[corners] = corner_index  # of a vertex's corners, one is stored
     claimant = claimed_by[corners]
     claims = claimant == corner_index
     new_number = np.cumsum(claims, dtype=np.int32) - 1
-    piece_vertices, piece_triangles = vertices[corners[claims]], new_number[claimant].reshape(-1, 3)
-    if not embree_direct.attach(scene, _embree_device(), piece_vertices, piece_triangles):
-        TriangleMesh(scene, piece_vertices, piece_triangles)
+    TriangleMesh(scene, vertices[corners[claims]], new_number[claimant].reshape(-1, 3))
 
 
 def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) -> np.ndarray | None:
     """Bounding spheres of up to 2**depth groups of triangles (median splits of their centroids
     along the longest axis): a tighter outline than one sphere, for culling whole ray bundles.
-    None once ``should_stop()`` is true (checked between the splits).
+    None once ``should_stop()`` is true (checked between steps).
 
     Worked on one coordinate at a time (numpy is slow along a length-3 axis): a group's
     box is the box of its triangles' own boxes.
@@ -542,6 +549,8 @@ def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) ->
     corner_index = [np.ascontiguousarray(triangles[:, j]) for j in range(3)]
     centroids, tri_lo, tri_hi = [], [], []  # per axis: of each triangle
     for axis in range(3):
+        if should_stop():
+            return None
         column = np.ascontiguousarray(vertices[:, axis])
         a, b, c = (column[i] for i in corner_index)
         centroids.append((a + b + c) / 3.0)

@@ -110,9 +110,9 @@ def test_esc_during_the_build_stops_after_the_piece_in_hand(monkeypatch, motion)
     monkeypatch.setattr(frames, "_PIECE_TRIANGLES", PIECE)
     built = []
 
-    def counted_piece(scene, vertices, triangles, claimed_by):
+    def counted_piece(scene, vertices, triangles, *args):
         built.append(len(triangles))
-        return attach_piece(scene, vertices, triangles, claimed_by)
+        return attach_piece(scene, vertices, triangles, *args)
 
     attach_piece = frames._attach_piece
     monkeypatch.setattr(frames, "_attach_piece", counted_piece)
@@ -158,7 +158,7 @@ def test_triangles_handed_to_embree_directly_hit_exactly_as_through_embreex(monk
     monkeypatch.setattr(frames, "TriangleMesh", lambda *args: meshes.append(TriangleMesh(*args)))
     direct = sphere_hits(build_frames(scene))
     assert not meshes and embree_direct._library  # proved and used on this platform
-    monkeypatch.setattr(embree_direct, "attach", lambda *args: False)
+    monkeypatch.setattr(embree_direct, "shared_vertices", lambda *args: None)
     through_embreex = sphere_hits(build_frames(scene))
     assert len(meshes) == -(-len(scene.meshes[0].triangles) // PIECE)
     assert np.count_nonzero(direct.frame >= 0) > 1000
