@@ -543,20 +543,27 @@ def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) ->
     along the longest axis): a tighter outline than one sphere, for culling whole ray bundles.
     None once ``should_stop()`` is true (checked between steps).
 
-    Worked on one coordinate at a time (numpy is slow along a length-3 axis): a group's
-    box is the box of its triangles' own boxes.
+    Worked on one coordinate at a time (numpy is slow along a length-3 axis), gathering into
+    one scratch array (fresh arrays this size cost more in page faults than the arithmetic):
+    a group's box is the box of its triangles' own boxes.  The triangles' indices are valid,
+    so ``take`` has nothing to clip.
     """
-    corner_index = [np.ascontiguousarray(triangles[:, j]) for j in range(3)]
+    n = len(triangles)
+    scratch = np.empty((3, n))
+    corner_index = np.ascontiguousarray(triangles.T)
     centroids, tri_lo, tri_hi = [], [], []  # per axis: of each triangle
     for axis in range(3):
         if should_stop():
             return None
         column = np.ascontiguousarray(vertices[:, axis])
-        a, b, c = (column[i] for i in corner_index)
-        centroids.append((a + b + c) / 3.0)
-        tri_lo.append(np.minimum(np.minimum(a, b), c))
-        tri_hi.append(np.maximum(np.maximum(a, b), c))
-    groups = [np.arange(len(triangles))]
+        a, b, c = (np.take(column, index, out=out, mode="clip") for index, out in zip(corner_index, scratch))
+        centroid, lo, hi = np.add(a, b), np.minimum(a, b), np.maximum(a, b)
+        centroid += c
+        centroid /= 3.0
+        centroids.append(centroid)
+        tri_lo.append(np.minimum(lo, c, out=lo))
+        tri_hi.append(np.maximum(hi, c, out=hi))
+    groups = [np.arange(n)]
     for _ in range(depth):
         if should_stop():
             return None
@@ -565,19 +572,20 @@ def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) ->
             if len(group) < 64:
                 split.append(group)
                 continue
-            c = [centroid[group] for centroid in centroids]
+            c = [np.take(centroid, group, out=out[:len(group)], mode="clip") for centroid, out in zip(centroids, scratch)]
             axis = int(np.argmax([ca.max() - ca.min() for ca in c]))
             order = np.argpartition(c[axis], len(group) // 2)
             split += [group[order[: len(group) // 2]], group[order[len(group) // 2:]]]
         groups = split
     if should_stop():
         return None
-    spheres = []
-    for group in groups:
-        lo = np.array([low[group].min() for low in tri_lo])
-        hi = np.array([high[group].max() for high in tri_hi])
-        spheres.append([*(0.5 * (lo + hi)), 0.5 * float(np.linalg.norm(hi - lo))])
-    return np.array(spheres)
+    # each group's box, all groups at once: their triangles in a row, reduced group by group
+    in_groups = np.concatenate(groups)
+    starts = np.cumsum([0] + [len(group) for group in groups[:-1]])
+    box = [[reduce.reduceat(np.take(bound, in_groups, out=scratch[0], mode="clip"), starts) for bound in bounds]
+           for reduce, bounds in ((np.minimum, tri_lo), (np.maximum, tri_hi))]
+    lo, hi = np.column_stack(box[0]), np.column_stack(box[1])
+    return np.array([[*(0.5 * (l + h)), 0.5 * float(np.linalg.norm(h - l))] for l, h in zip(lo, hi)])
 
 
 def _flat_normals(part: dict) -> np.ndarray:
