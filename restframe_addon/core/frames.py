@@ -470,9 +470,9 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     finally:
         if shared is not None:
             shared.release()
-    build = _start_commit(scene, len(triangles))
-    clusters = _clusters(vertices, triangles, should_stop)  # while embree builds, if it can
-    if clusters is None or not _committed(build, should_stop):
+    # the clusters first: beside embree's own threads they would slow its build down
+    clusters = _clusters(vertices, triangles, should_stop)
+    if clusters is None or not _committed(_start_commit(scene, len(triangles)), should_stop):
         return None  # a build still running finishes in its thread and is dropped
     return Geometry(
         clusters=clusters, radius=radius,
@@ -494,7 +494,7 @@ def _start_commit(scene, triangle_count: int) -> threading.Thread | None:
     not thread-safe): the helper thread building it, or None once it is built.
 
     Directly (embree_direct) the build runs without the GIL, a large one in a helper thread,
-    so that the caller can work and poll Esc meanwhile.  Through embreex it holds the GIL
+    so that the caller can poll Esc meanwhile.  Through embreex it holds the GIL
     (about 0.4 s per million triangles) and cannot be interrupted.
     """
     if not embree_direct.ready(_embree_device()):
