@@ -10,11 +10,12 @@ object header) and calls the functions embreex itself calls -- ``rtcNewGeometry`
 ``rtcReleaseGeometry``, ``rtcCommitScene`` -- in the embree library embreex has already loaded,
 and embree's shared buffers (``rtcNewBuffer``, ``rtcSetGeometryBuffer``) so that the pieces of
 a mesh use one copy of its vertices.  The triangles then have the vertices embreex would have
-given them, in the same order, so embree builds the same BVH; the commit runs without the GIL,
-so the caller can keep polling Esc meanwhile.
+given them, in the same order, so embree builds the same BVH.  The copies and the commit run
+without the GIL (ctypes releases it): the engine's main thread goes on polling Esc meanwhile.
 
 Before first use the route is proved on a probe scene: the objects' sizes, two fields read back
-at their offsets, and one triangle attached this way and hit by a ray through embreex.  Where
+at their offsets, and two triangles attached this way (own and shared vertices) and hit by rays
+through embreex.  Where
 anything fails (another embreex build, the library not loaded under a known name),
 :func:`ready` and :func:`attach` return False and the caller uses embreex's own ways.
 """

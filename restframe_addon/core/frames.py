@@ -17,7 +17,6 @@ offset, each valid only between two of the body's simultaneity slices (a
 from __future__ import annotations
 
 import math
-import threading
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 
@@ -440,8 +439,8 @@ _PIECE_TRIANGLES = 2**14
 
 def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     """The parts' triangles in one embreex scene; None once ``should_stop()`` is true
-    (checked while the culling clusters are split, between pieces of ``_PIECE_TRIANGLES`` and
-    while embree builds the BVH)."""
+    (checked between pieces of ``_PIECE_TRIANGLES`` and between the steps of the culling
+    clusters; embree's BVH build, last, cannot be interrupted)."""
     offsets = np.cumsum([0] + [len(p["vertices"]) for p in parts[:-1]])
     vertices = np.concatenate([p["vertices"] for p in parts])
     triangles = np.concatenate([p["triangles"] + o for p, o in zip(parts, offsets)])
@@ -470,10 +469,10 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     finally:
         if shared is not None:
             shared.release()
-    # the clusters first: beside embree's own threads they would slow its build down
     clusters = _clusters(vertices, triangles, should_stop)
-    if clusters is None or not _committed(_start_commit(scene, len(triangles)), should_stop):
-        return None  # a build still running finishes in its thread and is dropped
+    if clusters is None:
+        return None
+    _commit(scene)
     return Geometry(
         clusters=clusters, radius=radius,
         vertices=vertices, triangles=triangles,
@@ -485,36 +484,14 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     )
 
 
-_COMMIT_POLL = 0.02  # seconds between polls of should_stop while embree builds a large BVH
-_POLLED_COMMIT = 2**17  # triangles from which that is worth a helper thread (a build of ~50 ms)
-
-
-def _start_commit(scene, triangle_count: int) -> threading.Thread | None:
-    """Start building the scene's BVH now (embreex commits lazily on the first query, which is
-    not thread-safe): the helper thread building it, or None once it is built.
-
-    Directly (embree_direct) the build runs without the GIL, a large one in a helper thread,
-    so that the caller can poll Esc meanwhile.  Through embreex it holds the GIL
-    (about 0.4 s per million triangles) and cannot be interrupted.
-    """
-    if not embree_direct.ready(_embree_device()):
-        scene.run(np.zeros((1, 3), np.float32), np.array([[1, 0, 0]], np.float32))
-        return None
-    if triangle_count < _POLLED_COMMIT:
+def _commit(scene) -> None:
+    """Build the scene's BVH now (embreex commits lazily on the first query, which is not
+    thread-safe): directly (embree_direct) without holding the GIL, so that the engine's main
+    thread goes on polling Esc; through embreex holding it (about 0.4 s per million triangles)."""
+    if embree_direct.ready(_embree_device()):
         embree_direct.commit(scene)
-        return None
-    build = threading.Thread(target=embree_direct.commit, args=(scene,), name="restframe-bvh")
-    build.start()
-    return build
-
-
-def _committed(build: threading.Thread | None, should_stop) -> bool:
-    """Wait for a BVH build from :func:`_start_commit`; False once ``should_stop()`` is true."""
-    while build is not None and build.is_alive():
-        if should_stop():
-            return False
-        build.join(_COMMIT_POLL)
-    return True
+    else:
+        scene.run(np.zeros((1, 3), np.float32), np.array([[1, 0, 0]], np.float32))
 
 
 def _attach_piece(scene, vertices, triangles, claimed_by, shared=None) -> None:

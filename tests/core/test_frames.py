@@ -1,10 +1,12 @@
 """Building rest frames: a large mesh goes to embree in pieces (issue 9, Esc during the build),
 handed over directly or through embreex (issue 20), with the culling clusters."""
 
+import sys
 import threading
 
 import numpy as np
 import pytest
+from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 from shapes import look_at_camera, uv_sphere
 
@@ -81,22 +83,37 @@ def test_a_mesh_in_many_pieces_occludes_where_it_is(monkeypatch):
     assert np.array_equal(blocked, (x > 0) & (x < CELLS))
 
 
-def test_esc_while_embree_builds_the_bvh_drops_the_build(monkeypatch):
-    """A large mesh's BVH is built in a helper thread while Esc is polled: Esc then returns
-    without the geometry, and the build finishes in the background."""
-    monkeypatch.setattr(frames, "_POLLED_COMMIT", 0)
-    building, finished = threading.Event(), threading.Event()
+def test_embree_builds_the_bvh_without_holding_the_gil():
+    """The engine polls Esc from its main thread while the build runs in a worker: a Python
+    thread must go on running while embree builds.  With a long switch interval a thread runs
+    during one call only if the call lets go of the GIL (embreex's own commit does not)."""
+    vertices, triangles = uv_sphere((0.0, 0.0, 0.0), 1.0, 512, 256)
+    device = frames._embree_device()
+    scene = rtcore_scene.EmbreeScene(device)
+    assert embree_direct.attach(scene, device, vertices.astype(np.float32), triangles)
+    ticks, running, done = [0], threading.Event(), threading.Event()
 
-    def slow_commit(scene):
-        building.set()
-        finished.wait(10.0)  # until the test has seen the cancelled build
-        commit(scene)
+    def tick():
+        running.set()
+        while not done.is_set():
+            ticks[0] += 1
 
-    commit = embree_direct.commit
-    monkeypatch.setattr(embree_direct, "commit", slow_commit)
-    frame_set = build_frames(grid_scene(), should_stop=building.is_set)
-    finished.set()
-    assert not any(frame.has_geometry for frame in frame_set.frames)
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(0.5)
+    try:
+        ticker = threading.Thread(target=tick)
+        ticker.start()
+        running.wait()
+        before = ticks[0]
+        embree_direct.commit(scene)
+        during = ticks[0] - before
+        done.set()
+        ticker.join()
+    finally:
+        sys.setswitchinterval(interval)
+    assert during > 0 and scene.is_committed
+    hit = scene.run(np.array([[0.0, 0.0, -3.0]], np.float32), np.array([[0.0, 0.0, 1.0]], np.float32), output=1)
+    assert hit["primID"][0] >= 0 and abs(hit["tfar"][0] - 2.0) < 1e-3
 
 
 def straight_line(velocity=(0.3, 0.0, 0.0)):
@@ -147,12 +164,10 @@ def shuffled_sphere():
     return moved, renumber[triangles[rng.permutation(len(triangles))]]
 
 
-@pytest.mark.parametrize("polled", [False, True], ids=["commit in line", "commit in a helper thread"])
-def test_triangles_handed_to_embree_directly_hit_exactly_as_through_embreex(monkeypatch, polled):
+def test_triangles_handed_to_embree_directly_hit_exactly_as_through_embreex(monkeypatch):
     """The direct route (one memory copy per buffer) fills embree's buffers as embreex's own
     TriangleMesh does: every hit, its triangle and barycentrics are the same."""
     monkeypatch.setattr(frames, "_PIECE_TRIANGLES", PIECE)
-    monkeypatch.setattr(frames, "_POLLED_COMMIT", 0 if polled else 10**9)
     scene = grid_scene(shuffled_sphere())
     meshes = []
     monkeypatch.setattr(frames, "TriangleMesh", lambda *args: meshes.append(TriangleMesh(*args)))
