@@ -460,7 +460,7 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     local_vertices = (vertices - anchor).astype(np.float32)
     piece_start = np.arange(0, len(triangles), _PIECE_TRIANGLES, dtype=np.int32)
     shared = embree_direct.shared_vertices(_embree_device(), local_vertices)
-    claimed_by = np.empty(len(vertices), dtype=np.intp) if shared is None else None  # scratch for _attach_piece
+    claimed_by = np.empty(len(vertices), dtype=np.intp)  # scratch for _attach_piece
     try:
         for start in piece_start:
             if should_stop():
@@ -503,8 +503,7 @@ def _attach_piece(scene, vertices, triangles, claimed_by, shared=None) -> None:
     each is claimed by one of its corners in ``claimed_by`` (scratch, one entry per vertex),
     and the claiming corners, in order, number them.
     """
-    if shared is not None:
-        embree_direct.attach(scene, _embree_device(), shared, triangles)
+    if shared is not None and embree_direct.attach(scene, _embree_device(), shared, triangles):
         return
     corners = triangles.ravel()
     corner_index = np.arange(len(corners))
