@@ -239,6 +239,10 @@ def render_command(args) -> int:
     if not hasattr(bpy.types.Scene, "restframe"):
         restframe_addon.register()
     scene = open_blend(args.blend, args.scene)
+    if scene.render.use_multiview:  # Blender's save_render cannot write a multi-view result from here
+        raise CommandError(f"{args.blend}: Stereoscopy (multi-view) is on: the command line cannot write multi-view "
+                           "images yet; render with blender -b FILE -E RESTFRAME -f FRAME (every view), or switch "
+                           "Stereoscopy off")
     if args.samples is not None:
         scene.restframe.samples = args.samples
     if args.percentage is not None:

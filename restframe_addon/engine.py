@@ -8,6 +8,7 @@ inside ``render()`` and would show a silent black image instead.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import threading
 import time
@@ -16,13 +17,26 @@ import traceback
 import bpy
 
 from . import export
+from .core.observer import proper_time
 from .core.passes import BY_NAME
-from .core.prepared import prepare
+from .core.prepared import prepare, prepare_view
 from .core.render import render_tiles
 from .core.validation import RenderError
 
 # Blender 5.0 renamed its object index pass ("IndexOB" before).
 OBJECT_INDEX_PASS = "Object Index" if bpy.app.version >= (5, 0, 0) else "IndexOB"
+
+# the render's metadata (Blender's stamp data: written into EXR headers and PNG text chunks)
+STAMP_PROPER_TIME = "RESTframe Observer Proper Time"
+
+
+def observer_stamp(scene) -> dict[str, str]:
+    """Stamp fields of a rendered core scene: the camera's own clock at the observation event, in
+    seconds from the reference time (its proper time on its world line)."""
+    camera = scene.camera
+    seconds = proper_time(scene.tau_obs, camera.velocity, camera.trajectory) / scene.light_speed
+    return {STAMP_PROPER_TIME: f"{seconds:.12g} s"}
+
 
 # Blender pass name -> the core's pass name
 _CORE_PASS = {OBJECT_INDEX_PASS: "IndexOB"}
@@ -57,8 +71,9 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         for name, channel_ids, channel_type in list_render_passes(scene, renderlayer):
             self.register_pass(scene, renderlayer, name, len(channel_ids), channel_ids, channel_type)
 
-    def _prepare(self, scene, settings):
-        """``prepare(...)`` in a worker thread, polled for Esc every 50 ms.
+    def _prepare(self, scene, settings, first_view=None):
+        """``prepare(...)`` (or, given the first view's prepared scene, ``prepare_view``) in a
+        worker thread, polled for Esc every 50 ms.
 
         The build checks Esc between its steps, but polling needs the GIL, which embree's BVH
         build holds throughout when it goes through embreex (about 0.4 s for a million
@@ -70,7 +85,8 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
 
         def work():
             try:
-                box["prepared"] = prepare(scene, settings, cancelled.is_set)
+                box["prepared"] = (prepare(scene, settings, cancelled.is_set) if first_view is None
+                                   else prepare_view(first_view, scene.camera, cancelled.is_set))
             except BaseException as error:  # handed to the main thread
                 box["error"] = error
 
@@ -106,24 +122,44 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
             )
             if self.should_stop():
                 return
-            self.update_stats("", "RESTframe | Building rest frames")
-            prepared = self._prepare(scene, settings)
-            if prepared is None:
+            views = export.render_views(depsgraph.scene_eval)
+            if not views:
+                self._render_view(scene, settings, view_layer, None, started)
                 return
+            camera_object = (self.camera_override or depsgraph.scene_eval.camera).evaluated_get(depsgraph)
+            first = None
+            for view in views:  # each eye is its own camera and observation event; the rest frames are shared
+                self.active_view_set(view)
+                camera = export.view_camera(scene.camera, camera_object,
+                                            self.camera_model_matrix(camera_object, use_spherical_stereo=False),
+                                            self.camera_shift_x(camera_object, use_spherical_stereo=False))
+                first = self._render_view(dataclasses.replace(scene, camera=camera), settings, view_layer, view,
+                                          started, first)
+                if first is None:
+                    return
         except export.ExportCancelled:
             return
         except (export.ExportError, RenderError) as error:
             self.report({'ERROR'}, f"RESTframe: {error}")
             return
-        for message in prepared.warnings:
-            self.report({'WARNING'}, f"RESTframe: {message}")
+
+    def _render_view(self, scene, settings, view_layer, view, started, first_view=None):
+        """Prepare (from ``first_view``'s prepared scene if given) and render one view (None: the
+        only one) into Blender's result; its prepared scene, or None once stopped."""
+        self.update_stats("", "RESTframe | Building rest frames")
+        prepared = self._prepare(scene, settings, first_view)
+        if prepared is None:
+            return None
+        if first_view is None:  # the views share the rest frames and their warnings: said once
+            for message in prepared.warnings:
+                self.report({'WARNING'}, f"RESTframe: {message}")
 
         x_offset, y_offset = prepared.region[:2]
         total = len(prepared.tiles())
         triangles = sum(len(mesh.triangles) for mesh in scene.meshes)
         for done, tile in enumerate(render_tiles(prepared, self.should_stop), start=1):
             result = self.begin_result(tile.x0 - x_offset, tile.y0 - y_offset,
-                                       tile.x1 - tile.x0, tile.y1 - tile.y0, layer=view_layer.name)
+                                       tile.x1 - tile.x0, tile.y1 - tile.y0, layer=view_layer.name, view=view or "")
             for render_pass in result.layers[0].passes:
                 data = tile.passes.get(_CORE_PASS.get(render_pass.name, render_pass.name))
                 if data is not None and data.shape[2] == render_pass.channels:
@@ -131,7 +167,12 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
             self.end_result(result)
             self.update_progress(done / total)
             self.update_stats("", f"RESTframe | {len(scene.meshes)} objects, {triangles} triangles | "
+                              f"{'' if view is None else f'View {view} | '}"
                               f"Tile {done}/{total} | {time.monotonic() - started:.1f} s")
+        result = self.get_result()
+        for field, value in observer_stamp(scene).items():
+            result.stamp_data_add_field(field, value)
+        return None if self.should_stop() else prepared
 
 
 classes = (RestframeRenderEngine,)
