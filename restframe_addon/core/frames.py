@@ -90,7 +90,7 @@ class Geometry:
     anchor: np.ndarray
     embree: object
     piece_start: np.ndarray  # first triangle of each embree geometry: triangle = piece_start[geomID] + primID
-    clusters: np.ndarray = None  # (k, 4): centre and radius of spheres that together hold every triangle
+    clusters: np.ndarray = None  # (k, 4): centre and radius of spheres holding every triangle (None: a lone frame)
     tri_visibility: np.ndarray | None = None  # (M,) uint8 RAY_* bits of the rays that see each triangle; None: all
     tri_holdout: np.ndarray | None = None  # (M,) bool: holdout triangles; None: none
     radius: float = 0.0  # distance from the local origin (a moving body's pivot) to its farthest used vertex
@@ -400,7 +400,22 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
             _add_segments(frames, meshes, scene, motion_settings, warnings, groups, should_stop)
         else:
             _add_rotation(frames, meshes[0], scene, motion_settings, warnings, should_stop)
+    _add_clusters([f.geometry for f in frames if f.has_geometry], should_stop)
     return FrameSet(frames, world, camera, light_frames, warnings, groups)
+
+
+def _add_clusters(geometries: list[Geometry], should_stop) -> None:
+    """Culling clusters for every geometry, where there are several: the tracer culls a ray
+    bundle by them only between frames (a lone mesh pays nothing).  Stops once
+    ``should_stop()`` is true."""
+    if len(geometries) < 2:
+        return
+    for geometry in {id(g): g for g in geometries}.values():  # segments share one geometry
+        clusters = _clusters(geometry.vertices, geometry.triangles, should_stop)
+        if clusters is None:
+            return
+        clusters.flags.writeable = False  # as Geometry's own arrays
+        geometry.clusters = clusters
 
 
 def _mesh_part(mesh, boost: Boost, warnings: list[str], relative_to=None):
@@ -465,8 +480,8 @@ _PIECE_TRIANGLES = 2**14
 
 def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     """The parts' triangles in one embreex scene; None once ``should_stop()`` is true
-    (checked between pieces of ``_PIECE_TRIANGLES`` and between the steps of the culling
-    clusters; embree's BVH build, last, cannot be interrupted)."""
+    (checked between pieces of ``_PIECE_TRIANGLES``; embree's BVH build, last, cannot be
+    interrupted)."""
     offsets = np.cumsum([0] + [len(p["vertices"]) for p in parts[:-1]])
     vertices = np.concatenate([p["vertices"] for p in parts])
     triangles = np.concatenate([p["triangles"] + o for p, o in zip(parts, offsets)])
@@ -500,12 +515,9 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     finally:
         if shared is not None:
             shared.release()
-    clusters = _clusters(vertices, triangles, should_stop)
-    if clusters is None:
-        return None
     _commit(scene)
     return Geometry(
-        clusters=clusters, radius=radius,
+        radius=radius,
         vertices=vertices, triangles=triangles,
         tri_material=np.concatenate([p["material"] for p in parts]),
         tri_object_index=np.concatenate([p["object_index"] for p in parts]),

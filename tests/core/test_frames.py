@@ -238,6 +238,19 @@ def test_culling_clusters_hold_every_triangle_and_match_the_plain_computation(me
     assert inside.all(axis=1).any(axis=1).all()
 
 
+def test_a_lone_mesh_gets_no_culling_clusters_and_several_frames_do():
+    """The tracer culls by clusters only between frames: a scene of one geometry frame skips them."""
+    lone = build_frames(grid_scene(shuffled_sphere(), velocity=Velocity((0.3, 0.0, 0.0))))
+    assert [frame.geometry.clusters for frame in lone.frames if frame.has_geometry] == [None]
+    ball = Mesh("ball", *uv_sphere((5.0, 0.0, 0.0), 1.0, 16, 8), velocity=Velocity((0.0, 0.2, 0.0)))
+    pair = build_frames(Scene(camera=grid_scene().camera, meshes=[Mesh("sphere", *shuffled_sphere()), ball]))
+    built = [frame.geometry for frame in pair.frames if frame.has_geometry]
+    assert len(built) == 2
+    for geometry in built:
+        np.testing.assert_array_equal(geometry.clusters, plain_clusters(geometry.vertices, geometry.triangles))
+        assert not geometry.clusters.flags.writeable
+
+
 def test_culling_by_clusters_never_hides_a_hit(monkeypatch):
     """Camera rays through several moving bodies (one in many pieces): the hits with the
     culling cones are the hits without them, and the cones did skip rays."""
