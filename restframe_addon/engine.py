@@ -4,6 +4,11 @@
 Blender's render result so the image fills in chunk by chunk.  Every failure is
 reported with ``self.report({'ERROR'}, ...)``: Blender swallows exceptions raised
 inside ``render()`` and would show a silent black image instead.
+
+A render that stops early (Esc, :data:`STOP`, an error) still hands Blender a result
+(Blender 5.0 crashes writing an EXR of a render that delivered none), and every render
+leaves a :class:`RenderOutcome` (:func:`take_outcome`): the proof a headless caller needs
+before it saves the image as a finished frame.
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ import sys
 import threading
 import time
 import traceback
+from dataclasses import dataclass
 
 import bpy
 
@@ -51,6 +57,34 @@ def list_render_passes(scene, view_layer):
         yield (_BLENDER_PASS.get(name, name), BY_NAME[name].channels, BY_NAME[name].kind)
 
 
+# Set by the headless layer when SIGINT or SIGTERM arrives during a render (headless.py):
+# the render stops at its next check, as on Esc.
+STOP = threading.Event()
+
+
+@dataclass(frozen=True)
+class RenderOutcome:
+    """What a render delivered to Blender's result."""
+
+    tiles: int  # tiles written into the result
+    total: int  # tiles the image has (0: the render stopped before it knew)
+    stopped: bool  # ended early: Esc, STOP, an interrupt or an error
+
+    @property
+    def complete(self) -> bool:
+        return not self.stopped and self.total > 0 and self.tiles == self.total
+
+
+_last_outcome: RenderOutcome | None = None
+
+
+def take_outcome() -> RenderOutcome | None:
+    """The outcome of the last render in this process (None if none ran since the last call)."""
+    global _last_outcome
+    outcome, _last_outcome = _last_outcome, None
+    return outcome
+
+
 class RestframeRenderEngine(bpy.types.RenderEngine):
     bl_idname = "RESTFRAME"
     bl_label = "RESTframe"
@@ -64,8 +98,8 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         super().__init__(*args, **kwargs)
 
     def should_stop(self) -> bool:
-        """Esc pressed: checked between exported objects and between tiles."""
-        return self.test_break()
+        """Esc pressed (or STOP set): checked between exported objects, tiles and sample batches."""
+        return STOP.is_set() or self.test_break()
 
     def update_render_passes(self, scene=None, renderlayer=None):
         for name, channel_ids, channel_type in list_render_passes(scene, renderlayer):
@@ -102,11 +136,26 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         return None if self.should_stop() else box["prepared"]
 
     def render(self, depsgraph):
+        global _last_outcome
+        self._tiles_done = self._tiles_total = 0
+        failed = False
         try:
             self._render(depsgraph)
+        except KeyboardInterrupt:
+            # Ctrl-C with Python's default handler (a script calling bpy.ops.render.render):
+            # Blender would swallow it and return the partial image as finished; an error makes
+            # the operator raise instead
+            failed = True
+            self.report({'ERROR'}, "RESTframe: render interrupted (KeyboardInterrupt): the image is incomplete")
         except Exception as error:  # anything unexpected must still reach the user
+            failed = True
             traceback.print_exc(file=sys.stderr)
             self.report({'ERROR'}, f"RESTframe: {type(error).__name__}: {error}")
+        finally:
+            if self._tiles_done == 0:  # an empty result: with none, Blender 5.0 crashes saving an EXR
+                self.end_result(self.begin_result(0, 0, self.resolution_x, self.resolution_y,
+                                                  layer=depsgraph.view_layer.name))
+            _last_outcome = RenderOutcome(self._tiles_done, self._tiles_total, failed or self.should_stop())
 
     def _render(self, depsgraph):
         started = time.monotonic()
@@ -155,7 +204,7 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
                 self.report({'WARNING'}, f"RESTframe: {message}")
 
         x_offset, y_offset = prepared.region[:2]
-        total = len(prepared.tiles())
+        total = self._tiles_total = len(prepared.tiles())
         triangles = sum(len(mesh.triangles) for mesh in scene.meshes)
         for done, tile in enumerate(render_tiles(prepared, self.should_stop), start=1):
             result = self.begin_result(tile.x0 - x_offset, tile.y0 - y_offset,
@@ -165,6 +214,7 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
                 if data is not None and data.shape[2] == render_pass.channels:
                     render_pass.rect.foreach_set(data.ravel())
             self.end_result(result)
+            self._tiles_done = done
             self.update_progress(done / total)
             self.update_stats("", f"RESTframe | {len(scene.meshes)} objects, {triangles} triangles | "
                               f"{'' if view is None else f'View {view} | '}"
