@@ -19,6 +19,7 @@ class RenderError(ValueError):
 
 
 DOPPLER_MODES = ("OFF", "FACTOR", "SPECTRAL")
+PARALLELISM = ("PROCESSES", "THREADS")  # RenderSettings.parallelism: where tiles render (see core.workers)
 
 
 def one_minus_speed_squared(beta) -> float:
@@ -131,6 +132,8 @@ def check_render(scene, settings, known_passes) -> None:
         raise RenderError(f"unknown passes {sorted(unknown)}: RESTframe fills {list(known_passes)} besides Combined")
     if settings.doppler_mode not in DOPPLER_MODES:
         raise RenderError(f"Doppler display mode {settings.doppler_mode!r} is not one of {DOPPLER_MODES}")
+    if settings.parallelism not in PARALLELISM:
+        raise RenderError(f"parallelism {settings.parallelism!r} is not one of {PARALLELISM}")
     try:
         check_camera_optics(scene.camera)
     except ValueError as error:
