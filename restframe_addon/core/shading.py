@@ -62,6 +62,7 @@ class MaterialTable:
         self.transmission = np.clip([m.transmission for m in materials], 0.0, 1.0)
         self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
         self.textures = [m.base_color_texture for m in materials]
+        self.closest = [m.base_color_interpolation == "Closest" for m in materials]
         self.mirror = self.roughness < MIRROR_ROUGHNESS
         self.glass = self.transmission > 0.0
         self.traces_secondary = bool(np.any(self.mirror | self.glass))
@@ -87,7 +88,7 @@ class MaterialTable:
         return np.clip(index, 0, len(self.materials) - 1)
 
     def base_color(self, index, uv):
-        """Base colour per hit, with image textures looked up (bilinear, repeat) where present."""
+        """Base colour per hit, with image textures looked up (bilinear or closest, repeat) where present."""
         color = self.base[index]
         if uv is None:
             return color
@@ -96,7 +97,8 @@ class MaterialTable:
                 continue
             sel = np.flatnonzero(index == m)
             if len(sel):
-                color[sel] = image_lookup(texture[..., :3], uv[sel, 0], uv[sel, 1])
+                color[sel] = image_lookup(texture[..., :3], uv[sel, 0], uv[sel, 1],
+                                          "Closest" if self.closest[m] else "Linear")
         return color
 
 
