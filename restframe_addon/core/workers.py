@@ -100,17 +100,20 @@ def worker_count(requested: int, scene_bytes: int, memory: int | None) -> int:
 
 def _parent_packages(module_name: str) -> list[tuple[str, list[str]]]:
     """The packages above RESTframe's own (``restframe_addon``), with their folders: inside
-    Blender ``bl_ext``, ``bl_ext.<repo>`` and ``bl_ext.<repo>.<id>``; none from the repository."""
+    Blender ``bl_ext`` (a plain module there, no folder), ``bl_ext.<repo>`` and
+    ``bl_ext.<repo>.<id>``; none from the repository."""
     parts = module_name.split(".")
     top = parts.index("restframe_addon")
     names = [".".join(parts[:i]) for i in range(1, top + 1)]
-    return [(name, list(sys.modules[name].__path__)) for name in names]
+    return [(name, list(getattr(sys.modules[name], "__path__", []))) for name in names]
 
 
 class _Worker:
     """One worker process, its pipes and the tiles dealt to it."""
 
     def __init__(self, executable: str, environment: dict, inbox: queue.Queue):
+        boot = {"path": list(sys.path), "module": __name__, "parent_pid": os.getpid(),
+                "parents": _parent_packages(__name__)}
         self.process = subprocess.Popen(
             [executable, "-I", "-c", "import runpy, sys; runpy.run_path(sys.argv[1], run_name='restframe_worker')",
              os.path.join(os.path.dirname(os.path.abspath(__file__)), "worker_boot.py")],
@@ -120,8 +123,7 @@ class _Worker:
         self.alive = True
         self.scene_id = None  # the scene it holds
         self.dealt: dict[int, tuple] = {}  # tile index -> rect, of the current render
-        self.send({"path": list(sys.path), "module": __name__, "parent_pid": os.getpid(),
-                   "parents": _parent_packages(__name__)})
+        self.send(boot)
         threading.Thread(target=self._read, args=(inbox,), name=f"restframe-worker-{self.pid}", daemon=True).start()
 
     @property
