@@ -1,4 +1,5 @@
-"""First code of a tile worker process (:mod:`.workers`), run by path before any package exists.
+"""First code of a tile worker process (:mod:`.workers`): its main script, run by path
+(``python -I worker_boot.py``) before any package exists.
 
 The parent sends one pickle of plain values on stdin: its ``sys.path``, the module of the
 worker loop and the packages above RESTframe's own with their folders.  Inside Blender the

@@ -115,9 +115,10 @@ class _Worker:
         boot = {"path": list(sys.path), "module": __name__, "parent_pid": os.getpid(),
                 "parents": _parent_packages(__name__)}
         self.process = subprocess.Popen(
-            [executable, "-I", "-c", "import runpy, sys; runpy.run_path(sys.argv[1], run_name='restframe_worker')",
-             os.path.join(os.path.dirname(os.path.abspath(__file__)), "worker_boot.py")],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=environment)
+            # -I: isolated (neither the script's folder nor the environment's PYTHON* variables are used)
+            [executable, "-I", os.path.join(os.path.dirname(os.path.abspath(__file__)), "worker_boot.py")],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=environment,
+            creationflags=getattr(subprocess, "CREATE_NO_WINDOW", 0))  # Windows: no console window per worker
         self.started = time.monotonic()
         self.ready = False
         self.alive = True
@@ -180,6 +181,7 @@ class WorkerPool:
         self._sent_scene = None  # (weakref to the prepared scene, its id) last pickled
         self._payload = b""  # its pickled bytes
         self._tokens = itertools.count(1)
+        self._broken = None  # why workers cannot run here, once every worker of a render died before it was ready
 
     @property
     def pids(self) -> list[int]:
@@ -210,8 +212,9 @@ class WorkerPool:
             yield from tiles_in_threads(prepared, rects, count, should_stop)
             return
         job = next(self._jobs)
-        for worker in workers:
+        for worker in self._workers:
             worker.dealt = {}
+        for worker in workers:
             if worker.scene_id != scene_id:
                 worker.scene_id = scene_id if worker.send(("scene", scene_id, self._payload)) else None
         todo = collections.deque(enumerate(rects))
@@ -223,6 +226,8 @@ class WorkerPool:
                 self._deal(workers, todo, job, scene_id)
                 workers = [worker for worker in workers if worker.alive]
                 if not workers:
+                    if not any(worker.ready for worker in self._workers):
+                        self._broken = f"no worker process started with {sys.executable} (see the console)"
                     warn("every worker process ended: rendering the rest in threads")
                     yield from tiles_in_threads(prepared, [rect for _, rect in todo], count, should_stop)
                     return
@@ -251,6 +256,8 @@ class WorkerPool:
     def _start(self, count: int) -> list[_Worker]:
         """``count`` live workers, starting the missing ones."""
         self._workers = [worker for worker in self._workers if worker.alive]
+        if self._broken:
+            raise WorkersUnavailable(self._broken)
         executable = python_executable()
         while len(self._workers) < count:
             try:

@@ -85,7 +85,7 @@ def test_installed_zip_renders(extension_zips, tmp_path):
     assert report["module"].startswith(str(user))
     assert report["embreex"].startswith(report["site"]) and report["site"].startswith(str(user))
     # The manifest asks for no permissions because the loaded extension stays out of the
-    # command line's modules (output files, worker processes, Dask networking).
+    # command line's modules (output files, Dask's worker processes and networking).
     assert report["command_line_modules"] == []
     doppler = read_exr(out)["Doppler"]
     assert doppler[7, 10, 0] == pytest.approx(4.358898943540674, abs=1e-6)

@@ -101,6 +101,26 @@ def test_without_a_python_it_renders_in_threads_with_a_warning(monkeypatch):
     assert len(warnings) == 1 and "sys.executable is ''" in warnings[0] and pool.pids == []
 
 
+def test_a_python_that_cannot_run_workers_falls_back_to_threads_for_the_session(monkeypatch):
+    monkeypatch.setattr(sys, "executable", "/bin/false")  # starts, and ends at once
+    prepared = prepare(busy_scene(), settings(tile_size=8))
+    pool, warnings = workers.WorkerPool(), []
+    for _ in range(2):
+        assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2, warnings.append)),
+                           in_threads(prepared))
+    assert warnings == ["every worker process ended: rendering the rest in threads",
+                        "no worker process started with /bin/false (see the console): rendering in threads"]
+
+
+def test_the_worker_count_follows_the_request_and_the_memory():
+    gib = 1 << 30
+    assert workers.worker_count(8, 0, None) == 8
+    assert workers.worker_count(8, 0, 64 * gib) == 8
+    assert workers.worker_count(8, 0, gib) == gib // workers._WORKER_MEMORY
+    assert workers.worker_count(8, 100 << 20, 4 * gib) < workers.worker_count(8, 0, 4 * gib)
+    assert workers.worker_count(8, 0, 0) == 1  # always one: the render goes on, if slowly
+
+
 def test_a_worker_error_reaches_the_render():
     """An error in a worker (here: a tile with a bad corner) is raised by the render."""
     prepared = prepare(busy_scene(), settings())
