@@ -6,7 +6,8 @@ Each scene is exported from its .blend and prepared once; every timed render the
 fresh copy of the prepared scene (a pickle round trip, untimed), so the process renders pay
 what an F12 pays: pickling the scene, sending it and rebuilding it in every worker.  The
 workers are started before timing (they stay warm across renders; their start-up is reported
-on its own).  Variants run interleaved in one process, rotating their order each repeat, with
+on its own).  CPU seconds (this process and its workers, Linux) are given next to the wall
+times: unlike those, they do not grow when other work takes the cores.  Variants run interleaved in one process, rotating their order each repeat, with
 the load average noted: the machine may be shared.  Prints a markdown report.
 """
 
@@ -46,6 +47,17 @@ def export_blend(blend: str, resolution, samples, tile_size):
     core_scene, settings = export.export_scene(bpy.context.evaluated_depsgraph_get(), resolution=resolution,
                                                warn=lambda message: None)
     return core_scene, settings
+
+
+def cpu_seconds(pids) -> float:
+    """User + system CPU time of this process and the processes ``pids`` so far (Linux)."""
+    total = sum(os.times()[:2])
+    ticks = os.sysconf("SC_CLK_TCK")
+    for pid in pids:
+        with open(f"/proc/{pid}/stat") as stat:
+            fields = stat.read().rsplit(")", 1)[1].split()
+        total += (int(fields[11]) + int(fields[12])) / ticks
+    return total
 
 
 def peak_rss_mb(pid: int) -> float:
@@ -103,6 +115,7 @@ def main():
             "processes x2, glibc malloc untuned": lambda: processes(2, untuned),
         }
         times = {variant: [] for variant in variants}
+        cpu = {variant: [] for variant in variants}
         images = {}
         loads = []
         names = list(variants)
@@ -111,9 +124,11 @@ def main():
             for variant in order:
                 run = variants[variant]()  # the untimed copy
                 loads.append(os.getloadavg()[0])
-                t0 = time.perf_counter()
+                pids = tuned.pids + untuned.pids
+                c0, t0 = cpu_seconds(pids), time.perf_counter()
                 tiles = run()
                 times[variant].append(time.perf_counter() - t0)
+                cpu[variant].append(cpu_seconds(pids) - c0)
                 images[variant] = {(t.x0, t.y0): t.passes["Combined"] for t in tiles}
         reference = images["threads x1"]
         same = all(v.keys() == reference.keys() and all(np.array_equal(v[k].view(np.uint32), reference[k].view(np.uint32))
@@ -123,11 +138,12 @@ def main():
               f"{len(prepared.tiles())} tiles of {prepared.settings.tile_size} px, pickled scene {payload / 1e6:.2f} MB\n")
         print(f"Load average during the runs: {min(loads):.2f}-{max(loads):.2f}. "
               f"Every variant's Combined pass bit-identical to threads x1: {same}.\n")
-        print("| variant | min s | median s | vs threads x1 (min) |")
-        print("|---|---|---|---|")
+        print("| variant | min s | median s | vs threads x1 (min) | CPU s (min; this process and the workers) |")
+        print("|---|---|---|---|---|")
         base = min(times["threads x1"])
         for variant, values in times.items():
-            print(f"| {variant} | {min(values):.2f} | {np.median(values):.2f} | {base / min(values):.2f}x |")
+            print(f"| {variant} | {min(values):.2f} | {np.median(values):.2f} | {base / min(values):.2f}x "
+                  f"| {min(cpu[variant]):.2f} |")
         print()
         for mode in ("threads", "processes", "processes x{}, glibc malloc untuned"):
             one, two = (mode.format(n) if "{}" in mode else f"{mode} x{n}" for n in (1, 2))
