@@ -49,9 +49,12 @@ def test_the_scene_is_pickled_once_per_render_and_not_again_for_the_same_scene(p
     monkeypatch.setattr(PreparedScene, "__reduce__", lambda self: pickled.append(self) or reduce(self))
     first = prepare(busy_scene(), settings(tile_size=6))
     second = prepare(busy_scene(Velocity((0.3, 0.0, 0.0))), settings(tile_size=6))
+    started = []
     for prepared in (first, first, second):  # 12 tiles each, two workers
         assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
+        started.append(pool.pids)
     assert pickled == [first, second]  # a new scene replaces the old one in the workers
+    assert started[0] == started[1] == started[2] and len(started[0]) == 2  # kept warm
 
 
 def test_a_worker_imports_only_the_core(pool):
