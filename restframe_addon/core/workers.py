@@ -67,7 +67,11 @@ class WorkersUnavailable(Exception):
 
 # --------------------------------------------------------------------------- the parent side
 def python_executable() -> str:
-    """The interpreter to start workers with; raises WorkersUnavailable when there is none."""
+    """The interpreter to start workers with; raises WorkersUnavailable when there is none.
+
+    Inside Blender (4.2 and 5.0) ``sys.executable`` is its bundled Python, which Blender's own
+    extension manager runs for its command-line tool too (``bpy.app.binary_path_python`` is gone
+    since 3.0); with bpy as a module it is the interpreter that imported bpy."""
     executable = sys.executable
     if not executable or not os.path.isfile(executable):
         raise WorkersUnavailable(f"no Python interpreter to start worker processes with "
