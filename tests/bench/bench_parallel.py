@@ -145,12 +145,14 @@ def main():
               f"(pickled in {pickling:.2f} s, rebuilt from it in {rebuild:.2f} s: what each process render adds)\n")
         print(f"Load average during the runs: {min(loads):.2f}-{max(loads):.2f}. "
               f"Every variant's Combined pass bit-identical to threads x1: {same}.\n")
-        print("| variant | min s | median s | vs threads x1 (min) | CPU s (min; this process and the workers) |")
-        print("|---|---|---|---|---|")
+        print("| variant | min s | median s | vs threads x1 (min) | CPU s (min; this process and the workers) "
+              "| cores used (CPU s / wall s, fastest run) |")
+        print("|---|---|---|---|---|---|")
         base = min(times["threads x1"])
         for variant, values in times.items():
+            fastest = int(np.argmin(values))
             print(f"| {variant} | {min(values):.2f} | {np.median(values):.2f} | {base / min(values):.2f}x "
-                  f"| {min(cpu[variant]):.2f} |")
+                  f"| {min(cpu[variant]):.2f} | {cpu[variant][fastest] / values[fastest]:.2f} |")
         print()
         for mode in ("threads", "processes", "processes x{}, glibc malloc untuned"):
             one, two = (mode.format(n) if "{}" in mode else f"{mode} x{n}" for n in (1, 2))
