@@ -160,6 +160,10 @@ def main():
                   f"(medians {np.median(times[one]) / np.median(times[two]):.2f}x)")
         print(f"- malloc tuning, one worker: {min(times['processes x1, glibc malloc untuned']) / min(times['processes x1']):.2f}x "
               f"faster; two workers: {min(times['processes x2, glibc malloc untuned']) / min(times['processes x2']):.2f}x")
+        serial = (pickling + rebuild) / min(cpu["processes x1"])
+        print(f"- per-render cost every worker pays whatever the worker count (pickling + rebuild) / CPU s of "
+              f"processes x1: {serial:.1%}; Amdahl with it: {1 / (serial + (1 - serial) / 8):.1f}x on 8 cores, "
+              f"{1 / (serial + (1 - serial) / 16):.1f}x on 16 (tile count permitting: {len(prepared.tiles())} tiles)")
         print(f"- peak RSS of the tuned workers so far: "
               f"{', '.join(f'{peak_rss_mb(pid):.0f} MB' for pid in tuned.pids)}\n")
     tuned.close()
