@@ -70,7 +70,7 @@ def test_a_worker_imports_only_the_core(pool):
 
 
 def test_esc_stops_the_tile_a_worker_renders_and_the_tiles_it_holds(pool):
-    """One worker, four tiles of seven sample batches each: Esc after a moment leaves at most the
+    """One worker, four tiles of 5-9 sample batches each: Esc after a moment leaves at most the
     tile it was rendering, cut short, and the next render is still right."""
     prepared = prepare(busy_scene(), settings(tile_size=12, samples=4096))
     polls = []
