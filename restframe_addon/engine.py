@@ -109,10 +109,10 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         """``prepare(...)`` (or, given the first view's prepared scene, ``prepare_view``) in a
         worker thread, polled for Esc every 50 ms.
 
-        The build checks Esc between pieces of 2**14 triangles, but polling needs the GIL,
-        which each frame's embree BVH build holds throughout (about 0.4 s for a million
-        triangles): on Esc the render returns within that, and the abandoned build stops at
-        its next check.  None when cancelled.
+        The build checks Esc between its steps, but polling needs the GIL, which embree's BVH
+        build holds throughout when it goes through embreex (about 0.4 s for a million
+        triangles; handed to embree directly it lets go): on Esc the render returns within
+        that, and the abandoned build stops at its next check.  None when cancelled.
         """
         cancelled = threading.Event()
         box = {}

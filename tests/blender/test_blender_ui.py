@@ -59,10 +59,12 @@ def context_for(scene, obj=None):
 
 
 def test_render_panels_draw_every_setting(scene):
+    scene.restframe.integrator = 'PATH'  # its Light Paths panel shows the bounce limits and clamps
     context = context_for(scene)
     shown = set()
-    for panel in (ui.RESTFRAME_RENDER_PT_relativity, ui.RESTFRAME_RENDER_PT_sampling, ui.RESTFRAME_RENDER_PT_doppler,
-                  ui.RESTFRAME_RENDER_PT_motion_blur, ui.RESTFRAME_RENDER_PT_film, ui.RESTFRAME_RENDER_PT_performance):
+    for panel in (ui.RESTFRAME_RENDER_PT_relativity, ui.RESTFRAME_RENDER_PT_sampling, ui.RESTFRAME_RENDER_PT_light_paths,
+                  ui.RESTFRAME_RENDER_PT_doppler, ui.RESTFRAME_RENDER_PT_motion_blur, ui.RESTFRAME_RENDER_PT_film,
+                  ui.RESTFRAME_RENDER_PT_performance):
         shown |= set(draw(panel, context).get("props", []))
     settings = set(scene.restframe.bl_rna.properties.keys()) - {"rna_type", "name"}
     assert settings <= shown
@@ -74,7 +76,21 @@ def test_render_panels_draw_every_setting(scene):
 
 def test_passes_panel(scene):
     props = draw(ui.RESTFRAME_VIEWLAYER_PT_passes, context_for(scene))["props"]
-    assert props == ["use_pass_z", "use_pass_normal", "use_pass_object_index"]
+    assert props == ["use_pass_z", "use_pass_normal", "use_pass_object_index", "denoising_store_passes"]
+
+
+def test_light_paths_panel_shows_with_path_tracing(scene):
+    """Cycles' Light Paths (total, diffuse, glossy, transmission bounces, clamps) for Path Tracing;
+    Direct Light keeps its mirror/glass bounce limit in the Sampling panel."""
+    context = context_for(scene)
+    scene.restframe.integrator = 'DIRECT'
+    assert not ui.RESTFRAME_RENDER_PT_light_paths.poll(context)
+    assert "max_bounces" in draw(ui.RESTFRAME_RENDER_PT_sampling, context)["props"]
+    scene.restframe.integrator = 'PATH'
+    assert ui.RESTFRAME_RENDER_PT_light_paths.poll(context)
+    assert "max_bounces" not in draw(ui.RESTFRAME_RENDER_PT_sampling, context)["props"]
+    assert draw(ui.RESTFRAME_RENDER_PT_light_paths, context)["props"] == [
+        "max_bounces", "diffuse_bounces", "glossy_bounces", "transmission_bounces", "clamp_direct", "clamp_indirect"]
 
 
 def test_object_panel_shows_speed_and_warns_about_keyframed_location(scene):
