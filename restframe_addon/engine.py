@@ -206,7 +206,9 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         x_offset, y_offset = prepared.region[:2]
         total = self._tiles_total = len(prepared.tiles())
         triangles = sum(len(mesh.triangles) for mesh in scene.meshes)
-        for done, tile in enumerate(render_tiles(prepared, self.should_stop), start=1):
+        tiles = render_tiles(prepared, self.should_stop,  # in worker processes or threads (Scene.restframe.parallelism)
+                             warn=lambda message: self.report({'WARNING'}, f"RESTframe: {message}"))
+        for done, tile in enumerate(tiles, start=1):
             result = self.begin_result(tile.x0 - x_offset, tile.y0 - y_offset,
                                        tile.x1 - tile.x0, tile.y1 - tile.y0, layer=view_layer.name, view=view or "")
             for render_pass in result.layers[0].passes:

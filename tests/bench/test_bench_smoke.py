@@ -27,3 +27,12 @@ def test_benchmark_suite_smoke_run(tmp_path):
     assert all(math.isfinite(v) for v in numbers.values())
     for plot in ("knobs.png", "stability.png", "throughput.png", "cycles.png"):
         assert (tmp_path / "bench" / plot).stat().st_size > 1000
+
+
+def test_parallel_benchmark_smoke_run():
+    """bench_parallel.py (threads against worker processes) on small images: it runs, and every
+    variant renders the same bits."""
+    done = subprocess.run([sys.executable, str(RUN.with_name("bench_parallel.py")), "--quick", "--repeats", "1"],
+                          capture_output=True, text=True, cwd=RUN.parents[2], timeout=600)
+    assert done.returncode == 0, done.stderr[-4000:]
+    assert done.stdout.count("bit-identical to threads x1: True") == 2, done.stdout
