@@ -22,7 +22,9 @@ def register():
 
 def unregister():
     from . import engine, overlay, properties, ui
+    from .core import workers
 
+    workers.shutdown()  # the workers run this version's code
     overlay.unregister()
     ui.unregister()
     engine.unregister()

@@ -121,10 +121,10 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         """``prepare(...)`` (or, given the first view's prepared scene, ``prepare_view``) in a
         worker thread, polled for Esc every 50 ms; ``geometry_cache``: Persistent Data.
 
-        The build checks Esc between pieces of 2**14 triangles, but polling needs the GIL,
-        which each frame's embree BVH build holds throughout (about 0.4 s for a million
-        triangles): on Esc the render returns within that, and the abandoned build stops at
-        its next check.  None when cancelled.
+        The build checks Esc between its steps, but polling needs the GIL, which embree's BVH
+        build holds throughout when it goes through embreex (about 0.4 s for a million
+        triangles; handed to embree directly it lets go): on Esc the render returns within
+        that, and the abandoned build stops at its next check.  None when cancelled.
         """
         cancelled = threading.Event()
         box = {}
@@ -219,7 +219,9 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         x_offset, y_offset = prepared.region[:2]
         total = self._tiles_total = len(prepared.tiles())
         triangles = sum(len(mesh.triangles) for mesh in scene.meshes)
-        for done, tile in enumerate(render_tiles(prepared, self.should_stop), start=1):
+        tiles = render_tiles(prepared, self.should_stop,  # in worker processes or threads (Scene.restframe.parallelism)
+                             warn=lambda message: self.report({'WARNING'}, f"RESTframe: {message}"))
+        for done, tile in enumerate(tiles, start=1):
             result = self.begin_result(tile.x0 - x_offset, tile.y0 - y_offset,
                                        tile.x1 - tile.x0, tile.y1 - tile.y0, layer=view_layer.name, view=view or "")
             for render_pass in result.layers[0].passes:

@@ -31,6 +31,13 @@ DOPPLER_MODES = (
      "scaled by D (blue shift when approaching, red shift when receding)", 2),
 )
 
+PARALLELISM = (
+    ('PROCESSES', "Processes", "Render tiles in worker processes: every core busy (each worker rebuilds "
+     "the scene once per render, and they stay running between renders)", 0),
+    ('THREADS', "Threads", "Render tiles in threads of Blender's own process: no extra processes, but "
+     "Python's global lock keeps them from using every core fully", 1),
+)
+
 INTEGRATORS = (
     ('PATH', "Path Tracing", "Full light transport across rest frames: lamps, the world and emissive "
      "surfaces light everything, light bounces between surfaces (Light Paths limits)", 0),
@@ -256,6 +263,12 @@ class RestframeSceneSettings(PropertyGroup):
         min=8,
         max=4096,
         subtype='PIXEL',
+    )
+    parallelism: EnumProperty(
+        name="Parallelism",
+        description="How tiles are rendered on several cores",
+        items=PARALLELISM,
+        default='PROCESSES',
     )
     doppler_mode: EnumProperty(
         name="Doppler",

@@ -208,6 +208,7 @@ class RESTFRAME_RENDER_PT_performance(RestframeButtonsPanel, Panel):
         sub = col.column()
         sub.enabled = render.threads_mode == 'FIXED'
         sub.prop(render, "threads")
+        col.prop(context.scene.restframe, "parallelism")
         col.prop(context.scene.restframe, "tile_size")
         col.prop(render, "use_persistent_data", text="Persistent Data")
 

@@ -25,7 +25,7 @@ import numpy as np
 from embreex import rtcore, rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
-from . import motion, observer, rows, validation
+from . import embree_direct, motion, observer, rows, validation
 from .lorentz import Boost
 from .scene import RAY_ALL, REST, Scene, Velocity
 
@@ -94,7 +94,7 @@ class Geometry:
     anchor: np.ndarray
     embree: object
     piece_start: np.ndarray  # first triangle of each embree geometry: triangle = piece_start[geomID] + primID
-    clusters: np.ndarray = None  # (k, 4): centre and radius of spheres that together hold every triangle
+    clusters: np.ndarray = None  # (k, 4): centre and radius of spheres holding every triangle (None: a lone frame)
     tri_visibility: np.ndarray | None = None  # (M,) uint8 RAY_* bits of the rays that see each triangle; None: all
     tri_holdout: np.ndarray | None = None  # (M,) bool: holdout triangles; None: none
     radius: float = 0.0  # distance from the local origin (a moving body's pivot) to its farthest used vertex
@@ -103,8 +103,8 @@ class Geometry:
 
     def __post_init__(self):
         self.extent = float(np.max(self.hi - self.lo))
-        tri = self.vertices[self.triangles]
-        self.face_normals = rows.normalized(rows.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]))
+        p0, p1, p2 = (self.vertices[self.triangles[:, j]] for j in range(3))  # no (n, 3, 3) array: 2x faster
+        self.face_normals = rows.normalized(rows.cross(p1 - p0, p2 - p0))
         for array in (self.vertices, self.triangles, self.tri_material, self.tri_object_index, self.tri_clock,
                       self.corner_normals, self.corner_uvs, self.lo, self.hi, self.anchor, self.piece_start,
                       self.clusters, self.face_normals, self.tri_visibility, self.tri_holdout):
@@ -413,9 +413,26 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
             _add_segments(frames, meshes, scene, motion_settings, warnings, groups, build)
         else:
             _add_rotation(frames, meshes[0], scene, motion_settings, warnings, build)
+    _add_clusters([f.geometry for f in frames if f.has_geometry], should_stop)
     if geometry_cache is not None and not should_stop():
         geometry_cache.finish_frame()
     return FrameSet(frames, world, camera, light_frames, warnings, groups)
+
+
+def _add_clusters(geometries: list[Geometry], should_stop) -> None:
+    """Culling clusters for every geometry, where there are several: the tracer culls a ray
+    bundle by them only between frames (a lone mesh pays nothing).  Stops once
+    ``should_stop()`` is true."""
+    if len(geometries) < 2:
+        return
+    for geometry in {id(g): g for g in geometries}.values():  # segments share one geometry
+        if geometry.clusters is not None:  # reused from an earlier frame (persistent data): the same clusters
+            continue
+        clusters = _clusters(geometry.vertices, geometry.triangles, should_stop)
+        if clusters is None:
+            return
+        clusters.flags.writeable = False  # as Geometry's own arrays
+        geometry.clusters = clusters
 
 
 def _mesh_part(mesh, boost: Boost, warnings: list[str], relative_to=None):
@@ -424,14 +441,18 @@ def _mesh_part(mesh, boost: Boost, warnings: list[str], relative_to=None):
     triangles = np.asarray(mesh.triangles, dtype=np.int64).reshape(-1, 3)
     if len(triangles) == 0:
         return None
-    valid = np.all((triangles >= 0) & (triangles < len(vertices)), axis=1)
-    finite_vertex = np.all(np.isfinite(vertices), axis=1)
-    valid[valid] &= np.all(finite_vertex[triangles[valid]], axis=1)
-    if not valid.all():
-        warnings.append(f"{mesh.name}: skipped {np.count_nonzero(~valid)} triangles with invalid or non-finite vertices")
-    keep = np.flatnonzero(valid)
-    if len(keep) == 0:
-        return None
+    if triangles.min() >= 0 and triangles.max() < len(vertices) and np.isfinite(vertices).all():
+        keep, count = slice(None), len(triangles)  # the common case, checked without a pass per triangle
+    else:
+        valid = np.all((triangles >= 0) & (triangles < len(vertices)), axis=1)
+        finite_vertex = np.all(np.isfinite(vertices), axis=1)
+        valid[valid] &= np.all(finite_vertex[triangles[valid]], axis=1)
+        if not valid.all():
+            warnings.append(f"{mesh.name}: skipped {np.count_nonzero(~valid)} triangles with invalid or non-finite vertices")
+        keep = np.flatnonzero(valid)
+        count = len(keep)
+        if count == 0:
+            return None
     materials = (
         np.zeros(len(triangles), dtype=np.int32)
         if mesh.material_indices is None
@@ -447,8 +468,8 @@ def _mesh_part(mesh, boost: Boost, warnings: list[str], relative_to=None):
         "vertices": placed,
         "triangles": triangles[keep],
         "material": materials[keep],
-        "object_index": np.full(len(keep), mesh.object_index, dtype=np.int32),
-        "clock": np.full(len(keep), clock),
+        "object_index": np.full(count, mesh.object_index, dtype=np.int32),
+        "clock": np.full(count, clock),
         "normals": None if mesh.corner_normals is None else np.asarray(mesh.corner_normals, np.float64)[keep],
         "uvs": None if mesh.corner_uvs is None else np.asarray(mesh.corner_uvs, np.float64)[keep],
         "visibility": int(mesh.visibility) & RAY_ALL,
@@ -466,16 +487,18 @@ def _embree_device():
     return _DEVICE
 
 
-# Triangles per embree geometry.  embreex copies a mesh into embree element by element while
-# holding the GIL (1.6 s for a million triangles in one piece), which keeps the engine from
-# polling Esc; a piece of 2**14 triangles takes about 35 ms.  Embree still builds one BVH
-# over all pieces of a scene, so tracing is as fast as with one piece.
+# Triangles per embree geometry, so that Esc is polled between pieces: with embreex's own
+# TriangleMesh, which copies a mesh into embree element by element while holding the GIL (1.6 s
+# for a million triangles in one piece), a piece of 2**14 triangles takes about 35 ms; handed
+# over directly (embree_direct) about 1 ms.  Embree still builds one BVH over all pieces of a
+# scene, so tracing is as fast as with one piece.
 _PIECE_TRIANGLES = 2**14
 
 
 def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     """The parts' triangles in one embreex scene; None once ``should_stop()`` is true
-    (checked between pieces of ``_PIECE_TRIANGLES``)."""
+    (checked between pieces of ``_PIECE_TRIANGLES``; embree's BVH build, last, cannot be
+    interrupted)."""
     offsets = np.cumsum([0] + [len(p["vertices"]) for p in parts[:-1]])
     vertices = np.concatenate([p["vertices"] for p in parts])
     triangles = np.concatenate([p["triangles"] + o for p, o in zip(parts, offsets)])
@@ -491,23 +514,27 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
         holdout = np.concatenate([np.full(len(p["triangles"]), p["holdout"]) for p in parts])
     is_used = np.zeros(len(vertices), dtype=bool)
     is_used[triangles] = True  # a mask, not np.unique: no sort (0.14 s -> 0.02 s for 1M triangles)
-    used = vertices[is_used]
-    lo, hi = used.min(axis=0), used.max(axis=0)
-    radius = float(np.max(np.linalg.norm(used, axis=1)))
+    used = vertices if is_used.all() else vertices[is_used]
+    x, y, z = (used[:, axis] for axis in range(3))  # by column: numpy is slow along a length-3 axis
+    lo, hi = np.array([x.min(), y.min(), z.min()]), np.array([x.max(), y.max(), z.max()])
+    radius = float(np.sqrt(np.max(x * x + y * y + z * z)))
     anchor = 0.5 * (lo + hi)
     scene = rtcore_scene.EmbreeScene(_embree_device())
     local_vertices = (vertices - anchor).astype(np.float32)
     piece_start = np.arange(0, len(triangles), _PIECE_TRIANGLES, dtype=np.int32)
+    shared = embree_direct.shared_vertices(_embree_device(), local_vertices)
     claimed_by = np.empty(len(vertices), dtype=np.intp)  # scratch for _attach_piece
-    for start in piece_start:
-        if should_stop():
-            return None
-        _attach_piece(scene, local_vertices, triangles[start:start + _PIECE_TRIANGLES], claimed_by)
-    # commit now (embreex commits lazily on the first query, which is not thread-safe); the BVH
-    # build holds the GIL too (about 0.4 s per million triangles) and embreex cannot split it
-    scene.run(np.zeros((1, 3), np.float32), np.array([[1, 0, 0]], np.float32))
+    try:
+        for start in piece_start:
+            if should_stop():
+                return None
+            _attach_piece(scene, local_vertices, triangles[start:start + _PIECE_TRIANGLES], claimed_by, shared)
+    finally:
+        if shared is not None:
+            shared.release()
+    _commit(scene)
     return Geometry(
-        clusters=_clusters(vertices, triangles), radius=radius,
+        radius=radius,
         vertices=vertices, triangles=triangles,
         tri_material=np.concatenate([p["material"] for p in parts]),
         tri_object_index=np.concatenate([p["object_index"] for p in parts]),
@@ -517,14 +544,27 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     )
 
 
-def _attach_piece(scene, vertices, triangles, claimed_by) -> None:
-    """Add triangles to an embreex scene as one geometry holding only the vertices they use
-    (embreex copies every vertex it is given).
+def _commit(scene) -> None:
+    """Build the scene's BVH now (embreex commits lazily on the first query, which is not
+    thread-safe): directly (embree_direct) without holding the GIL, so that the engine's main
+    thread goes on polling Esc; through embreex holding it (about 0.4 s per million triangles)."""
+    if embree_direct.ready(_embree_device()):
+        embree_direct.commit(scene)
+    else:
+        scene.run(np.zeros((1, 3), np.float32), np.array([[1, 0, 0]], np.float32))
 
-    The used vertices are renumbered without sorting (np.unique costs 3x as much): each is
-    claimed by one of its corners in ``claimed_by`` (scratch, one entry per vertex), and the
-    claiming corners, in order, number them.
+
+def _attach_piece(scene, vertices, triangles, claimed_by, shared=None) -> None:
+    """Add triangles to an embreex scene as one geometry: directly, on the mesh's
+    :class:`embree_direct.SharedVertices` when given, else through embreex, holding only the
+    vertices they use (embreex copies every vertex it is given).
+
+    For embreex the used vertices are renumbered without sorting (np.unique costs 3x as much):
+    each is claimed by one of its corners in ``claimed_by`` (scratch, one entry per vertex),
+    and the claiming corners, in order, number them.
     """
+    if shared is not None and embree_direct.attach(scene, _embree_device(), shared, triangles):
+        return
     corners = triangles.ravel()
     corner_index = np.arange(len(corners))
     claimed_by[corners] = corner_index  # of a vertex's corners, one is stored
@@ -534,29 +574,54 @@ def _attach_piece(scene, vertices, triangles, claimed_by) -> None:
     TriangleMesh(scene, vertices[corners[claims]], new_number[claimant].reshape(-1, 3))
 
 
-def _clusters(vertices, triangles, depth: int = 4) -> np.ndarray:
+def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) -> np.ndarray | None:
     """Bounding spheres of up to 2**depth groups of triangles (median splits of their centroids
-    along the longest axis): a tighter outline than one sphere, for culling whole ray bundles."""
-    tri = vertices[triangles]
-    centroids = tri.mean(axis=1)
-    groups = [np.arange(len(triangles))]
+    along the longest axis): a tighter outline than one sphere, for culling whole ray bundles.
+    None once ``should_stop()`` is true (checked between steps).
+
+    Worked on one coordinate at a time (numpy is slow along a length-3 axis), gathering into
+    one scratch array (fresh arrays this size cost more in page faults than the arithmetic):
+    a group's box is the box of its triangles' own boxes.  The triangles' indices are valid,
+    so ``take`` has nothing to clip.
+    """
+    n = len(triangles)
+    scratch = np.empty((3, n))
+    corner_index = np.ascontiguousarray(triangles.T)
+    centroids, tri_lo, tri_hi = [], [], []  # per axis: of each triangle
+    for axis in range(3):
+        if should_stop():
+            return None
+        column = np.ascontiguousarray(vertices[:, axis])
+        a, b, c = (np.take(column, index, out=out, mode="clip") for index, out in zip(corner_index, scratch))
+        centroid, lo, hi = np.add(a, b), np.minimum(a, b), np.maximum(a, b)
+        centroid += c
+        centroid /= 3.0
+        centroids.append(centroid)
+        tri_lo.append(np.minimum(lo, c, out=lo))
+        tri_hi.append(np.maximum(hi, c, out=hi))
+    groups = [np.arange(n)]
     for _ in range(depth):
+        if should_stop():
+            return None
         split = []
         for group in groups:
             if len(group) < 64:
                 split.append(group)
                 continue
-            c = centroids[group]
-            axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
-            order = np.argpartition(c[:, axis], len(group) // 2)
+            c = [np.take(centroid, group, out=out[:len(group)], mode="clip") for centroid, out in zip(centroids, scratch)]
+            axis = int(np.argmax([ca.max() - ca.min() for ca in c]))
+            order = np.argpartition(c[axis], len(group) // 2)
             split += [group[order[: len(group) // 2]], group[order[len(group) // 2:]]]
         groups = split
-    spheres = []
-    for group in groups:
-        points = tri[group].reshape(-1, 3)
-        lo, hi = points.min(axis=0), points.max(axis=0)
-        spheres.append([*(0.5 * (lo + hi)), 0.5 * float(np.linalg.norm(hi - lo))])
-    return np.array(spheres)
+    if should_stop():
+        return None
+    # each group's box, all groups at once: their triangles in a row, reduced group by group
+    in_groups = np.concatenate(groups)
+    starts = np.cumsum([0] + [len(group) for group in groups[:-1]])
+    box = [[reduce.reduceat(np.take(bound, in_groups, out=scratch[0], mode="clip"), starts) for bound in bounds]
+           for reduce, bounds in ((np.minimum, tri_lo), (np.maximum, tri_hi))]
+    lo, hi = np.column_stack(box[0]), np.column_stack(box[1])
+    return np.array([[*(0.5 * (l + h)), 0.5 * float(np.linalg.norm(h - l))] for l, h in zip(lo, hi)])
 
 
 def _flat_normals(part: dict) -> np.ndarray:

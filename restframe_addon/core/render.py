@@ -174,17 +174,23 @@ def _worker_count(threads: int) -> int:
 
 
 def render_tiles(prepared: PreparedScene, should_stop: Callable[[], bool] = lambda: False,
-                 threads: int | None = None) -> Iterator[Tile]:
+                 threads: int | None = None, warn: Callable[[str], None] | None = None) -> Iterator[Tile]:
     """Yield the tiles of the prepared scene's region as they complete, rendered by ``threads``
-    threads (None: the settings' count; 0: one per core); return early once ``should_stop()`` is
-    true (a tile cut short by it is never yielded)."""
+    threads or worker processes (``settings.parallelism``; None: the settings' count; 0: one per
+    core); return early once ``should_stop()`` is true (a tile cut short by it is never yielded).
+    ``warn(message)`` hears why worker processes fell back to threads."""
     workers = _worker_count(prepared.settings.threads if threads is None else threads)
     with blas.single_threaded():  # the render threads use the cores (see blas)
-        yield from _tiles_in_threads(prepared, workers, should_stop)
+        if prepared.settings.parallelism == "PROCESSES":
+            from . import workers as processes  # (it imports this module)
+
+            yield from processes.render_tiles(prepared, should_stop, workers, warn)
+        else:
+            yield from tiles_in_threads(prepared, prepared.tiles(), workers, should_stop)
 
 
-def _tiles_in_threads(prepared: PreparedScene, workers: int, should_stop) -> Iterator[Tile]:
-    rects = prepared.tiles()
+def tiles_in_threads(prepared: PreparedScene, rects, workers: int, should_stop) -> Iterator[Tile]:
+    """Yield the tiles ``rects`` of the prepared scene as ``workers`` threads complete them."""
     if workers == 1:
         cache = TraceCache()
         for rect in rects:

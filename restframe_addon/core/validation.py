@@ -19,6 +19,7 @@ class RenderError(ValueError):
 
 
 DOPPLER_MODES = ("OFF", "FACTOR", "SPECTRAL")
+PARALLELISM = ("PROCESSES", "THREADS")  # RenderSettings.parallelism: where tiles render (see core.workers)
 INTEGRATORS = ("PATH", "DIRECT")
 _BOUNCE_LIMITS = ("max_bounces", "diffuse_bounces", "glossy_bounces", "transmission_bounces")
 _CLAMPS = ("clamp_direct", "clamp_indirect")
@@ -134,6 +135,8 @@ def check_render(scene, settings, known_passes) -> None:
         raise RenderError(f"unknown passes {sorted(unknown)}: RESTframe fills {list(known_passes)} besides Combined")
     if settings.doppler_mode not in DOPPLER_MODES:
         raise RenderError(f"Doppler display mode {settings.doppler_mode!r} is not one of {DOPPLER_MODES}")
+    if settings.parallelism not in PARALLELISM:
+        raise RenderError(f"parallelism {settings.parallelism!r} is not one of {PARALLELISM}")
     if settings.integrator not in INTEGRATORS:
         raise RenderError(f"integrator {settings.integrator!r} is not one of {INTEGRATORS}")
     for name in _BOUNCE_LIMITS:

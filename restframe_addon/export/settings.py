@@ -67,6 +67,7 @@ def render_settings(scene, resolution=None, view_layer=None) -> RenderSettings:
         film_transparent=render.film_transparent,
         tile_size=rf.tile_size,
         threads=render.threads if render.threads_mode == 'FIXED' else 0,
+        parallelism=rf.parallelism,
         doppler_range=None if rf.doppler_range_auto else tuple(rf.doppler_range),
         doppler_levels=rf.doppler_levels,
         motion_tolerance=rf.motion_tolerance,

@@ -36,6 +36,7 @@ SECTIONS = {
     "3": "bench_throughput",
     "4": "bench_frugal",
     "5": "bench_cycles",
+    "6": "bench_build",
 }
 
 

@@ -1,10 +1,11 @@
 """Run in a fresh process by test_blender_package.py: install the built zip as a user would, render.
 
-    BLENDER_USER_RESOURCES=<empty dir> python install_and_render.py EXTENSION.zip OUT.exr
+    BLENDER_USER_RESOURCES=<empty dir> python install_and_render.py EXTENSION.zip OUT.exr OUT_THREADS.exr
 
 The host Python's own embreex is hidden, so the render can only work through the
 wheel the extension bundles (as inside a real Blender, which has no embreex).
-Prints one JSON line with what it found.
+It renders in worker processes (the default) to OUT.exr, then in threads to OUT_THREADS.exr.
+Prints one JSON line with what it found, the workers' imported modules among it.
 """
 
 import importlib.abc
@@ -15,7 +16,7 @@ import sys
 
 import bpy
 
-zip_path, out_path = sys.argv[1], sys.argv[2]
+zip_path, out_path, threads_out_path = sys.argv[1:4]
 site = os.path.join(bpy.utils.user_resource('EXTENSIONS'), ".local", "lib",
                     f"python{sys.version_info.major}.{sys.version_info.minor}", "site-packages")
 
@@ -60,6 +61,12 @@ else:
 settings.color_depth = '32'
 scene.render.filepath = out_path
 bpy.ops.render.render(write_still=True)
+# the workers of the installed extension, asked before the threads render
+worker_modules = [answer["modules"] for answer in sys.modules[
+    "bl_ext.user_default.restframe.restframe_addon.core.workers"].pool().status().values()]
+scene.restframe.parallelism = 'THREADS'
+scene.render.filepath = threads_out_path
+bpy.ops.render.render(write_still=True)
 
 import embreex  # noqa: E402  (already imported by the render, from the wheel)
 
@@ -76,6 +83,7 @@ print(json.dumps({
     "embreex": embreex.__file__,
     "site": site,
     "command_line_modules": command_line_modules,
+    "worker_modules": worker_modules,
 }))
 if bpy.app.version < (4, 3, 0):  # bpy 4.2 as a module crashes in its exit handlers (see tests/blender/conftest.py)
     sys.stdout.flush()

@@ -9,6 +9,7 @@ import pytest
 import restframe_addon
 from blender_helpers import add_camera, add_plane, render_exr
 from restframe_addon import engine, ui
+from restframe_addon.core import workers
 from restframe_addon.engine import OBJECT_INDEX_PASS, RestframeRenderEngine
 from restframe_addon.properties import speed_of
 
@@ -177,6 +178,36 @@ def test_cancel_during_render_leaves_tiles_unrendered(scene, tmp_path, monkeypat
     monkeypatch.undo()
     doppler = render_exr(scene, tmp_path / "again.exr")["Doppler"][..., 0]
     assert np.count_nonzero(doppler) == doppler.size  # a second render right after works
+
+
+def test_worker_processes_render_the_same_passes_as_threads(scene, tmp_path, monkeypatch):
+    """F12 with Parallelism Processes (the default) and Threads: every pass bit for bit, and the
+    same tiles streamed into the result."""
+    add_camera(scene)
+    add_plane(scene, velocity=(0.0, 0.5, 0.3))
+    scene.view_layers[0].use_pass_z = scene.view_layers[0].use_pass_normal = True
+    scene.restframe.samples, scene.restframe.tile_size = 3, 8
+    scene.render.threads_mode, scene.render.threads = 'FIXED', 2
+    streamed = []
+
+    def counted_tiles(*args, **kwargs):
+        for tile in engine_render_tiles(*args, **kwargs):
+            streamed.append((tile.x0, tile.y0, tile.x1, tile.y1))
+            yield tile
+
+    engine_render_tiles = engine.render_tiles
+    monkeypatch.setattr(engine, "render_tiles", counted_tiles)
+    images, tiles = {}, {}
+    for parallelism in ('PROCESSES', 'THREADS'):
+        scene.restframe.parallelism = parallelism
+        streamed.clear()
+        images[parallelism] = render_exr(scene, tmp_path / f"{parallelism}.exr")
+        tiles[parallelism] = sorted(streamed)
+    assert len(workers.pool().pids) == 2  # the processes render ran in two workers, still running
+    assert images['PROCESSES'].keys() == images['THREADS'].keys() and "Depth" in images['THREADS']
+    for name, data in images['THREADS'].items():
+        assert np.array_equal(images['PROCESSES'][name], data, equal_nan=True), name
+    assert tiles['PROCESSES'] == tiles['THREADS'] and len(tiles['THREADS']) == 6  # 21x15: 3 x 2 tiles
 
 
 def test_cancel_during_export_renders_nothing(scene, monkeypatch):

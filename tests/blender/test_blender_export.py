@@ -280,7 +280,10 @@ def test_render_settings_follow_the_scene(scene):
     scene.render.resolution_percentage = 200
     scene.render.film_transparent = True
     scene.render.threads_mode, scene.render.threads = 'FIXED', 3
+    assert rf.parallelism == 'PROCESSES'  # the default
+    rf.parallelism = 'THREADS'
     _, settings, _ = export_now(scene)
+    assert settings.parallelism == 'THREADS'
     assert settings.resolution == (42, 30)
     assert (settings.samples, settings.max_bounces, settings.tile_size, settings.threads) == (9, 3, 16, 3)
     assert (settings.doppler_mode, settings.searchlight, settings.doppler_levels) == ('FACTOR', False, 5)

@@ -11,6 +11,7 @@ import sys
 import tomllib
 import zipfile
 
+import numpy as np
 import pytest
 
 from blender_helpers import read_exr
@@ -74,9 +75,9 @@ def test_installed_zip_renders(extension_zips, tmp_path):
     user = tmp_path / "user"
     user.mkdir()
     env = dict(os.environ, BLENDER_USER_RESOURCES=str(user))
-    out = tmp_path / "installed.exr"
+    out, threads_out = tmp_path / "installed.exr", tmp_path / "installed_threads.exr"
     result = subprocess.run([sys.executable, os.path.join(HERE, "install_and_render.py"),
-                             str(extension_zips["linux-x64"]), str(out)],
+                             str(extension_zips["linux-x64"]), str(out), str(threads_out)],
                             env=env, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stdout + result.stderr
     report = json.loads(result.stdout.strip().splitlines()[-1])
@@ -84,10 +85,22 @@ def test_installed_zip_renders(extension_zips, tmp_path):
     assert report["module"].startswith(str(user))
     assert report["embreex"].startswith(report["site"]) and report["site"].startswith(str(user))
     # The manifest asks for no permissions because the loaded extension stays out of the
-    # command line's modules (output files, worker processes, Dask networking).
+    # command line's modules (output files, Dask's worker processes and networking).
     assert report["command_line_modules"] == []
     doppler = read_exr(out)["Doppler"]
     assert doppler[7, 10, 0] == pytest.approx(4.358898943540674, abs=1e-6)
+    # rendered in worker processes (Parallelism: Processes) that import the installed extension's
+    # core under Blender's in-memory package path, without bpy, without re-running the script
+    # (a multiprocessing spawn child would re-run it as __mp_main__); the same bits as threads
+    assert report["worker_modules"]
+    for modules in report["worker_modules"]:
+        assert "bl_ext.user_default.restframe.restframe_addon.core.render" in modules
+        assert not [m for m in modules if m.split(".")[0] in {"bpy", "_bpy", "__mp_main__"}
+                    or m.startswith("bl_ext.user_default.restframe.restframe_addon.engine")]
+    processes, threads = read_exr(out), read_exr(threads_out)
+    assert processes.keys() == threads.keys()
+    for name in processes:
+        assert np.array_equal(processes[name], threads[name], equal_nan=True), name
     assert glob.glob(os.path.join(str(user), "extensions", "user_default", "restframe", "restframe_addon", "engine.py"))
 
 

@@ -1,13 +1,19 @@
-"""Building rest frames: a large mesh goes to embree in pieces (issue 9, Esc during the build)."""
+"""Building rest frames: a large mesh goes to embree in pieces (issue 9, Esc during the build),
+handed over directly or through embreex (issue 20), with the culling clusters."""
+
+import sys
+import threading
 
 import numpy as np
 import pytest
-from shapes import look_at_camera
+from embreex import rtcore_scene
+from embreex.mesh_construction import TriangleMesh
+from shapes import look_at_camera, uv_sphere
 
-from restframe_addon.core import frames
+from restframe_addon.core import embree_direct, frames, tracer
 from restframe_addon.core.frames import build_frames
 from restframe_addon.core.motion import Trajectory
-from restframe_addon.core.scene import Mesh, Scene
+from restframe_addon.core.scene import Mesh, Scene, Velocity
 from restframe_addon.core.tracer import occluded, trace_nearest
 
 CELLS = 40  # the grid has CELLS x CELLS unit squares, two triangles each (3200)
@@ -77,6 +83,39 @@ def test_a_mesh_in_many_pieces_occludes_where_it_is(monkeypatch):
     assert np.array_equal(blocked, (x > 0) & (x < CELLS))
 
 
+def test_embree_builds_the_bvh_without_holding_the_gil():
+    """The engine polls Esc from its main thread while the build runs in a worker: a Python
+    thread must go on running while embree builds.  With a long switch interval a thread runs
+    during one call only if the call lets go of the GIL (embreex's own commit does not)."""
+    vertices, triangles = uv_sphere((0.0, 0.0, 0.0), 1.0, 512, 256)
+    device = frames._embree_device()
+    scene = rtcore_scene.EmbreeScene(device)
+    assert embree_direct.attach(scene, device, vertices.astype(np.float32), triangles)
+    ticks, running, done = [0], threading.Event(), threading.Event()
+
+    def tick():
+        running.set()
+        while not done.is_set():
+            ticks[0] += 1
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(0.5)
+    try:
+        ticker = threading.Thread(target=tick)
+        ticker.start()
+        running.wait()
+        before = ticks[0]
+        embree_direct.commit(scene)
+        during = ticks[0] - before
+        done.set()
+        ticker.join()
+    finally:
+        sys.setswitchinterval(interval)
+    assert during > 0 and scene.is_committed
+    hit = scene.run(np.array([[0.0, 0.0, -3.0]], np.float32), np.array([[0.0, 0.0, 1.0]], np.float32), output=1)
+    assert hit["primID"][0] >= 0 and abs(hit["tfar"][0] - 2.0) < 1e-3
+
+
 def straight_line(velocity=(0.3, 0.0, 0.0)):
     tau = np.linspace(-50.0, 50.0, 5)
     return Trajectory(tau, np.outer(tau, velocity), name="grid")
@@ -88,12 +127,12 @@ def test_esc_during_the_build_stops_after_the_piece_in_hand(monkeypatch, motion)
     monkeypatch.setattr(frames, "_PIECE_TRIANGLES", PIECE)
     built = []
 
-    def counted_mesh(*args):
-        built.append(len(args[2]))
-        return triangle_mesh(*args)
+    def counted_piece(scene, vertices, triangles, *args):
+        built.append(len(triangles))
+        return attach_piece(scene, vertices, triangles, *args)
 
-    triangle_mesh = frames.TriangleMesh
-    monkeypatch.setattr(frames, "TriangleMesh", counted_mesh)
+    attach_piece = frames._attach_piece
+    monkeypatch.setattr(frames, "_attach_piece", counted_piece)
     frame_set = build_frames(grid_scene(**motion), should_stop=lambda: len(built) >= 3)
     assert built == [PIECE] * 3  # of 50
     assert not any(frame.has_geometry for frame in frame_set.frames)
@@ -102,3 +141,147 @@ def test_esc_during_the_build_stops_after_the_piece_in_hand(monkeypatch, motion)
     frame_set = build_frames(grid_scene(**motion))
     assert sum(built) == CELLS * CELLS * 2
     assert any(frame.has_geometry for frame in frame_set.frames)
+
+
+def sphere_hits(frame_set, n=3000, seed=5):
+    """Nearest hits of rays from random points around the scene aimed near the origin."""
+    rng = np.random.default_rng(seed)
+    x0 = rng.normal(size=(n, 3)) * 4.0
+    d = rng.normal(size=(n, 3)) * 0.3 + SPHERE_CENTRE - x0
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return trace_nearest(frame_set, frame_set.camera, np.zeros(n), x0, d, 0.0, np.inf)
+
+
+SPHERE_CENTRE = (0.2, -0.1, 0.3)
+
+
+def shuffled_sphere():
+    vertices, triangles = uv_sphere(SPHERE_CENTRE, 1.0, 48, 24)
+    rng = np.random.default_rng(11)
+    renumber = rng.permutation(len(vertices))
+    moved = np.empty_like(vertices)
+    moved[renumber] = vertices
+    return moved, renumber[triangles[rng.permutation(len(triangles))]]
+
+
+def test_triangles_handed_to_embree_directly_hit_exactly_as_through_embreex(monkeypatch):
+    """The direct route (one memory copy per buffer) fills embree's buffers as embreex's own
+    TriangleMesh does: every hit, its triangle and barycentrics are the same."""
+    monkeypatch.setattr(frames, "_PIECE_TRIANGLES", PIECE)
+    scene = grid_scene(shuffled_sphere())
+    meshes = []
+    monkeypatch.setattr(frames, "TriangleMesh", lambda *args: meshes.append(TriangleMesh(*args)))
+    direct = sphere_hits(build_frames(scene))
+    assert not meshes and embree_direct._library  # proved and used on this platform
+    monkeypatch.setattr(embree_direct, "shared_vertices", lambda *args: None)
+    through_embreex = sphere_hits(build_frames(scene))
+    assert len(meshes) == -(-len(scene.meshes[0].triangles) // PIECE)
+    assert np.count_nonzero(direct.frame >= 0) > 1000
+    for name in ("frame", "prim", "s", "u", "v"):
+        np.testing.assert_array_equal(getattr(direct, name), getattr(through_embreex, name), err_msg=name)
+
+
+def test_without_a_proved_embree_library_the_build_goes_through_embreex(monkeypatch):
+    monkeypatch.setattr(embree_direct, "_library", None)
+    monkeypatch.setattr(embree_direct, "_loaded_embree", lambda: None)
+    meshes = []
+    monkeypatch.setattr(frames, "TriangleMesh", lambda *args: meshes.append(TriangleMesh(*args)))
+    hits = sphere_hits(build_frames(grid_scene(shuffled_sphere())))
+    assert embree_direct._library is False and len(meshes) == 1
+    assert np.count_nonzero(hits.frame >= 0) > 1000
+
+
+def plain_clusters(vertices, triangles, depth=4):
+    """The clusters as first written, on (n, 3, 3) corner arrays: median splits of the centroids
+    along the longest axis, then each group's corner box."""
+    tri = vertices[triangles]
+    centroids = tri.mean(axis=1)
+    groups = [np.arange(len(triangles))]
+    for _ in range(depth):
+        split = []
+        for group in groups:
+            if len(group) < 64:
+                split.append(group)
+                continue
+            c = centroids[group]
+            axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
+            order = np.argpartition(c[:, axis], len(group) // 2)
+            split += [group[order[: len(group) // 2]], group[order[len(group) // 2:]]]
+        groups = split
+    spheres = []
+    for group in groups:
+        points = tri[group].reshape(-1, 3)
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        spheres.append([*(0.5 * (lo + hi)), 0.5 * float(np.linalg.norm(hi - lo))])
+    return np.array(spheres)
+
+
+@pytest.mark.parametrize("mesh", ["sphere", "grid", "random", "random with ties", "few"])
+def test_culling_clusters_hold_every_triangle_and_match_the_plain_computation(mesh):
+    rng = np.random.default_rng(2)
+    if mesh == "sphere":
+        vertices, triangles = shuffled_sphere()
+    elif mesh == "grid":
+        vertices, triangles = grid()
+    elif mesh == "few":
+        vertices, triangles = uv_sphere((1.0, 2.0, 3.0), 0.5, 6, 4)
+    else:
+        vertices = rng.normal(size=(3000, 3)) * [1.0, 4.0, 0.3] + [5.0, 0.0, -2.0]
+        if mesh == "random with ties":
+            vertices = np.round(vertices * 2.0) / 2.0
+        triangles = rng.integers(0, len(vertices), size=(5000, 3))
+    clusters = frames._clusters(vertices, triangles)
+    np.testing.assert_array_equal(clusters, plain_clusters(vertices, triangles))
+    # every triangle (all three corners) lies in one of the spheres
+    corners = vertices[triangles]
+    inside = np.linalg.norm(corners[:, :, None, :] - clusters[None, None, :, :3], axis=-1) <= clusters[:, 3] * (1 + 1e-12)
+    assert inside.all(axis=1).any(axis=1).all()
+
+
+def test_a_lone_mesh_gets_no_culling_clusters_and_several_frames_do():
+    """The tracer culls by clusters only between frames: a scene of one geometry frame skips them."""
+    lone = build_frames(grid_scene(shuffled_sphere(), velocity=Velocity((0.3, 0.0, 0.0))))
+    assert [frame.geometry.clusters for frame in lone.frames if frame.has_geometry] == [None]
+    ball = Mesh("ball", *uv_sphere((5.0, 0.0, 0.0), 1.0, 16, 8), velocity=Velocity((0.0, 0.2, 0.0)))
+    pair = build_frames(Scene(camera=grid_scene().camera, meshes=[Mesh("sphere", *shuffled_sphere()), ball]))
+    built = [frame.geometry for frame in pair.frames if frame.has_geometry]
+    assert len(built) == 2
+    for geometry in built:
+        np.testing.assert_array_equal(geometry.clusters, plain_clusters(geometry.vertices, geometry.triangles))
+        assert not geometry.clusters.flags.writeable
+
+
+def test_culling_by_clusters_never_hides_a_hit(monkeypatch):
+    """Camera rays through several moving bodies (one in many pieces): the hits with the
+    culling cones are the hits without them, and the cones did skip rays."""
+    monkeypatch.setattr(frames, "_PIECE_TRIANGLES", PIECE)
+    meshes = [Mesh("big", *shuffled_sphere(), velocity=Velocity((0.5, 0.2, 0.0)))]
+    for i, beta in enumerate((-0.3, 0.35, 0.1)):
+        centre = (2.5 * (i - 1), 1.5, 0.8 * (i - 1))
+        meshes.append(Mesh(f"ball {i}", *uv_sphere(centre, 0.6, 24, 12), velocity=Velocity((0.0, 0.0, beta)),
+                           pivot=centre))
+    scene = Scene(camera=look_at_camera((0.0, -7.0, 0.5), (0.0, 0.0, 0.0)), meshes=meshes)
+    frame_set = build_frames(scene)
+    assert len(frame_set.geometry) == 4
+    rng = np.random.default_rng(8)
+    d = np.column_stack([rng.uniform(-0.6, 0.6, 20000), np.ones(20000), rng.uniform(-0.8, 0.8, 20000)])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    x0 = np.broadcast_to(np.array([0.0, -7.0, 0.5]), d.shape)  # one shared origin, as a camera's
+    tau0 = np.broadcast_to(np.array(0.0), (len(d),))
+
+    skipped = []
+
+    def counted_toward(*args):
+        rays = toward(*args)
+        skipped.append(len(d) if rays is None else len(d) - len(rays))
+        return rays
+
+    toward = tracer._toward
+    monkeypatch.setattr(tracer, "_toward", counted_toward)
+    culled = trace_nearest(frame_set, frame_set.camera, tau0, x0, d, 0.05, np.inf)
+    assert sum(skipped) > len(d)  # rays were skipped
+    monkeypatch.setattr(tracer, "_toward", lambda *args: None)
+    full = trace_nearest(frame_set, frame_set.camera, tau0, x0, d, 0.05, np.inf)
+    assert len(np.unique(full.frame)) == 5  # every body is hit, and the background
+    for name in ("frame", "prim", "s", "u", "v"):
+        np.testing.assert_array_equal(getattr(culled, name), getattr(full, name), err_msg=name)

@@ -156,13 +156,14 @@ def _suspicious(keys, dask_scheduler=None):
 
 def test_killed_worker_loses_no_frame(tiny_blend, cluster, tmp_path):
     cluster_, client = cluster
-    # 128 samples: most of a second per frame, so the kill lands mid-frame
+    # 512 samples: long enough per frame that a kill lands mid-frame (a frame that ends first is no test:
+    # the killer then tries the next busy worker)
     reference = tmp_path / "reference"
-    result = run_cli(tiny_blend, "-o", reference / "f_#.exr", "--frames", "1-4", "--samples", "128")
+    result = run_cli(tiny_blend, "-o", reference / "f_#.exr", "--frames", "1-4", "--samples", "512")
     assert result.returncode == 0, result.stderr
     out = tmp_path / "killed"
     command = [sys.executable, "-m", "restframe_addon", "render", str(tiny_blend), "-o", str(out / "f_#.exr"),
-               "--frames", "1-4", "--samples", "128", "--scheduler", cluster_.scheduler_address]
+               "--frames", "1-4", "--samples", "512", "--scheduler", cluster_.scheduler_address]
     job = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     killed = {}
 
@@ -171,21 +172,22 @@ def test_killed_worker_loses_no_frame(tiny_blend, cluster, tmp_path):
         while time.monotonic() < deadline and job.poll() is None:
             busy = {worker: [str(key) for key in keys] for worker, keys in client.processing().items()
                     if any(str(key).startswith("restframe-frame") for key in keys)}
-            if busy:
-                worker = sorted(busy)[0]
-                time.sleep(0.2)  # the render has started
-                pid = client.run(os.getpid, workers=[worker])[worker]
-                os.kill(pid, signal.SIGKILL)
-                killed.update(worker=worker, pid=pid, keys=busy[worker])
-                end = time.monotonic() + 10
-                while time.monotonic() < end:  # the scheduler notices the death and reschedules
-                    counts = client.run_on_scheduler(_suspicious, busy[worker])
-                    if any(counts.values()):
-                        killed["suspicious"] = counts
-                        return
-                    time.sleep(0.05)
-                return
-            time.sleep(0.02)
+            if not busy:
+                time.sleep(0.02)
+                continue
+            worker = sorted(busy)[0]
+            time.sleep(0.2)  # the render has started
+            pid = client.run(os.getpid, workers=[worker])[worker]
+            os.kill(pid, signal.SIGKILL)
+            killed.update(worker=worker, pid=pid, keys=busy[worker])
+            end = time.monotonic() + 10
+            while time.monotonic() < end:  # the scheduler notices the death and reschedules
+                counts = client.run_on_scheduler(_suspicious, busy[worker])
+                if any(counts.values()):
+                    killed["suspicious"] = counts
+                    return
+                time.sleep(0.05)
+            client.wait_for_workers(2, timeout=60)  # its frame had ended first: wait for the nanny, try again
 
     killer = threading.Thread(target=kill_a_busy_worker)
     killer.start()

@@ -1,0 +1,464 @@
+"""Tiles rendered in worker processes: every core busy, free of the GIL.
+
+Threads share one GIL, which the Python between a tile's numpy calls holds (12-39% of a
+tile), so they stop scaling after a few cores; worker processes do not share it.
+
+A worker is a fresh interpreter (``sys.executable``, Blender's bundled Python inside
+Blender) started with a dedicated entry (:mod:`.worker_boot`), never a fork of the running
+Blender and without touching multiprocessing's start method.  multiprocessing's own
+``spawn`` is not used because it re-runs the parent's ``__main__`` in every child (a
+``blender --python script.py`` would run the script again in each worker) and unpickles
+its target before any code of ours could recreate Blender's in-memory ``bl_ext`` package;
+the dedicated entry does both first.  Only the core is imported in a worker, never bpy.
+
+The pool is module-level (:func:`pool`) and kept warm across the renders of a session and
+the frames of an animation.  A render pickles its prepared scene once and sends the same
+bytes to every worker (a new prepared scene replaces the old one there; the same one
+rendered again is not sent again), then deals tiles two at a time per worker.  Esc stops
+the dealing and each worker stops its tile at the next sample batch and drops the tiles it
+holds; a worker that dies has its tiles dealt again to the others (and to threads here when
+none is left).  A worker ends when its stdin reaches EOF (the parent closed it or died) or
+when its parent process is gone.  Tiles are the same bits as in threads: every random
+number is keyed by (pixel, sample) and the pickled scene is rebuilt to the same bits.
+"""
+
+from __future__ import annotations
+
+import atexit
+import collections
+import itertools
+import os
+import pickle
+import queue
+import subprocess
+import sys
+import threading
+import time
+import traceback
+import weakref
+from typing import Callable, Iterator
+
+from . import blas
+from .persistent import GeometryCache
+from .prepared import PreparedScene, unpickling_with
+from .render import Tile, render_tile, tiles_in_threads
+from .tracer import TraceCache
+
+# glibc's malloc returns every large temporary to the system and page-faults it back in on the
+# next allocation; a worker keeps them (see docs/speed.md for the measurement).
+MALLOC_TUNING = {
+    "MALLOC_MMAP_THRESHOLD_": str(256 << 20),
+    "MALLOC_TRIM_THRESHOLD_": str(256 << 20),
+    "MALLOC_TOP_PAD_": str(64 << 20),
+}
+# one BLAS thread per worker: the workers fill the cores (see blas)
+_ONE_BLAS_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+_TILES_IN_FLIGHT = 2  # per worker: one rendering, one waiting, so a worker never idles between tiles
+_WORKER_MEMORY = 400 << 20  # bytes a worker needs besides its scene (interpreter, numpy, embree, tile batches)
+_SCENE_MEMORY_FACTOR = 6  # a worker's rebuilt scene (frames, BVHs, caches) against its pickled size
+_START_TIMEOUT = 120.0  # seconds a starting worker may take to say it is ready
+_POLL = 0.05  # seconds between Esc checks while waiting for tiles
+_WATCHDOG = 0.2  # seconds between a worker's checks that its parent lives
+
+
+class WorkersUnavailable(Exception):
+    """No worker process can be started here (the message says why)."""
+
+
+# --------------------------------------------------------------------------- the parent side
+def python_executable() -> str:
+    """The interpreter to start workers with; raises WorkersUnavailable when there is none.
+
+    Inside Blender (4.2 and 5.0) ``sys.executable`` is its bundled Python, which Blender's own
+    extension manager runs for its command-line tool too (``bpy.app.binary_path_python`` is gone
+    since 3.0); with bpy as a module it is the interpreter that imported bpy."""
+    executable = sys.executable
+    if not executable or not os.path.isfile(executable):
+        raise WorkersUnavailable(f"no Python interpreter to start worker processes with "
+                                 f"(sys.executable is {executable!r})")
+    if os.path.basename(executable).lower().startswith("blender"):
+        raise WorkersUnavailable(f"sys.executable is Blender itself ({executable}), not its Python")
+    return executable
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to new processes (Linux's MemAvailable), None where unknown."""
+    try:
+        with open("/proc/meminfo") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def worker_count(requested: int, scene_bytes: int, memory: int | None) -> int:
+    """Workers for a render: as many as requested (the render's thread count), at most as many
+    as fit in ``memory`` (bytes available), at least one."""
+    if memory is None:
+        return max(requested, 1)
+    per_worker = _WORKER_MEMORY + _SCENE_MEMORY_FACTOR * scene_bytes
+    return max(min(requested, memory // per_worker), 1)
+
+
+def _parent_packages(module_name: str) -> list[tuple[str, list[str]]]:
+    """The packages above RESTframe's own (``restframe_addon``), with their folders: inside
+    Blender ``bl_ext`` (a plain module there, no folder), ``bl_ext.<repo>`` and
+    ``bl_ext.<repo>.<id>``; none from the repository."""
+    parts = module_name.split(".")
+    top = parts.index("restframe_addon")
+    names = [".".join(parts[:i]) for i in range(1, top + 1)]
+    return [(name, list(getattr(sys.modules[name], "__path__", []))) for name in names]
+
+
+class _Worker:
+    """One worker process, its pipes and the tiles dealt to it."""
+
+    def __init__(self, executable: str, environment: dict, inbox: queue.Queue):
+        boot = {"path": list(sys.path), "module": __name__, "parent_pid": os.getpid(),
+                "parents": _parent_packages(__name__)}
+        self.process = subprocess.Popen(
+            # -I: isolated (neither the script's folder nor the environment's PYTHON* variables are used)
+            [executable, "-I", os.path.join(os.path.dirname(os.path.abspath(__file__)), "worker_boot.py")],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=environment,
+            creationflags=getattr(subprocess, "CREATE_NO_WINDOW", 0))  # Windows: no console window per worker
+        self.started = time.monotonic()
+        self.ready = False
+        self.alive = True
+        self.scene_id = None  # the scene it holds
+        self.dealt: dict[int, tuple] = {}  # tile index -> rect, of the current render
+        self.send(boot)
+        threading.Thread(target=self._read, args=(inbox,), name=f"restframe-worker-{self.pid}", daemon=True).start()
+
+    @property
+    def pid(self) -> int:
+        return self.process.pid
+
+    def send(self, message) -> bool:
+        """Pickle ``message`` to the worker; False once it is gone."""
+        if not self.alive:
+            return False
+        try:
+            self.process.stdin.write(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
+            self.process.stdin.flush()
+        except (OSError, ValueError):
+            self.alive = False
+        return self.alive
+
+    def _read(self, inbox: queue.Queue):
+        while True:
+            try:
+                message = pickle.load(self.process.stdout)
+            except Exception:  # EOF, a broken pipe or a truncated pickle: the worker is gone
+                inbox.put((self, ("dead",)))
+                return
+            inbox.put((self, message))
+
+    def close(self, wait: float = 1.0):
+        """EOF on its stdin ends the worker; kill it if it has not ended after ``wait`` seconds."""
+        self.alive = False
+        try:
+            self.process.stdin.close()
+        except OSError:
+            pass
+        try:
+            self.process.wait(wait)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait()
+
+
+class WorkerPool:
+    """Worker processes rendering tiles of one prepared scene at a time."""
+
+    def __init__(self, environment: dict | None = None):
+        """``environment``: the workers' environment variables (default: this process's with the
+        malloc tuning and one BLAS thread)."""
+        self._environment = environment if environment is not None else {
+            **os.environ, **MALLOC_TUNING, **_ONE_BLAS_THREAD}
+        self._workers: list[_Worker] = []
+        self._inbox: queue.Queue = queue.Queue()  # (worker, message) from every worker's reader thread
+        self._busy = threading.Lock()  # one render at a time
+        self._jobs = itertools.count(1)
+        self._scene_ids = itertools.count(1)
+        self._sent_scene = None  # (weakref to the prepared scene, its id) last pickled
+        self._payload = b""  # its pickled bytes
+        self._tokens = itertools.count(1)
+        self._broken = None  # why workers cannot run here, once every worker of a render died before it was ready
+
+    @property
+    def pids(self) -> list[int]:
+        return [worker.pid for worker in self._workers if worker.alive]
+
+    def render(self, prepared: PreparedScene, should_stop: Callable[[], bool], count: int,
+               warn: Callable[[str], None] | None = None) -> Iterator[Tile]:
+        """Yield the tiles of the prepared scene's region as they complete, rendered by up to
+        ``count`` workers; in threads, after ``warn(message)``, where none can be started or
+        another render holds the pool.  Returns early once ``should_stop()`` is true."""
+        warn = warn or (lambda message: None)
+        rects = prepared.tiles()
+        if not self._busy.acquire(blocking=False):
+            warn("the worker processes are busy with another render: rendering in threads")
+            yield from tiles_in_threads(prepared, rects, count, should_stop)
+            return
+        try:
+            yield from self._render(prepared, rects, should_stop, count, warn)
+        finally:
+            self._busy.release()
+
+    def _render(self, prepared, rects, should_stop, count, warn):
+        scene_id = self._scene_id(prepared)
+        try:
+            workers = self._start(worker_count(count, len(self._payload), available_memory()))
+        except WorkersUnavailable as error:
+            warn(f"{error}: rendering in threads")
+            yield from tiles_in_threads(prepared, rects, count, should_stop)
+            return
+        job = next(self._jobs)
+        for worker in self._workers:
+            worker.dealt = {}
+        for worker in workers:
+            if worker.scene_id != scene_id:
+                worker.scene_id = scene_id if worker.send(("scene", scene_id, self._payload)) else None
+        todo = collections.deque(enumerate(rects))
+        remaining = len(rects)
+        try:
+            while remaining:
+                if should_stop():
+                    return
+                self._deal(workers, todo, job, scene_id)
+                workers = [worker for worker in workers if worker.alive]
+                if not workers:
+                    if not any(worker.ready for worker in self._workers):
+                        self._broken = f"no worker process started with {sys.executable} (see the console)"
+                    warn("every worker process ended: rendering the rest in threads")
+                    yield from tiles_in_threads(prepared, [rect for _, rect in todo], count, should_stop)
+                    return
+                try:
+                    worker, message = self._inbox.get(timeout=_POLL)
+                except queue.Empty:
+                    self._stop_stuck(workers)
+                    continue
+                tile = self._receive(worker, message, job, todo)
+                if tile is not None:
+                    remaining -= 1
+                    yield tile
+        finally:
+            if remaining:  # Esc, an error, or the caller stopped iterating: free the workers at once
+                for worker in workers:
+                    worker.send(("cancel", job))
+
+    def _scene_id(self, prepared) -> int:
+        """The id of the prepared scene, pickled once into ``_payload`` (kept for workers started
+        later); the same scene rendered again keeps its id and is not pickled or sent again."""
+        if self._sent_scene is None or self._sent_scene[0]() is not prepared:
+            self._payload = pickle.dumps(prepared, protocol=pickle.HIGHEST_PROTOCOL)
+            self._sent_scene = (weakref.ref(prepared), next(self._scene_ids))
+        return self._sent_scene[1]
+
+    def _start(self, count: int) -> list[_Worker]:
+        """``count`` live workers, starting the missing ones."""
+        self._workers = [worker for worker in self._workers if worker.alive]
+        if self._broken:
+            raise WorkersUnavailable(self._broken)
+        executable = python_executable()
+        while len(self._workers) < count:
+            try:
+                self._workers.append(_Worker(executable, self._environment, self._inbox))
+            except OSError as error:
+                if not self._workers:
+                    raise WorkersUnavailable(f"cannot start a worker process with {executable}: {error}") from None
+                break
+        return self._workers[:count]
+
+    def _deal(self, workers, todo, job, scene_id):
+        for worker in workers:
+            while todo and worker.alive and len(worker.dealt) < _TILES_IN_FLIGHT:
+                index, rect = todo.popleft()
+                if worker.send(("tile", job, scene_id, index, rect)):
+                    worker.dealt[index] = rect
+                else:
+                    todo.appendleft((index, rect))
+                    self._lost(worker, todo)
+
+    def _lost(self, worker: _Worker, todo):
+        """A worker ended: its tiles go back to the front of the queue."""
+        worker.alive = False
+        todo.extendleft(sorted(worker.dealt.items(), reverse=True))
+        worker.dealt = {}
+        worker.close(wait=0.0)
+
+    def _stop_stuck(self, workers):
+        """A worker that has not said it is ready long after it started is ended (and its tiles dealt again)."""
+        for worker in workers:
+            if not worker.ready and time.monotonic() - worker.started > _START_TIMEOUT:
+                worker.process.kill()
+
+    def _receive(self, worker: _Worker, message, job: int, todo) -> Tile | None:
+        """Handle one message of a worker; the tile when it is a finished tile of this render."""
+        kind = message[0]
+        if kind == "dead":
+            if worker.alive or worker.dealt:
+                self._lost(worker, todo)
+            return None
+        if kind == "ready":
+            worker.ready = True
+        elif kind == "error" and message[1] == job:
+            raise message[2]
+        elif kind == "tile" and message[1] == job:
+            _, _, index, tile = message
+            rect = worker.dealt.pop(index, None)
+            if rect is not None and tile.complete:
+                return tile
+            if rect is not None:  # cut short although this render goes on: deal it again
+                todo.appendleft((index, rect))
+        return None  # a message of an earlier render
+
+    def status(self, timeout: float = 60.0) -> dict[int, dict]:
+        """Each live worker's answer once it has dealt with everything sent before (when no render
+        runs): {pid: {"modules": its sys.modules names, "late_tiles": tiles of earlier renders
+        that arrived since the last status (complete or cut short by Esc)}}."""
+        with self._busy:
+            token = next(self._tokens)
+            waiting = {worker: {"late_tiles": []} for worker in self._workers if worker.send(("status", token))}
+            deadline = time.monotonic() + timeout
+            while any("modules" not in answer for answer in waiting.values()) and time.monotonic() < deadline:
+                try:
+                    worker, message = self._inbox.get(timeout=_POLL)
+                except queue.Empty:
+                    continue
+                if worker not in waiting:
+                    continue
+                if message[0] == "status" and message[1] == token:
+                    waiting[worker]["modules"] = message[2]
+                elif message[0] == "tile":
+                    waiting[worker]["late_tiles"].append(message[3])
+                elif message[0] == "dead":
+                    worker.alive = False
+                    waiting.pop(worker)
+            return {worker.pid: answer for worker, answer in waiting.items()}
+
+    def close(self):
+        """End every worker (they end by themselves when this process ends)."""
+        for worker in self._workers:
+            worker.close()
+        self._workers = []
+        self._sent_scene, self._payload = None, b""
+
+
+_pool: WorkerPool | None = None
+_pool_lock = threading.Lock()
+
+
+def pool() -> WorkerPool:
+    """The session's worker pool (started lazily, kept warm until :func:`shutdown` or exit)."""
+    global _pool
+    with _pool_lock:
+        if _pool is None:
+            _pool = WorkerPool()
+            atexit.register(shutdown)
+        return _pool
+
+
+def shutdown():
+    """End the session's workers (the extension is disabled or the process exits)."""
+    global _pool
+    with _pool_lock:
+        if _pool is not None:
+            _pool.close()
+            _pool = None
+
+
+def render_tiles(prepared: PreparedScene, should_stop: Callable[[], bool], count: int,
+                 warn: Callable[[str], None] | None = None) -> Iterator[Tile]:
+    """:meth:`WorkerPool.render` on the session's pool."""
+    yield from pool().render(prepared, should_stop, count, warn)
+
+
+# --------------------------------------------------------------------------- the worker side
+def serve(commands, results, parent_pid: int):
+    """A worker's loop (started by :mod:`.worker_boot`): scenes and tiles in, tiles out."""
+    inbox: queue.Queue = queue.Queue()
+    cancelled = [0]  # renders up to this job were cancelled (Esc)
+
+    def read():
+        while True:
+            try:
+                message = pickle.load(commands)
+            except Exception:  # EOF: the parent closed the pipe or died
+                os._exit(0)
+            if message[0] == "cancel":
+                cancelled[0] = max(cancelled[0], message[1])
+            inbox.put(message)
+
+    def watch_parent():
+        while _process_alive(parent_pid):
+            time.sleep(_WATCHDOG)
+        os._exit(0)
+
+    def send(message):
+        results.write(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
+        results.flush()
+
+    threading.Thread(target=read, name="restframe-commands", daemon=True).start()
+    threading.Thread(target=watch_parent, name="restframe-watchdog", daemon=True).start()
+    send(("ready", os.getpid()))
+    prepared, scene_id, cache = None, None, None
+    geometry = GeometryCache()  # persistent data: each frame of an animation rebuilds only what changed
+    with blas.single_threaded():
+        while True:
+            message = inbox.get()
+            kind = message[0]
+            if kind == "scene":
+                prepared = cache = None  # the old scene's memory goes first
+                scene_id = message[1]
+                try:
+                    with unpickling_with(geometry):
+                        prepared = pickle.loads(message[2])
+                    cache = TraceCache()
+                except Exception as error:
+                    prepared = _picklable(error)
+            elif kind == "tile":
+                _, job, tile_scene, index, rect = message
+                if job <= cancelled[0]:
+                    continue
+                try:
+                    if tile_scene != scene_id:
+                        raise RuntimeError(f"tile of scene {tile_scene} sent to a worker holding scene {scene_id}")
+                    if isinstance(prepared, BaseException):
+                        raise prepared
+                    tile = render_tile(prepared, rect, lambda job=job: job <= cancelled[0], cache)
+                except Exception as error:
+                    send(("error", job, _picklable(error)))
+                    continue
+                send(("tile", job, index, tile))
+            elif kind == "status":
+                send(("status", message[1], sorted(sys.modules)))
+
+
+def _picklable(error: BaseException) -> BaseException:
+    """The error itself when it pickles (a RenderError naming the object), else its traceback as text."""
+    try:
+        pickle.loads(pickle.dumps(error))
+        return error
+    except Exception:
+        return RuntimeError("".join(traceback.format_exception(error)))
+
+
+def _process_alive(pid: int) -> bool:
+    """Whether the parent process still runs (POSIX: it is still our parent; Windows: its handle is not signalled)."""
+    if sys.platform != "win32":
+        return os.getppid() == pid
+    import ctypes
+
+    synchronize, wait_timeout = 0x00100000, 0x102
+    kernel32 = ctypes.windll.kernel32
+    handle = kernel32.OpenProcess(synchronize, False, pid)
+    if not handle:
+        return False
+    try:
+        return kernel32.WaitForSingleObject(handle, 0) == wait_timeout
+    finally:
+        kernel32.CloseHandle(handle)

@@ -1,0 +1,233 @@
+"""Tiles in worker processes (core.workers): the same bits as threads, the scene pickled once,
+only the core imported in a worker, Esc reaching into the tile a worker renders, a killed
+worker's tiles dealt again, the extension's in-memory package path recreated, workers ending
+with their parent."""
+
+import dataclasses
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+from test_prepared import MODES, assemble, assert_same_passes, busy_scene, settings
+
+from restframe_addon.core import workers
+from restframe_addon.core.prepared import PreparedScene, prepare
+from restframe_addon.core.render import RenderError, render_tiles
+from restframe_addon.core.scene import Velocity
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+@pytest.fixture(scope="module")
+def pool():
+    pool = workers.WorkerPool()
+    yield pool
+    pool.close()
+
+
+def in_threads(prepared):
+    return assemble(prepared, render_tiles(dataclasses.replace(prepared, settings=dataclasses.replace(
+        prepared.settings, parallelism="THREADS")), threads=2))
+
+
+@pytest.mark.parametrize("mode", MODES, ids=["rgb", "spectral", "factor", "transparent"])
+def test_processes_render_the_same_bits_as_threads(mode):
+    """Through render_tiles and the session's pool, as the engine renders."""
+    prepared = prepare(busy_scene(Velocity((0.0, 0.4, 0.0))), settings(tile_size=8, parallelism="PROCESSES", **mode))
+    warnings = []
+    assert_same_passes(assemble(prepared, render_tiles(prepared, threads=2, warn=warnings.append)), in_threads(prepared))
+    assert warnings == [] and len(workers.pool().pids) == 2
+
+
+def test_the_scene_is_pickled_once_per_render_and_not_again_for_the_same_scene(pool, monkeypatch):
+    pickled = []
+    reduce = PreparedScene.__reduce__
+    monkeypatch.setattr(PreparedScene, "__reduce__", lambda self: pickled.append(self) or reduce(self))
+    first = prepare(busy_scene(), settings(tile_size=6))
+    second = prepare(busy_scene(Velocity((0.3, 0.0, 0.0))), settings(tile_size=6))
+    started = []
+    for prepared in (first, first, second):  # 12 tiles each, two workers
+        assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
+        started.append(pool.pids)
+    assert pickled == [first, second]  # a new scene replaces the old one in the workers
+    assert started[0] == started[1] == started[2] and len(started[0]) == 2  # kept warm
+
+
+def test_a_worker_imports_only_the_core(pool):
+    prepared = prepare(busy_scene(), settings())
+    assemble(prepared, pool.render(prepared, lambda: False, 2))
+    answers = pool.status()
+    assert len(answers) == 2
+    for answer in answers.values():
+        modules = answer["modules"]
+        assert "restframe_addon.core.render" in modules and "embreex" in modules
+        assert not [m for m in modules if m.split(".")[0] in {"bpy", "_bpy", "mathutils", "__mp_main__", "pytest"}]
+        assert not [m for m in modules if m.startswith("restframe_addon.") and not m.startswith("restframe_addon.core")]
+
+
+def test_esc_stops_the_tile_a_worker_renders_and_the_tiles_it_holds(pool):
+    """One worker, four tiles of 5-9 sample batches each: Esc after a moment leaves at most the
+    tile it was rendering, cut short, and the next render is still right."""
+    prepared = prepare(busy_scene(), settings(tile_size=12, samples=4096))
+    polls = []
+    tiles = list(pool.render(prepared, lambda: polls.append(1) or len(polls) > 20, 1))
+    answers = pool.status()
+    answer = answers.pop(pool.pids[0])  # the one worker used
+    assert all(other["late_tiles"] == [] for other in answers.values())
+    assert len(tiles) + len(answer["late_tiles"]) <= 2  # dealt before Esc: two; the second never started
+    assert len(answer["late_tiles"]) <= 1 and not any(tile.complete for tile in answer["late_tiles"])
+    small = prepare(busy_scene(), settings(tile_size=8))
+    assert_same_passes(assemble(small, pool.render(small, lambda: False, 1)), in_threads(small))
+
+
+def test_a_killed_workers_tiles_are_dealt_again(pool):
+    prepared = prepare(busy_scene(Velocity((0.0, 0.4, 0.0))), settings(tile_size=4))
+    tiles = []
+    for tile in pool.render(prepared, lambda: False, 2):
+        if not tiles:
+            os.kill(pool.pids[0], signal.SIGKILL)
+        tiles.append(tile)
+    assert len(tiles) == len(prepared.tiles()) and len(pool.pids) == 1
+    assert_same_passes(assemble(prepared, tiles), in_threads(prepared))
+
+
+def test_without_a_python_it_renders_in_threads_with_a_warning(monkeypatch):
+    monkeypatch.setattr(sys, "executable", "")
+    prepared = prepare(busy_scene(), settings(tile_size=8))
+    pool, warnings = workers.WorkerPool(), []
+    assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2, warnings.append)),
+                       in_threads(prepared))
+    assert len(warnings) == 1 and "sys.executable is ''" in warnings[0] and pool.pids == []
+
+
+def test_a_python_that_cannot_run_workers_falls_back_to_threads_for_the_session(monkeypatch):
+    monkeypatch.setattr(sys, "executable", "/bin/false")  # starts, and ends at once
+    prepared = prepare(busy_scene(), settings(tile_size=8))
+    pool, warnings = workers.WorkerPool(), []
+    for _ in range(2):
+        assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2, warnings.append)),
+                           in_threads(prepared))
+    assert warnings == ["every worker process ended: rendering the rest in threads",
+                        "no worker process started with /bin/false (see the console): rendering in threads"]
+
+
+def test_the_worker_count_follows_the_request_and_the_memory():
+    gib = 1 << 30
+    assert workers.worker_count(8, 0, None) == 8
+    assert workers.worker_count(8, 0, 64 * gib) == 8
+    assert workers.worker_count(8, 0, gib) == gib // workers._WORKER_MEMORY
+    assert workers.worker_count(8, 100 << 20, 4 * gib) < workers.worker_count(8, 0, 4 * gib)
+    assert workers.worker_count(8, 0, 0) == 1  # always one: the render goes on, if slowly
+
+
+def test_a_worker_error_reaches_the_render():
+    """An error in a worker (here: a tile with a bad corner) is raised by the render."""
+    prepared = prepare(busy_scene(), settings())
+    broken = workers.WorkerPool()
+    try:
+        with pytest.raises(TypeError):
+            list(broken.render(_with_tiles(prepared, [(0, 0, 24, 18), (0, 0, "24", 18)]), lambda: False, 1))
+    finally:
+        broken.close()
+
+
+def _with_tiles(prepared, rects):
+    class Tiled(type(prepared)):
+        def tiles(self, area=None):
+            return rects
+    return Tiled(**{f.name: getattr(prepared, f.name) for f in dataclasses.fields(prepared)})
+
+
+def test_the_extensions_package_path_is_recreated_and_the_main_script_not_rerun(tmp_path):
+    """As inside Blender: the add-on imported as bl_ext.user_default.restframe.restframe_addon from
+    packages that exist only in memory, rendering from a script run as __main__."""
+    marker = tmp_path / "runs"
+    script = tmp_path / "blender_script.py"
+    script.write_text(textwrap.dedent(f"""
+        import importlib, json, sys, types
+        with open({str(marker)!r}, "a") as runs:
+            runs.write("run\\n")
+        sys.path[:] = [p for p in sys.path if p not in ({ROOT!r}, "")] + [{os.path.join(ROOT, "tests", "core")!r}]
+        for name in ("bl_ext", "bl_ext.user_default", "bl_ext.user_default.restframe"):
+            package = types.ModuleType(name)
+            package.__path__ = [{ROOT!r}] if name.endswith("restframe") else []
+            sys.modules[name] = package
+        base = "bl_ext.user_default.restframe.restframe_addon.core."
+        prepared_module, render, scene, workers = (importlib.import_module(base + m)
+                                                    for m in ("prepared", "render", "scene", "workers"))
+        import numpy as np
+        camera = scene.Camera(matrix=np.array([[1, 0, 0, 0], [0, 0, -1, -3], [0, 1, 0, 1], [0, 0, 0, 1.0]]))
+        tri = np.array([[-2, 0, -2], [2, 0, -2], [0, 0, 3.0]]), np.array([[0, 1, 2]])
+        world = scene.Scene(camera=camera, meshes=[scene.Mesh("tri", *tri, velocity=scene.Velocity((0.5, 0, 0)))],
+                            lights=[scene.Light("lamp", "POINT", (0, -2, 2), power=50.0)], light_speed=1.0)
+        images = []
+        for parallelism in ("PROCESSES", "THREADS"):
+            prepared = prepared_module.prepare(world, scene.RenderSettings(
+                resolution=(16, 12), tile_size=4, samples=2, threads=2, parallelism=parallelism))
+            tiles = sorted(render.render_tiles(prepared, warn=print), key=lambda t: (t.y0, t.x0))
+            images.append(np.concatenate([t.passes["Combined"].ravel() for t in tiles]))
+        modules = list(workers.pool().status().values())[0]["modules"]
+        print(json.dumps({{"same": bool(np.array_equal(images[0].view(np.uint32), images[1].view(np.uint32))),
+                          "core": [m for m in modules if m.endswith(".core.render")],
+                          "bpy": [m for m in modules if m.startswith(("bpy", "_bpy"))]}}))
+    """))
+    result = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert result.stdout.strip().splitlines()[-1] == (
+        '{"same": true, "core": ["bl_ext.user_default.restframe.restframe_addon.core.render"], "bpy": []}')
+    assert marker.read_text() == "run\n"  # the workers did not run the script again
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_workers_end_with_their_parent(tmp_path):
+    """Killed parent: the watchdog ends its workers; closed pool: EOF ends them (they exit, not killed)."""
+    script = tmp_path / "parent.py"
+    script.write_text(textwrap.dedent(f"""
+        import sys, time
+        sys.path[:0] = [{ROOT!r}, {os.path.join(ROOT, "tests", "core")!r}]
+        from test_prepared import busy_scene, settings
+        from restframe_addon.core import workers
+        from restframe_addon.core.prepared import prepare
+        pool = workers.WorkerPool()
+        prepared = prepare(busy_scene(), settings(tile_size=8))
+        list(pool.render(prepared, lambda: False, 2))
+        print(*pool.pids, flush=True)
+        if sys.argv[1] == "close":
+            codes = [worker.process for worker in pool._workers]
+            pool.close()
+            print(*[process.returncode for process in codes], flush=True)
+        else:
+            time.sleep(600)
+    """))
+    closing = subprocess.run([sys.executable, str(script), "close"], capture_output=True, text=True, timeout=300)
+    assert closing.returncode == 0, closing.stderr
+    assert closing.stdout.split("\n")[1].split() == ["0", "0"]
+    parent = subprocess.Popen([sys.executable, str(script), "orphan"], stdout=subprocess.PIPE, text=True)
+    try:
+        pids = [int(pid) for pid in parent.stdout.readline().split()]
+        assert len(pids) == 2
+    finally:
+        parent.kill()
+        parent.wait()
+    for _ in range(600):  # the watchdog checks every 0.2 s
+        if not any(_alive(pid) for pid in pids):
+            break
+        time.sleep(0.1)
+    assert not any(_alive(pid) for pid in pids)
+
+
+def _alive(pid):
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().split(") ")[1][0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def test_an_unknown_parallelism_is_refused():
+    with pytest.raises(RenderError, match="parallelism 'GPU'"):
+        prepare(busy_scene(), settings(parallelism="GPU"))
