@@ -221,6 +221,29 @@ def test_nearer_object_emitting_earlier_is_hidden():
     assert abs(later["Depth"][16, 16, 0] - 5.0) < 1e-5
 
 
+@pytest.mark.parametrize("beta,start,expect_moving_seen", [(-0.9, 5.0, False), (0.9, 10.0, True)],
+                         ids=["approaching screen hidden", "receding tile seen"])
+def test_visibility_is_decided_by_the_observer_path_length_not_the_rest_frame_one(beta, start, expect_moving_seen):
+    """A wall moving along the line of sight (start away at tau = 0) and a static wall 12 away, seen at
+    tau = 0.  Closed form: the moving wall is seen at s = start / (1 + beta) -- approaching at 0.9c from
+    5 away, s = 50 (behind the static wall) but s' = s / D = 50 / 4.36 = 11.5 in its own frame; receding
+    at 0.9c from 10 away, s = 5.26 (in front) but s' = 22.9.  The smaller s wins, whatever s' says."""
+    moving = quad((0.0, start, 0.0), (2.0, 2.0) if beta > 0 else (400.0, 400.0), normal_axis=1)
+    still = quad((0.0, 12.0, 0.0), (400.0, 400.0) if beta > 0 else (2.0, 2.0), normal_axis=1)
+    scene = Scene(camera=look_at_camera((0, 0, 0), (0, 1, 0)),
+                  meshes=[Mesh("moving", *moving, velocity=Velocity((0.0, beta, 0.0)), pivot=(0, start, 0),
+                               object_index=1), Mesh("still", *still, object_index=2)])
+    passes = render_image(scene, settings((33, 33)))
+    s = start / (1.0 + beta)
+    doppler = math.sqrt((1 - beta) / (1 + beta))
+    assert s / doppler < 12.0 if beta < 0 else s / doppler > 12.0  # the rest-frame path length says the opposite
+    seen = passes["IndexOB"][16, 16, 0], passes["Depth"][16, 16, 0], passes["Doppler"][16, 16, 0]
+    if expect_moving_seen:
+        assert seen == (1, pytest.approx(s, rel=1e-6), pytest.approx(doppler, rel=1e-6))
+    else:
+        assert seen == (2, pytest.approx(12.0, rel=1e-6), 1.0)
+
+
 def test_emission_time_pass_is_world_time_of_the_hit():
     v, t = quad((0.0, 20.0, 0.0), (400.0, 400.0), normal_axis=1)
     c = 10.0
