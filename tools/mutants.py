@@ -129,6 +129,21 @@ MUTANTS = (
            (Patch(SHADING, "uv = (1.0 - uu - vv) * cuv[:, 0] + uu * cuv[:, 1] + vv * cuv[:, 2]",
                   "uv = (1.0 - uu - vv) * cuv[:, 0] + vv * cuv[:, 1] + uu * cuv[:, 2]"),),
            (T_OBSERVERS,)),
+    Mutant("doppler-pass-inverted", "D replaced by 1/D in the Doppler pass",
+           (Patch(RENDER, "surface_doppler(int(k), prim, u, v, tau_hit, d_k) / w",
+                  "surface_doppler(int(k), prim, u, v, tau_hit, d_k) * w"),),
+           (f"{T_RENDER}::test_doppler_head_on_approach_on_the_axis_ray",)),
+    Mutant("factor-display-inverse", "the FACTOR grey display computed from 1/D",
+           (Patch(RENDER, "doppler = 1.0 / hits.w", "doppler = hits.w"),),
+           (f"{T_RENDER}::test_factor_display_paints_d_across_the_frames_own_range",)),
+    Mutant("emission-time-camera-frame", "the Emission Time pass left in the camera frame (not world time)",
+           (Patch(RENDER, "self.frames.map(camera, self.frames.world).events(",
+                  "self.frames.map(camera, camera).events("),),
+           (T_OBSERVERS,)),
+    Mutant("camera-event-at-reference-position", "a moving camera observes from where it was at the reference time",
+           (Patch(RENDER, "world_event = position + camera_boost.b * camera_boost.n * scene.tau_obs",
+                  "world_event = position"),),
+           (T_OBSERVERS,)),
     Mutant("gamma-naive", "gamma from a naive floating-point 1 - b^2",
            (Patch(LORENTZ, "one_minus_b2 = float(1 - sum(Fraction(c) ** 2 for c in beta))",
                   "one_minus_b2 = 1.0 - sum(c * c for c in beta)"),),
@@ -177,7 +192,7 @@ def check_patches(root: Path, mutants) -> list[str]:
         for test in mutant.tests:
             test_file = test.split("::")[0]
             if not test_file.startswith(FAST_SUITE) or not (root / test_file).exists():
-                problems.append(f"{mutant.name}: its test {test} is not in {' or '.join(FAST_SUITE)}")
+                problems.append(f"{mutant.name}: its test file {test_file} is missing or not in {' or '.join(FAST_SUITE)}")
     return problems
 
 
@@ -207,7 +222,9 @@ def run_pytest(copy: Path, tests, stop_first: bool = True):
 
 
 def failed_tests(output: str) -> list[str]:
-    return re.findall(r"^(?:FAILED|ERROR) (\S+)", output, flags=re.MULTILINE)
+    """The failed tests of pytest's short summary, each with the start of its message."""
+    found = re.findall(r"^(?:FAILED|ERROR) (.+?)(?: - (.*))?$", output, flags=re.MULTILINE)
+    return [f"{test} ({message[:70]})" if message else test for test, message in found]
 
 
 def run_mutant(copy: Path, mutant: Mutant, full: bool) -> Outcome:
