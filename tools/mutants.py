@@ -210,7 +210,7 @@ def apply(copy: Path, mutant: Mutant) -> dict[Path, str]:
 
 def run_pytest(copy: Path, tests, stop_first: bool = True):
     """(return code, output) of pytest on the copy (no bytecode: a restored file is never read from a stale .pyc)."""
-    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", PYTHONPATH=os.pathsep.join(
+    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", COLUMNS="400", PYTHONPATH=os.pathsep.join(
         [str(copy)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])))
     command = [sys.executable, "-m", "pytest", "-q", "-rfE", "-p", "no:cacheprovider", "--no-header",
                *(["-x"] if stop_first else []), *tests]
