@@ -31,7 +31,7 @@ class ExportCancelled(Exception):
 
 # --------------------------------------------------------------------------- clock and motion
 def observation_time(scene) -> float:
-    """Seconds from the reference time to the rendered frame (``shared/physics.md``)."""
+    """Seconds from the reference time to the rendered frame (``docs/physics.md#units-and-clocks``)."""
     rf = scene.restframe
     return (scene.frame_current + scene.frame_subframe - rf.reference_frame) * scene.render.fps_base / scene.render.fps
 
@@ -68,7 +68,7 @@ def _same_velocity(a, b) -> bool:
 
 
 def assembly_root(obj):
-    """The topmost parent reached through parents with the same velocity (physics.md)."""
+    """The topmost parent reached through parents with the same velocity (``docs/physics.md#rest-shapes``)."""
     root = obj
     while root.parent is not None and _same_velocity(root.parent, root):
         root = root.parent
@@ -315,7 +315,7 @@ class MaterialExporter:
         """(seconds of the emitter's own clock, strengths) from the strength's F-curve, or None.
 
         The camera sees an emitter's animation at the emitter's clock reading of each seen
-        event (shared/physics.md, optical clocks): Blender frame f is clock time
+        event (docs/physics.md#optical-clocks): Blender frame f is clock time
         (f - reference_frame) * fps_base / fps.  Sampled over the keys and the scene's frame
         range, twice widened; beyond that the first and last values hold.
         """

@@ -2,7 +2,7 @@
 
 The property names are public: scripts, pipelines and the README rely on them.
 Every value is animatable like any Blender property; the physics they feed is
-defined in ``shared/physics.md``.
+defined in ``docs/physics.md``.
 """
 
 import math

@@ -3,7 +3,7 @@ measuring what they show.  Used by the make_*.py scripts, render_gallery.py and 
 
 Imaging time.  The paper images every experiment at "the time when event [0, 0, 0, 0] arrives
 at the imaging plate".  Our scenes put each moving assembly's pivot at the world origin at the
-reference time (frame 1; physics.md: at the reference frame every pivot is where it was placed),
+reference time (frame 1; docs/physics.md#rest-shapes: at the reference frame every pivot is where it was placed),
 the camera at distance L from the origin, and the speed of light at L scene units per second.
 The light leaving the origin event then reaches the camera after L / c = 1 s: frame 25 at 24 fps.
 Every sample .blend is saved at that frame (IMAGING_FRAME), so F12 shows the paper's imaging time.

@@ -77,7 +77,7 @@ def centre(passes, name, channel=0):
 
 def headlamp(passes_by_beta) -> list[dict]:
     """Axis pixel of each speed against the rest render: D = gamma (1 + beta) and the radiance
-    ratio D^4 (a diffuse surface lit in its own frame: L = D^4 L', physics.md)."""
+    ratio D^4 (a diffuse surface lit in its own frame: L = D^4 L', docs/physics.md#searchlight)."""
     rest = centre(passes_by_beta[0.0], "Combined")
     rows = []
     for beta, passes in passes_by_beta.items():
@@ -258,7 +258,7 @@ def sphere_prediction(info, radius=1.5, beta=(0.9, 0.0, 0.0), tau_obs=12.0, samp
     predicted without the renderer: in the sphere's rest frame it is static, so from the observation
     event the outline is the cone of half-angle asin(R / r') about the direction to the centre
     (r' = the distance there); each cone direction is aberrated back to the world frame
-    (physics.md eq. 3 with -beta).  Returns (angular radius rad, unit axis) of the circle in S."""
+    (docs/physics.md#backward-light-rays, d' with -beta).  Returns (angular radius rad, unit axis) of the circle in S."""
     v = np.asarray(beta, float)
     b = float(np.linalg.norm(v))
     g = lib.gamma(b)

@@ -7,7 +7,7 @@ In RGB mode (C = 3 channels, no wavelengths) the shift is the identity and the
 D powers are those of frequency-integrated light (radiance D^4, point irradiance
 D^4, sun D^2).  In spectral mode (C = K wavelengths per ray) a ray seeing a frame
 with Doppler factor D samples that frame at ``lambda * D`` and every density
-gains one more power of D (D^5, D^5, D^3), as in ``shared/physics.md``.
+gains one more power of D (D^5, D^5, D^3): ``docs/physics.md#spectral-colour``.
 """
 
 from __future__ import annotations

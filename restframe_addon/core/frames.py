@@ -1,7 +1,7 @@
 """Rest frames: one per distinct velocity, each with its static geometry in one embreex scene.
 
 Every frame shares the origin event ``(tau = 0, x = 0)`` of the world frame S and
-has axes parallel to S (``shared/physics.md``).  An object whose assembly pivot
+has axes parallel to S (``docs/physics.md#frames``).  An object whose assembly pivot
 is ``p`` sits in its frame at ``boost(0, p)`` plus its Blender shape relative to
 ``p``; the spatial part of that is ``p + (gamma - 1)(n.p) n``, so the whole body
 is translated by ``(gamma - 1)(n.p) n`` (the time part only shifts the static

@@ -16,7 +16,7 @@ with ``w = gamma (1 + beta.d) = 1/D``, D the Doppler factor (observed over
 emitted frequency) of light that reaches A's observer from direction d.
 Near c the literal formula cancels twice (in ``1 + beta.d`` and in the
 aberration), so it is written with ``h = 1 + n.d = |n + d|^2 / 2`` and
-``1 - b = 1 / (gamma^2 (1 + b))`` as in ``shared/physics.md``.
+``1 - b = 1 / (gamma^2 (1 + b))`` (``docs/physics.md#backward-light-rays``).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ An animated body's pivot follows the world line ``X(tau)`` in S, given as sample
 of its animation.  Between samples the pivot moves inertially; at every sample
 where the velocity changes, the corner is rounded into constant acceleration
 over a proper time of at least ``r_max |delta(gamma beta)|`` (>= ``r_max |delta
-beta|``, shared/physics.md: a sudden turn is smoothed so the Born-rigid body never
+beta|``, docs/physics.md#accelerated-bodies: a sudden turn is smoothed so the Born-rigid body never
 tears).  Where neighbouring samples leave no room for that, the turn is as
 smooth as the samples allow and a warning names the frame.
 
@@ -18,7 +18,7 @@ at its ends, shared with its neighbours (``frames.Window``), which the tracer
 applies as a clip range on each ray.
 
 Rotation at constant angular velocity is exactly rigid in the inertial frame of
-the axis (physics.md).  Each ray meets the body in the pose of its own hit time:
+the axis (docs/physics.md#rotation).  Each ray meets the body in the pose of its own hit time:
 the tracer poses the body at a guessed time, intersects, re-poses it at the hit
 time and repeats; the guess moves the hit by at most ``omega r`` times the time
 change, so the iteration contracts (rim speed < c) and stops once a hit moves by
@@ -82,7 +82,7 @@ class Trajectory:
         A turn changing the 4-velocity's spatial part u = gamma beta by du, spread over a
         proper time of at least R |du|, keeps the proper acceleration a <= 1/R, so every
         point of a body of radius R keeps 1 + a.r' > 0 (no Born-rigid tearing); this is at
-        least the R |d beta| of shared/physics.md.  World time runs gamma times faster.
+        least R |d beta| (docs/physics.md#accelerated-bodies).  World time runs gamma times faster.
         """
         lengths = np.diff(self.tau)
         u = self.beta / np.sqrt(1.0 - np.einsum("ij,ij->i", self.beta, self.beta))[:, None]

@@ -3,7 +3,7 @@
 The Blender layer (``restframe_addon.export``) fills these from the evaluated
 depsgraph; tests and scripts can build them directly.  All positions are Blender
 world coordinates at the rendered frame, i.e. the shape each object has *in its
-own rest frame* (see ``shared/physics.md``: the artist models rest shapes).
+own rest frame* (see ``docs/physics.md#rest-shapes``: the artist models rest shapes).
 """
 
 from __future__ import annotations

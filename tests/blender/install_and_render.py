@@ -1,4 +1,4 @@
-"""Run in a fresh process by test_package.py: install the built zip as a user would, render.
+"""Run in a fresh process by test_blender_package.py: install the built zip as a user would, render.
 
     BLENDER_USER_RESOURCES=<empty dir> python install_and_render.py EXTENSION.zip OUT.exr
 
@@ -63,11 +63,19 @@ bpy.ops.render.render(write_still=True)
 
 import embreex  # noqa: E402  (already imported by the render, from the wheel)
 
+# The command line's own modules (it writes files, starts worker processes, talks to Dask):
+# the extension as Blender loads and renders it must not need them.
+command_line_modules = sorted(
+    name for name in sys.modules
+    if name.split(".")[0] in {"dask", "distributed"}
+    or (name.startswith("bl_ext.user_default.restframe.") and name.rsplit(".", 1)[-1] in {"__main__", "distributed"}))
+
 print(json.dumps({
     "install": sorted(result),
     "module": module.__file__ if module else None,
     "embreex": embreex.__file__,
     "site": site,
+    "command_line_modules": command_line_modules,
 }))
 if bpy.app.version < (4, 3, 0):  # bpy 4.2 as a module crashes in its exit handlers (see tests/blender/conftest.py)
     sys.stdout.flush()

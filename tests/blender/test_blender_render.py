@@ -56,7 +56,7 @@ def test_doppler_perpendicular_motion_is_one_over_gamma(scene, tmp_path):
 
 
 def test_frame_clock_moves_the_observation_time(scene, tmp_path):
-    """Frame 11 at 24 fps is t = 10/24 s after the reference frame 1 (physics.md clock)."""
+    """Frame 11 at 24 fps is t = 10/24 s after the reference frame 1 (docs/physics.md#units-and-clocks)."""
     add_camera(scene)
     add_plane(scene, velocity=(0.0, 0.0, 0.9))
     scene.render.fps, scene.render.fps_base = 24, 1.0
