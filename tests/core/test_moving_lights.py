@@ -122,6 +122,30 @@ def test_moving_spot_cone_is_the_lamps_own():
     np.testing.assert_allclose(got[~edge], expected[~edge], rtol=1e-4, atol=1e-9)
 
 
+def seen_from_the_floor(points, tau_hit, beta):
+    """For light-frame points (the lamp at rest, moving with beta in the floor's frame) seen from the
+    floor event (tau_hit, origin): the rest-frame unit directions and distances toward them, and in the
+    floor's frame the directions and Doppler factors -- the photon's 4-momentum boosted back."""
+    to_lamp, from_lamp = boost_matrix(beta), boost_matrix(-beta)
+    floor_event = to_lamp @ np.array([tau_hit, 0.0, 0.0, 0.0])
+    towards = points - floor_event[1:]
+    r_rest = np.linalg.norm(towards, axis=1)
+    e_rest = towards / r_rest[:, None]
+    photon = np.column_stack([np.ones(len(e_rest)), -e_rest]) @ from_lamp.T  # lamp frame -> floor frame
+    doppler = photon[:, 0]
+    return e_rest, r_rest, -photon[:, 1:] / doppler[:, None], doppler
+
+
+def plate_leaves_visible(e_floor, edge=-0.3):
+    """The static plate at height 1 covers x < edge: a ray from the origin along e is unblocked beyond it."""
+    return e_floor[:, 0] / e_floor[:, 2] >= edge
+
+
+def half_shadowed_floor(light):
+    plate = Mesh("plate", *quad((-10.3, 0, 1.0), (20.0, 20.0)))  # covers x < -0.3 at height 1
+    return floor_scene([light], looking_down(0.5, fov_half_tan=0.001), [plate])
+
+
 def test_moving_area_light_soft_shadow_matches_a_rest_frame_quadrature():
     """A 1 x 1 area light 2 above the floor, facing down, passing at 0.6c, half hidden from the floor
     point below the camera by a static plate at height 1 covering x < -0.3: a penumbra.
@@ -133,24 +157,47 @@ def test_moving_area_light_soft_shadow_matches_a_rest_frame_quadrature():
     beta = np.array([0.6, 0.0, 0.0])
     power, tau_hit = 1000.0, 1.0
     area = Light("area", "AREA", (0.0, 0.0, 2.0), power=power, area_size=(1.0, 1.0), velocity=Velocity(tuple(beta)))
-    plate = Mesh("plate", *quad((-10.3, 0, 1.0), (20.0, 20.0)))
-    scene = floor_scene([area], looking_down(0.5, fov_half_tan=0.001), [plate])
-    got = render(scene, tau_hit + 0.5, res=(3, 3), samples=1024).mean()
+    got = render(half_shadowed_floor(area), tau_hit + 0.5, res=(3, 3), samples=1024).mean()
 
     grid = (np.arange(200) + 0.5) / 200 - 0.5
     gx, gy = np.meshgrid(grid, grid)
-    to_lamp, from_lamp = boost_matrix(beta), boost_matrix(-beta)
-    floor_event = to_lamp @ np.array([tau_hit, 0.0, 0.0, 0.0])
-    lamp_rest = (to_lamp @ np.array([0.0, 0.0, 0.0, 2.0]))[1:]
-    points = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)]) + lamp_rest
-    towards = points - floor_event[1:]
-    r_rest = np.linalg.norm(towards, axis=1)
-    e_rest = towards / r_rest[:, None]
-    photon = np.column_stack([np.ones(len(e_rest)), -e_rest]) @ from_lamp.T  # lamp frame -> floor frame
-    doppler = photon[:, 0]
-    e_floor = -photon[:, 1:] / doppler[:, None]
-    visible = e_floor[:, 0] / e_floor[:, 2] * 1.0 >= -0.3  # where the ray crosses height 1
+    points = np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, 2.0)])  # the lamp's pivot has n.p = 0
+    e_rest, r_rest, e_floor, doppler = seen_from_the_floor(points, tau_hit, beta)
+    visible = plate_leaves_visible(e_floor)
     radiance = power / (math.pi * 1.0)
     irradiance = np.sum(radiance * doppler**2 * e_floor[:, 2] * e_rest[:, 2] / r_rest**2 * visible) / 200**2
     assert 0.2 < visible.mean() < 0.8
+    assert got == pytest.approx(irradiance / math.pi, rel=0.03)
+
+
+def test_moving_soft_spot_light_penumbra_matches_a_rest_frame_quadrature():
+    """A soft spot light (radius 0.4; Blender's soft lamp, which RESTframe samples as a disc facing the
+    surface in the lamp's frame) 2 above the floor, pointing down with a sharp cone edge near the floor
+    point, passing at 0.6c; the same static half-plate as for the area light makes a penumbra.
+
+    Reference: the average over the rest-frame disc (a 400 x 64 polar midpoint grid, uniform in area)
+    of P / (4 pi) x cone(rest-frame angle) x D^4 cos_surface / r^2 x visibility, with r = D r' the distance
+    in the floor's frame; directions and D from textbook boosts."""
+    beta = np.array([0.6, 0.0, 0.0])
+    power, tau_hit, radius = 1000.0, 1.0, 0.4
+    half = math.radians(28.0)  # the floor event is 21 degrees off the axis in the lamp frame, the disc +-11
+    spot = Light("spot", "SPOT", (0.0, 0.0, 2.0), power=power, radius=radius, spot_size=2 * half, spot_blend=0.0,
+                 velocity=Velocity(tuple(beta)))
+    got = render(half_shadowed_floor(spot), tau_hit + 0.5, res=(3, 3), samples=1024).mean()
+
+    centre = np.array([0.0, 0.0, 2.0])
+    (axis,), _, _, _ = seen_from_the_floor(centre[None], tau_hit, beta)
+    t1 = np.cross(axis, [0.0, 1.0, 0.0])
+    t1 /= np.linalg.norm(t1)
+    t2 = np.cross(axis, t1)
+    rho = radius * np.sqrt((np.arange(400) + 0.5) / 400)
+    phi = 2 * np.pi * (np.arange(64) + 0.5) / 64
+    rr, pp = np.meshgrid(rho, phi)
+    points = centre + (rr * np.cos(pp)).ravel()[:, None] * t1 + (rr * np.sin(pp)).ravel()[:, None] * t2
+    e_rest, r_rest, e_floor, doppler = seen_from_the_floor(points, tau_hit, beta)
+    visible = plate_leaves_visible(e_floor)
+    cone = e_rest[:, 2] > math.cos(half)  # from the lamp down to the floor event, in the lamp's frame
+    r = doppler * r_rest
+    irradiance = np.mean(power / (4 * math.pi) * cone * doppler**4 * e_floor[:, 2] / r**2 * visible)
+    assert 0.2 < np.mean(visible & cone) < 0.8 and cone.mean() < 0.95
     assert got == pytest.approx(irradiance / math.pi, rel=0.03)
