@@ -69,7 +69,8 @@ class Reference:
             to_body = boost_matrix(beta) @ from_camera  # camera -> world -> body
             a_t, a_x = apply(to_body, np.full(n, t_cam), start)
             b_t, b_x = apply(to_body, step[:, 0], step[:, 1:])
-            (_,), (rest_centre,) = apply(boost_matrix(beta), [0.0], [centre])
+            # the body's origin event (tau = 0, centre), where its clock reads 0, in its rest frame
+            (origin_t,), (rest_centre,) = apply(boost_matrix(beta), [0.0], [centre])
             lo, hi = rest_centre - 0.5 * np.asarray(size), rest_centre + 0.5 * np.asarray(size)
             with np.errstate(divide="ignore", invalid="ignore"):
                 t1, t2 = (lo - a_x) / b_x, (hi - a_x) / b_x
@@ -82,8 +83,6 @@ class Reference:
             self.doppler[nearer] = 1.0 / k0[nearer]
             x_hit = a_x + enter[:, None] * b_x
             t_hit = a_t + enter * b_t
-            # the body's clock reads 0 at its origin event (tau = 0, centre): rest-frame time of the hit
-            (origin_t,), _ = apply(boost_matrix(beta), [0.0], [centre])
             self.body_time[nearer] = (t_hit - origin_t)[nearer]
             self.local[nearer] = (x_hit - rest_centre)[nearer]
             inside = np.minimum(x_hit - lo, hi - x_hit)
@@ -95,7 +94,6 @@ class Reference:
         self.world_time[seen] = apply(from_camera, event_t, event_x)[0]
         self.world_doppler = 1.0 / (photon @ from_camera.T)[:, 0]
         self.world = np.outer(self.world_doppler**4, world)
-        self.shape = (n_y, n_x)
 
 
 def render(scene, res, **options):
