@@ -47,10 +47,11 @@ class Mutant:
 
 
 CORE = "restframe_addon/core/"
-LORENTZ, FRAMES, TRACER, SHADING, RENDER = (CORE + m for m in ("lorentz.py", "frames.py", "tracer.py", "shading.py",
-                                                               "render.py"))
+LORENTZ, FRAMES, TRACER, SHADING, RENDER, COLOUR = (CORE + m for m in ("lorentz.py", "frames.py", "tracer.py",
+                                                                       "shading.py", "render.py", "colour.py"))
 T_RENDER, T_SHADING, T_LORENTZ, T_MOTION = ("tests/core/" + m for m in ("test_render.py", "test_shading.py",
                                                                        "test_lorentz.py", "test_motion.py"))
+T_SPECTRAL = "tests/core/test_spectral.py"
 T_OBSERVERS = "tests/core/test_observers.py"
 T_LIGHTS = "tests/core/test_moving_lights.py"
 
@@ -152,6 +153,12 @@ MUTANTS = (
            (Patch(RENDER, "world_event = position + camera_boost.b * camera_boost.n * scene.tau_obs",
                   "world_event = position"),),
            (T_OBSERVERS,)),
+    Mutant("spectral-shift-inverted", "wavelengths divided by D instead of multiplied at a frame change",
+           (Patch(COLOUR, "return lam * doppler[:, None]", "return lam / doppler[:, None]"),),
+           (f"{T_SPECTRAL}::test_moving_black_body_looks_like_a_black_body_at_d_times_t",)),
+    Mutant("spectral-density-power", "spectral radiance scaled by D^4 like integrated radiance (drops D^5's extra power)",
+           (Patch(COLOUR, "    extra_power = 1\n", "    extra_power = 0\n"),),
+           (f"{T_SPECTRAL}::test_moving_black_body_looks_like_a_black_body_at_d_times_t",)),
     Mutant("gamma-naive", "gamma from a naive floating-point 1 - b^2",
            (Patch(LORENTZ, "one_minus_b2 = float(1 - sum(Fraction(c) ** 2 for c in beta))",
                   "one_minus_b2 = 1.0 - sum(c * c for c in beta)"),),
