@@ -47,6 +47,7 @@ class Mutant:
 
 
 CORE = "restframe_addon/core/"
+EXPORT = "restframe_addon/export.py"
 LORENTZ, FRAMES, TRACER, SHADING, RENDER, COLOUR = (CORE + m for m in ("lorentz.py", "frames.py", "tracer.py",
                                                                        "shading.py", "render.py", "colour.py"))
 T_RENDER, T_SHADING, T_LORENTZ, T_MOTION = ("tests/core/" + m for m in ("test_render.py", "test_shading.py",
@@ -159,6 +160,10 @@ MUTANTS = (
     Mutant("spectral-density-power", "spectral radiance scaled by D^4 like integrated radiance (drops D^5's extra power)",
            (Patch(COLOUR, "    extra_power = 1\n", "    extra_power = 0\n"),),
            (f"{T_SPECTRAL}::test_moving_black_body_looks_like_a_black_body_at_d_times_t",)),
+    Mutant("observation-time-fps-inverted", "Blender's frame clock converted with fps / fps_base the wrong way up",
+           (Patch(EXPORT, "- rf.reference_frame) * scene.render.fps_base / scene.render.fps",
+                  "- rf.reference_frame) * scene.render.fps / scene.render.fps_base"),),
+           ("tests/blender/test_blender_render.py::test_frame_clock_moves_the_observation_time",)),
     Mutant("gamma-naive", "gamma from a naive floating-point 1 - b^2",
            (Patch(LORENTZ, "one_minus_b2 = float(1 - sum(Fraction(c) ** 2 for c in beta))",
                   "one_minus_b2 = 1.0 - sum(c * c for c in beta)"),),
@@ -304,7 +309,7 @@ def main(argv=None) -> int:
                 print(output[-4000:], file=sys.stderr)
                 print("mutants: the selected tests fail WITHOUT any mutant; fix them first", file=sys.stderr)
                 return 2
-            print(f"baseline: {len(selection)} test selections pass unmutated ({time.monotonic() - started:.0f} s)",
+            print(f"baseline: the {len(selection)} test selections pass unmutated ({time.monotonic() - started:.0f} s)",
                   flush=True)
         outcomes = []
         for mutant in chosen:
