@@ -16,7 +16,10 @@ import traceback
 import bpy
 
 from . import export
-from .core.render import Renderer, RenderError, render_tiles
+from .core.passes import BY_NAME
+from .core.prepared import prepare
+from .core.render import render_tiles
+from .core.validation import RenderError
 
 # Blender 5.0 renamed its object index pass ("IndexOB" before).
 OBJECT_INDEX_PASS = "Object Index" if bpy.app.version >= (5, 0, 0) else "IndexOB"
@@ -24,7 +27,6 @@ OBJECT_INDEX_PASS = "Object Index" if bpy.app.version >= (5, 0, 0) else "IndexOB
 # Blender pass name -> the core's pass name
 _CORE_PASS = {OBJECT_INDEX_PASS: "IndexOB"}
 _BLENDER_PASS = {core: blender for blender, core in _CORE_PASS.items()}
-_CHANNELS = {"Depth": ("Z", 'VALUE'), "Normal": ("XYZ", 'VECTOR')}
 
 
 def list_render_passes(scene, view_layer):
@@ -32,7 +34,7 @@ def list_render_passes(scene, view_layer):
     then the core's (``export.core_passes``: Blender's enabled ones, RESTframe's own always)."""
     yield ("Combined", "RGBA", 'COLOR')
     for name in export.core_passes(view_layer):
-        yield (_BLENDER_PASS.get(name, name), *_CHANNELS.get(name, ("X", 'VALUE')))
+        yield (_BLENDER_PASS.get(name, name), BY_NAME[name].channels, BY_NAME[name].kind)
 
 
 class RestframeRenderEngine(bpy.types.RenderEngine):
@@ -56,7 +58,7 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
             self.register_pass(scene, renderlayer, name, len(channel_ids), channel_ids, channel_type)
 
     def _prepare(self, scene, settings):
-        """``Renderer(...)`` in a worker thread, polled for Esc every 50 ms.
+        """``prepare(...)`` in a worker thread, polled for Esc every 50 ms.
 
         The build checks Esc between pieces of 2**14 triangles, but polling needs the GIL,
         which each frame's embree BVH build holds throughout (about 0.4 s for a million
@@ -68,7 +70,7 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
 
         def work():
             try:
-                box["renderer"] = Renderer(scene, settings, cancelled.is_set)
+                box["prepared"] = prepare(scene, settings, cancelled.is_set)
             except BaseException as error:  # handed to the main thread
                 box["error"] = error
 
@@ -81,7 +83,7 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
                 return None
         if "error" in box:
             raise box["error"]
-        return None if self.should_stop() else box["renderer"]
+        return None if self.should_stop() else box["prepared"]
 
     def render(self, depsgraph):
         try:
@@ -105,21 +107,21 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
             if self.should_stop():
                 return
             self.update_stats("", "RESTframe | Building rest frames")
-            renderer = self._prepare(scene, settings)
-            if renderer is None:
+            prepared = self._prepare(scene, settings)
+            if prepared is None:
                 return
         except export.ExportCancelled:
             return
         except (export.ExportError, RenderError) as error:
             self.report({'ERROR'}, f"RESTframe: {error}")
             return
-        for message in renderer.warnings:
+        for message in prepared.warnings:
             self.report({'WARNING'}, f"RESTframe: {message}")
 
-        x_offset, y_offset = renderer.region[:2]
-        total = len(renderer.tiles())
+        x_offset, y_offset = prepared.region[:2]
+        total = len(prepared.tiles())
         triangles = sum(len(mesh.triangles) for mesh in scene.meshes)
-        for done, tile in enumerate(render_tiles(scene, settings, self.should_stop, renderer), start=1):
+        for done, tile in enumerate(render_tiles(prepared, self.should_stop), start=1):
             result = self.begin_result(tile.x0 - x_offset, tile.y0 - y_offset,
                                        tile.x1 - tile.x0, tile.y1 - tile.y0, layer=view_layer.name)
             for render_pass in result.layers[0].passes:

@@ -236,6 +236,23 @@ class RestframeSceneSettings(PropertyGroup):
         soft_max=100.0,
         precision=4,
     )
+    rolling_shutter_type: EnumProperty(
+        name="Rolling Shutter",
+        description="Type of rolling shutter effect matching CMOS-based cameras (as Cycles)",
+        items=(
+            ('NONE', "None", "No rolling shutter effect used"),
+            ('TOP', "Top-Bottom", "Sensor is being scanned from top to bottom"),
+        ),
+        default='NONE',
+    )
+    rolling_shutter_duration: FloatProperty(
+        name="Rolling Shutter Duration",
+        description="The share of the shutter time each scanline is exposed (0: every row at one "
+        "instant, rolling down over the shutter time; 1: no rolling)",
+        default=0.1,
+        min=0.0,
+        max=1.0,
+    )
     doppler_levels: IntProperty(
         name="Levels",
         description="Quantise the Factor display to this many grey levels (0: continuous)",

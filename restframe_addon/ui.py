@@ -10,7 +10,8 @@ from __future__ import annotations
 import bpy
 from bpy.types import Panel
 
-from . import export
+from . import motion_query
+from .core import validation
 from .properties import speed_of
 
 ENGINE = 'RESTFRAME'
@@ -26,6 +27,8 @@ _EXCLUDE_PANELS = {
 }
 # Engine-specific Blender panels that are right for RESTframe too (node-based surfaces).
 _EXTRA_PANELS = (
+    'DATA_PT_camera_dof',  # the camera's Depth of Field, read as Cycles reads it
+    'DATA_PT_camera_dof_aperture',
     'EEVEE_MATERIAL_PT_context_material',
     'EEVEE_MATERIAL_PT_surface',
     'EEVEE_WORLD_PT_surface',
@@ -62,7 +65,7 @@ class RESTFRAME_RENDER_PT_relativity(RestframeButtonsPanel, Panel):
         col.prop(rf, "motion_tolerance")
         col.prop(rf, "show_velocity")
         col = layout.column(align=True)
-        seconds = export.observation_time(scene)
+        seconds = motion_query.observation_time(scene)
         col.label(text=f"Frame {scene.frame_current}: t = {seconds:.6g} s, c·t = {rf.light_speed * seconds:.6g}",
                   icon='TIME')
 
@@ -105,6 +108,50 @@ class RESTFRAME_RENDER_PT_doppler(RestframeButtonsPanel, Panel):
         row.prop(rf, "doppler_range", index=0, text="Black")
         row.prop(rf, "doppler_range", index=1, text="White")
         sub.prop(rf, "doppler_levels")
+
+
+class RESTFRAME_RENDER_PT_motion_blur(RestframeButtonsPanel, Panel):
+    """Blender's Motion Blur settings and the rolling shutter, as Cycles shows them."""
+
+    bl_label = "Motion Blur"
+    bl_context = "render"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw_header(self, context):
+        self.layout.prop(context.scene.render, "use_motion_blur", text="")
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        render, rf = context.scene.render, context.scene.restframe
+        layout.active = render.use_motion_blur
+        col = layout.column()
+        col.prop(render, "motion_blur_position", text="Position")
+        col.prop(render, "motion_blur_shutter")
+        col.separator()
+        col.prop(rf, "rolling_shutter_type", text="Rolling Shutter")
+        sub = col.column()
+        sub.active = rf.rolling_shutter_type != 'NONE'
+        sub.prop(rf, "rolling_shutter_duration")
+        col.label(text="Shutter times run on the camera's own clock", icon='TIME')
+
+
+class RESTFRAME_RENDER_PT_motion_blur_curve(RestframeButtonsPanel, Panel):
+    bl_label = "Shutter Curve"
+    bl_parent_id = "RESTFRAME_RENDER_PT_motion_blur"
+    bl_context = "render"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        render = context.scene.render
+        layout.active = render.use_motion_blur
+        layout.template_curve_mapping(render, "motion_blur_shutter_curve")
+        row = layout.row(align=True)
+        for shape, icon in (('SMOOTH', 'SMOOTHCURVE'), ('ROUND', 'SPHERECURVE'), ('ROOT', 'ROOTCURVE'),
+                            ('SHARP', 'SHARPCURVE'), ('LINE', 'LINCURVE'), ('MAX', 'NOCURVE')):
+            row.operator("render.shutter_curve_preset", icon=icon, text="").shape = shape
 
 
 class RESTFRAME_RENDER_PT_film(RestframeButtonsPanel, Panel):
@@ -173,7 +220,7 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
             if rf.is_animated:
                 box = layout.box()
                 box.label(text="World line: the keyframed location (own keys, parents static)", icon='ANIM')
-                if not export.has_animated_location(obj):
+                if not motion_query.has_animated_location(obj):
                     box.label(text="The location has no keyframes: the object stays at rest", icon='INFO')
                 if any(rf.angular_velocity):
                     box.label(text="Angular Velocity is ignored with Motion = Animation", icon='ERROR')
@@ -185,8 +232,8 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
         box = layout.box()
         col = box.column(align=True)
         try:
-            export.object_velocity(obj)
-        except export.ExportError as error:
+            validation.check_velocity(rf.velocity, rf.lorentz_factor, obj.name)
+        except ValueError as error:
             col.label(text=str(error).partition(": ")[2], icon='ERROR')
         else:
             beta, gamma, rapidity = speed_of(rf.velocity, rf.lorentz_factor)  # double precision
@@ -200,10 +247,10 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
             return
         if obj.type == 'CAMERA':
             box.label(text="Moving observer: the image forms in the camera's frame", icon='CAMERA_DATA')
-        root = export.assembly_root(obj)
+        root = motion_query.assembly_root(obj)
         if root != obj:
             box.label(text=f"Moves rigidly with its parent '{root.name}' (assembly pivot)", icon='LINKED')
-        if export.has_animated_location(obj):
+        if motion_query.has_animated_location(obj):
             warn = layout.column(align=True)
             warn.alert = True
             warn.label(text="Location is keyframed: the object will jump between frames", icon='ERROR')
@@ -258,6 +305,8 @@ classes = (
     RESTFRAME_RENDER_PT_relativity,
     RESTFRAME_RENDER_PT_sampling,
     RESTFRAME_RENDER_PT_doppler,
+    RESTFRAME_RENDER_PT_motion_blur,
+    RESTFRAME_RENDER_PT_motion_blur_curve,
     RESTFRAME_RENDER_PT_film,
     RESTFRAME_RENDER_PT_performance,
     RESTFRAME_VIEWLAYER_PT_passes,

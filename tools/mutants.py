@@ -47,9 +47,10 @@ class Mutant:
 
 
 CORE = "restframe_addon/core/"
-EXPORT = "restframe_addon/export.py"
-LORENTZ, FRAMES, TRACER, SHADING, RENDER, COLOUR = (CORE + m for m in ("lorentz.py", "frames.py", "tracer.py",
-                                                                       "shading.py", "render.py", "colour.py"))
+MOTION_QUERY = "restframe_addon/motion_query.py"
+LORENTZ, FRAMES, TRACER, SHADING, RENDER, COLOUR, PASSES, PREPARED, VALIDATION = (
+    CORE + m for m in ("lorentz.py", "frames.py", "tracer.py", "shading.py", "render.py", "colour.py", "passes.py",
+                       "prepared.py", "validation.py"))
 T_RENDER, T_SHADING, T_LORENTZ, T_MOTION = ("tests/core/" + m for m in ("test_render.py", "test_shading.py",
                                                                        "test_lorentz.py", "test_motion.py"))
 T_SPECTRAL = "tests/core/test_spectral.py"
@@ -64,7 +65,7 @@ MUTANTS = (
            (f"{T_RENDER}::test_visibility_is_decided_by_the_observer_path_length_not_the_rest_frame_one",)),
     Mutant("wigner", "a moving observer mapped into an object frame by one boost of the composed velocity "
                      "(drops the Wigner rotation)",
-           (Patch(FRAMES, "FrameMap([fa.inverse(), fb])",
+           (Patch(FRAMES, "FrameMap([self._inverse[a], fb])",
                   "FrameMap([Boost.from_velocity(compose_velocities(fa.beta, fb.beta)[0])])"),
             Patch(FRAMES, "from .lorentz import Boost\n", "from .lorentz import Boost, compose_velocities\n")),
            (T_OBSERVERS,)),
@@ -94,8 +95,8 @@ MUTANTS = (
                   "        e_k = rows.normalized(rows.scale(e_k, r) + rows.scale(u, r / u0))  # where it is now\n"),),
            (T_LIGHTS,)),
     Mutant("shadow-ray-observation-time", "shadow rays start at the observation time instead of the hit event's",
-           (Patch(SHADING, "            tau_hit = hits.tau_frame[sel] - hits.s_frame[sel]\n",
-                  "            tau_hit = hits.tau_frame[sel] - hits.s_frame[sel]\n"
+           (Patch(SHADING, "            tau_hit = hit_times(hits, sel)\n",
+                  "            tau_hit = hit_times(hits, sel)\n"
                   "            self.shadow_tau = hits.tau_frame[sel]  # the ray's start: the observation event\n"),
             Patch(SHADING, "blocked = occluded(self.frames, k, tau[sel], origin[sel]",
                   "blocked = occluded(self.frames, k, self.shadow_tau[sel], origin[sel]")),
@@ -140,18 +141,19 @@ MUTANTS = (
                   "uv = (1.0 - uu - vv) * cuv[:, 0] + vv * cuv[:, 1] + uu * cuv[:, 2]"),),
            (T_OBSERVERS,)),
     Mutant("doppler-pass-inverted", "D replaced by 1/D in the Doppler pass",
-           (Patch(RENDER, "surface_doppler(int(k), prim, u, v, tau_hit, d_k) / w",
-                  "surface_doppler(int(k), prim, u, v, tau_hit, d_k) * w"),),
+           (Patch(PASSES, 'passes["Doppler"][sel, 0] = hit_doppler(', 'passes["Doppler"][sel, 0] = 1.0 / hit_doppler('),),
            (f"{T_RENDER}::test_doppler_head_on_approach_on_the_axis_ray",)),
     Mutant("factor-display-inverse", "the FACTOR grey display computed from 1/D",
-           (Patch(RENDER, "doppler = 1.0 / hits.w", "doppler = hits.w"),),
+           (Patch(RENDER, "_doppler_grey(prepared, ray_doppler(prepared.frames, hits))",
+                  "_doppler_grey(prepared, 1.0 / ray_doppler(prepared.frames, hits))"),
+            Patch(PREPARED, "doppler = ray_doppler(frames, hits)[hits.frame >= 0]",
+                  "doppler = 1.0 / ray_doppler(frames, hits)[hits.frame >= 0]")),
            (f"{T_RENDER}::test_factor_display_paints_d_across_the_frames_own_range",)),
     Mutant("emission-time-camera-frame", "the Emission Time pass left in the camera frame (not world time)",
-           (Patch(RENDER, "self.frames.map(camera, self.frames.world).events(",
-                  "self.frames.map(camera, camera).events("),),
+           (Patch(PASSES, "frames.map(frames.camera, frames.world).events(", "frames.map(frames.camera, frames.camera).events("),),
            (T_OBSERVERS,)),
     Mutant("camera-event-at-reference-position", "a moving camera observes from where it was at the reference time",
-           (Patch(RENDER, "world_event = position + camera_boost.b * camera_boost.n * scene.tau_obs",
+           (Patch(PREPARED, "world_event = position + camera_boost.b * camera_boost.n * scene.tau_obs",
                   "world_event = position"),),
            (T_OBSERVERS,)),
     Mutant("spectral-shift-inverted", "wavelengths divided by D instead of multiplied at a frame change",
@@ -161,12 +163,12 @@ MUTANTS = (
            (Patch(COLOUR, "    extra_power = 1\n", "    extra_power = 0\n"),),
            (f"{T_SPECTRAL}::test_moving_black_body_looks_like_a_black_body_at_d_times_t",)),
     Mutant("observation-time-fps-inverted", "Blender's frame clock converted with fps / fps_base the wrong way up",
-           (Patch(EXPORT, "- rf.reference_frame) * scene.render.fps_base / scene.render.fps",
+           (Patch(MOTION_QUERY, "- rf.reference_frame) * scene.render.fps_base / scene.render.fps",
                   "- rf.reference_frame) * scene.render.fps / scene.render.fps_base"),),
            ("tests/blender/test_blender_render.py::test_frame_clock_moves_the_observation_time",)),
     Mutant("gamma-naive", "gamma from a naive floating-point 1 - b^2",
-           (Patch(LORENTZ, "one_minus_b2 = float(1 - sum(Fraction(c) ** 2 for c in beta))",
-                  "one_minus_b2 = 1.0 - sum(c * c for c in beta)"),),
+           (Patch(VALIDATION, "return float(1 - sum(Fraction(c) ** 2 for c in beta))",
+                  "return 1.0 - sum(c * c for c in beta)"),),
            (f"{T_LORENTZ}::test_speed_and_gamma_match_reference",)),
     Mutant("simultaneity-dropped", "the boosted time without the relativity of simultaneity (gamma tau)",
            (Patch(LORENTZ, "return self.gamma * (tau - self.b * nx), x_new", "return self.gamma * tau, x_new"),),

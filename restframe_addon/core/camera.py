@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import rows
+from . import lens, rows
 from .scene import Camera
 
 
@@ -83,7 +83,21 @@ class CameraRays:
         self.plane = (bottom_left, bottom_right - bottom_left, top_left - bottom_left)
         self.world_plane = list(zip(*(self.rotation @ p for p in self.plane)))  # per axis: (corner, across, up)
 
-    def __call__(self, px, py, grid: bool = False):
+    @property
+    def has_lens(self) -> bool:
+        """Whether samples go through a finite aperture (depth of field)."""
+        return self.camera.has_depth_of_field
+
+    def __call__(self, px, py, grid: bool = False, keys=None):
+        """Rays for image positions px, py; with ``keys`` = (pixel ids, sample numbers, samples
+        per pixel), one id and number per ray, and a camera with depth of field, each ray leaves
+        its own aperture point."""
+        rays = self._pinhole(px, py, grid)
+        if keys is None or not self.has_lens:
+            return rays
+        return self._through_lens(*rays, *keys)
+
+    def _pinhole(self, px, py, grid):
         u = np.asarray(px, dtype=np.float64) / self.width
         v = np.asarray(py, dtype=np.float64) / self.height
         camera = self.camera
@@ -123,6 +137,39 @@ class CameraRays:
         camera = self.camera
         return (np.broadcast_to(self.position, (n, 3)), directions, camera.clip_start * per_depth,
                 camera.clip_end * per_depth, np.ones(n, dtype=bool))
+
+    def _through_lens(self, origins, directions, s_lo, s_hi, valid, pixel, sample, count):
+        """The pinhole rays moved to their aperture points and aimed at the points where they
+        meet the plane of focus (panoramas: the sphere of focus), as Cycles' thin lens.
+
+        All in the camera's rest frame: the aperture lies across the view axis (across each
+        ray for panoramas) and every ray still starts at the frame's one camera time.
+        """
+        camera = self.camera
+        across, up, forward = self.rotation[:, 0], self.rotation[:, 1], -self.rotation[:, 2]
+        lens_x, lens_y = lens.aperture_offsets(camera, pixel, sample, count)
+        focus = camera.focus_distance
+        if camera.kind == "PANO":
+            # Cycles' aperture basis for a panoramic ray: the view axis made perpendicular to the ray
+            across = forward - rows.scale(directions, directions @ forward)
+            length = rows.norm(across)
+            on_axis = length < 1e-9  # the ray along the view axis: any perpendicular will do
+            across[on_axis] = self.rotation[:, 0]
+            length[on_axis] = 1.0
+            across = rows.scale(across, 1.0 / length)
+            offset = rows.add_scaled(rows.scale(rows.cross(directions, across), lens_y), lens_x, across)
+            to_focus = directions * focus
+        else:
+            offset = rows.add_scaled(np.multiply.outer(lens_y, up), lens_x, across)
+            if camera.kind == "PERSP":
+                to_focus = rows.scale(directions, focus / (directions @ forward))
+            else:
+                to_focus = forward * focus
+        aimed = rows.normalized(to_focus - offset)
+        if camera.kind == "ORTHO":  # Cycles starts the ray at the near clip depth and keeps its length
+            s_lo = camera.clip_start / (aimed @ forward)
+            s_hi = s_lo + (camera.clip_end - camera.clip_start)
+        return origins + offset, aimed, s_lo, s_hi, valid
 
 
 def primary_rays(camera: Camera, px, py, resolution, offset=(0.0, 0.0, 0.0), grid: bool = False):

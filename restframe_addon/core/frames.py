@@ -17,14 +17,14 @@ offset, each valid only between two of the body's simultaneity slices (a
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from functools import cached_property
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 
 import numpy as np
 from embreex import rtcore, rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
-from . import motion, rows
+from . import motion, rows, validation
 from .lorentz import Boost
 from .scene import REST, Scene, Velocity
 
@@ -92,16 +92,18 @@ class Geometry:
     piece_start: np.ndarray  # first triangle of each embree geometry: triangle = piece_start[geomID] + primID
     clusters: np.ndarray = None  # (k, 4): centre and radius of spheres that together hold every triangle
     radius: float = 0.0  # distance from the local origin (a moving body's pivot) to its farthest used vertex
+    extent: float = field(init=False)  # the longest side of the bounds
+    face_normals: np.ndarray = field(init=False)  # unit geometric normal of every triangle (0 for degenerate ones)
 
-    @cached_property
-    def extent(self) -> float:
-        return float(np.max(self.hi - self.lo))
-
-    @cached_property
-    def face_normals(self) -> np.ndarray:
-        """Unit geometric normal of every triangle (float64; 0 for degenerate ones)."""
+    def __post_init__(self):
+        self.extent = float(np.max(self.hi - self.lo))
         tri = self.vertices[self.triangles]
-        return rows.normalized(rows.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]))
+        self.face_normals = rows.normalized(rows.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]))
+        for array in (self.vertices, self.triangles, self.tri_material, self.tri_object_index, self.tri_clock,
+                      self.corner_normals, self.corner_uvs, self.lo, self.hi, self.anchor, self.piece_start,
+                      self.clusters, self.face_normals):
+            if array is not None:
+                array.flags.writeable = False  # shared by every render thread
 
 
 @dataclass(frozen=True)
@@ -235,23 +237,27 @@ class SegmentGroup:
 
 
 class FrameSet:
-    """All frames of a scene: geometry frames, light frames, the camera's and S."""
+    """All frames of a scene: geometry frames, light frames, the camera's and S.
+
+    Read-only once built (tuples, no caches), so threads and processes share it freely;
+    memoising what the tracer derives from it is the job of a per-thread
+    :class:`~.tracer.TraceCache`.
+    """
 
     def __init__(self, frames: list[RestFrame], world: int, camera: int, light_frames: list[int], warnings: list[str],
                  groups: list[SegmentGroup] = ()):
-        self.frames = frames
+        self.frames = tuple(frames)
         self.world = world
         self.camera = camera
-        self.light_frames = light_frames
-        self.warnings = warnings
-        self.groups = list(groups)
-        self.geometry = [f.index for f in frames if f.has_geometry]
-        self.geometry_slot = {k: i for i, k in enumerate(self.geometry)}  # frame index -> place in self.geometry
+        self.light_frames = tuple(light_frames)
+        self.warnings = tuple(warnings)
+        self.groups = tuple(groups)
+        self.geometry = tuple(f.index for f in frames if f.has_geometry)
+        self.geometry_slot = MappingProxyType({k: i for i, k in enumerate(self.geometry)})  # frame -> place in geometry
         grouped = {int(i) for g in self.groups for i in g.frames}
-        self.ungrouped = [k for k in self.geometry if k not in grouped]
-        self._maps: dict[tuple[int, int], FrameMap] = {}
-        self._body_boxes: dict[int, tuple] = {}  # body_boxes per source frame
-        self.cone_cache: dict = {}  # the tracer's culling cones, per (frame pair, observation event)
+        self.ungrouped = tuple(k for k in self.geometry if k not in grouped)
+        self._inverse = tuple(f.boost.inverse() for f in frames)  # into S from each frame
+        self._world_lines, self._rest_half = self._body_world_lines()
 
     def candidates(self, src: int, tau0, x0) -> list[int]:
         """Geometry frames that rays from these events (frame src) may hit: all but the segments
@@ -266,8 +272,7 @@ class FrameSet:
             chosen.extend(int(k) for k in group.visible_from(tau_c, x_c, spread))
         return chosen
 
-    @cached_property
-    def _world_lines(self):
+    def _body_world_lines(self):
         """Two events (t, x) of each geometry frame's body centre in S, (len(self.geometry), 2, 4),
         and the half-extents of its box in its rest frame (a spinning body: the cube around its sphere)."""
         lines, half = [], []
@@ -279,42 +284,37 @@ class FrameSet:
             lines.append([np.concatenate([np.atleast_1d(t), x]) for t, x in
                           (to_world.events(np.array(0.0), centre), to_world.events(np.array(1.0), centre))])
             half.append(np.full(3, frame.geometry.radius) if spinning else 0.5 * (frame.geometry.hi - frame.geometry.lo))
-        return np.array(lines).reshape(len(self.geometry), 2, 4), np.array(half).reshape(len(self.geometry), 3)
+        lines = np.array(lines).reshape(len(self.geometry), 2, 4)
+        half = np.array(half).reshape(len(self.geometry), 3)
+        lines.flags.writeable = half.flags.writeable = False
+        return lines, half
 
     def body_boxes(self, src: int):
         """(t, x, velocity, half), each (len(self.geometry), ...): for every geometry frame, an
         axis-aligned box with half-extents ``half`` that holds its body at every time of frame
-        src, its centre moving uniformly (at x at time t).  Cached per src.
+        src, its centre moving uniformly (at x at time t).  Worked out on each call (the
+        tracer keeps them per thread, see :class:`~.tracer.TraceCache`).
 
         The body's box in its rest frame, Lorentz-contracted along the relative velocity (a
         linear map I - c n n^T with 0 <= c < 1: each of its entries lies between its values at
         c = 0 and c = 1, which bounds the image box); a spinning body: the cube around its sphere.
         """
-        cached = self._body_boxes.get(src)
-        if cached is None:
-            lines, rest_half = self._world_lines
-            t, x = self.map(self.world, src).events(lines[..., 0], lines[..., 1:])
-            velocity = (x[:, 1] - x[:, 0]) / (t[:, 1] - t[:, 0])[:, None]
-            half = rest_half.copy()
-            speed = np.linalg.norm(velocity, axis=1)
-            moving = (speed > 0.0) & np.array([self.frames[k].spin is None for k in self.geometry], dtype=bool)
-            if moving.any():
-                n = velocity[moving] / speed[moving, None]
-                contracted = np.abs(np.eye(3) - n[:, :, None] * n[:, None, :])
-                half[moving] = np.einsum("kij,kj->ki", np.maximum(np.eye(3), contracted), half[moving])
-            cached = (t[:, 0], x[:, 0], velocity, half)
-            self._body_boxes[src] = cached
-        return cached
+        lines = self._world_lines
+        t, x = self.map(self.world, src).events(lines[..., 0], lines[..., 1:])
+        velocity = (x[:, 1] - x[:, 0]) / (t[:, 1] - t[:, 0])[:, None]
+        half = self._rest_half.copy()
+        speed = np.linalg.norm(velocity, axis=1)
+        moving = (speed > 0.0) & np.array([self.frames[k].spin is None for k in self.geometry], dtype=bool)
+        if moving.any():
+            n = velocity[moving] / speed[moving, None]
+            contracted = np.abs(np.eye(3) - n[:, :, None] * n[:, None, :])
+            half[moving] = np.einsum("kij,kj->ki", np.maximum(np.eye(3), contracted), half[moving])
+        return t[:, 0], x[:, 0], velocity, half
 
     def map(self, a: int, b: int) -> FrameMap:
-        """The map from frame a's coordinates to frame b's (cached)."""
-        key = (a, b)
-        cached = self._maps.get(key)
-        if cached is None:
-            fa, fb = self.frames[a].boost, self.frames[b].boost
-            cached = FrameMap([]) if fa.same_as(fb) else FrameMap([fa.inverse(), fb])
-            self._maps[key] = cached
-        return cached
+        """The map from frame a's coordinates to frame b's (through S)."""
+        fa, fb = self.frames[a].boost, self.frames[b].boost
+        return FrameMap([]) if fa.same_as(fb) else FrameMap([self._inverse[a], fb])
 
 
 @dataclass
@@ -531,7 +531,8 @@ def _add_segments(frames, meshes, scene: Scene, settings: MotionSettings, warnin
     geometry = _geometry(parts, should_stop)
     if geometry is None:  # cancelled
         return
-    trajectory.body_radius = max(trajectory.body_radius, geometry.radius)
+    if geometry.radius > trajectory.body_radius:  # built for a smaller body: round the corners for this one
+        trajectory = replace(trajectory, body_radius=geometry.radius, warnings=[])
     warnings.extend(trajectory.warnings)
     segments = motion.segment_world_line(trajectory, trajectory.tau[0], trajectory.tau[-1], settings.tolerance)
     name = meshes[0].name
@@ -589,12 +590,8 @@ def _add_rotation(frames, mesh, scene: Scene, settings: MotionSettings, warnings
     if geometry is None:  # cancelled
         return
     omega = np.asarray(mesh.angular_velocity, dtype=np.float64) / scene.light_speed  # rad per unit c*t
-    if not np.all(np.isfinite(omega)):
-        raise ValueError(f"{mesh.name}: the angular velocity is not a finite number")
-    rim = float(np.linalg.norm(omega)) * geometry.radius
-    if not rim < 1.0:
-        raise ValueError(f"{mesh.name}: spinning this fast its rim would move at {rim:.6g} c; "
-                         "slow the spin or raise the scene's speed of light")
+    validation.check_angular_velocity(mesh.angular_velocity, mesh.name)
+    validation.check_rim_speed(float(np.linalg.norm(omega)) * geometry.radius, mesh.name)
     t0 = clock_shift(boost, pivot)
     frames.append(RestFrame(index=len(frames), velocity=mesh.velocity, boost=boost, names=[mesh.name],
                             geometry=geometry, offset=pivot + shift_into_frame(boost, pivot),

@@ -26,6 +26,8 @@ from fractions import Fraction
 
 import numpy as np
 
+from . import validation
+
 
 class Boost:
     """The Lorentz boost into a frame moving with velocity ``b * n`` (units of c).
@@ -53,32 +55,12 @@ class Boost:
 
         Raises ValueError naming ``name`` for speeds >= c, NaN or infinite input.
         """
-        beta = tuple(float(c) for c in beta)
-        if not all(math.isfinite(c) for c in beta):
-            raise ValueError(f"{name}: the velocity {beta} is not a finite number")
-        lorentz_factor = float(lorentz_factor)
-        if not math.isfinite(lorentz_factor):
-            raise ValueError(f"{name}: the Lorentz factor {lorentz_factor} is not a finite number")
+        beta, lorentz_factor = validation.check_velocity(beta, lorentz_factor, name)
         if lorentz_factor != 0.0:
-            if lorentz_factor < 1.0:
-                raise ValueError(
-                    f"{name}: a Lorentz factor must be >= 1 (got {lorentz_factor}); use 0 to give the speed as a velocity"
-                )
-            norm = math.sqrt(math.fsum(c * c for c in beta))
-            if lorentz_factor == 1.0 or norm == 0.0:
-                if lorentz_factor > 1.0:
-                    raise ValueError(f"{name}: a Lorentz factor > 1 needs a velocity to give the direction")
+            if lorentz_factor == 1.0:
                 return cls.identity()
-            return cls.from_gamma(np.array(beta) / norm, lorentz_factor)
-        # 1 - b^2 from the exact squares of the float inputs, correctly rounded: it carries
-        # the whole information about the speed near c.
-        one_minus_b2 = float(1 - sum(Fraction(c) ** 2 for c in beta))
-        if one_minus_b2 <= 0.0:
-            speed = math.sqrt(math.fsum(c * c for c in beta))
-            raise ValueError(
-                f"{name}: speed {speed:.17g} c is not below the speed of light; "
-                "give a speed < 1 (or a Lorentz factor for speeds very close to c)"
-            )
+            return cls.from_gamma(np.array(beta) / math.sqrt(math.fsum(c * c for c in beta)), lorentz_factor)
+        one_minus_b2 = validation.one_minus_speed_squared(beta)
         b2 = float(sum(Fraction(c) ** 2 for c in beta))
         if b2 == 0.0:
             return cls.identity()

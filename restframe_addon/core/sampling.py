@@ -42,12 +42,51 @@ def stratified_offsets(pixel: np.ndarray, sample: np.ndarray, count: int):
         return half, half
     side = int(np.ceil(np.sqrt(count)))
     cells = side * side
-    step = _coprime_step(cells)
-    start = (uniform(pixel, np.zeros_like(sample), 0) * cells).astype(np.int64)
-    stratum = (sample.astype(np.int64) * step + start) % cells
+    stratum = strata(pixel, sample, cells, 0)
     jx = uniform(pixel, sample, 1)
     jy = uniform(pixel, sample, 2)
     return (stratum % side + jx) / side, (stratum // side + jy) / side
+
+
+def strata(pixel: np.ndarray, sample: np.ndarray, cells: int, dimension: int):
+    """Which of ``cells`` strata sample k < ``cells`` of a pixel falls in: ``(k * step + start) mod
+    cells``, the start per pixel (from ``dimension``), the step coprime to ``cells`` near the golden
+    ratio times ``cells``, so that a pixel's first samples already spread over the strata."""
+    step = _coprime_step(cells)
+    start = (uniform(pixel, np.zeros_like(sample), dimension) * cells).astype(np.int64)
+    return (sample.astype(np.int64) * step + start) % cells
+
+
+def shuffled_strata(pixel: np.ndarray, sample: np.ndarray, cells: int, dimension: int) -> np.ndarray:
+    """Which of ``cells`` strata sample k < ``cells`` of a pixel falls in, under a random permutation
+    of the strata of its own per (pixel, dimension): unlike :func:`strata`, the strata of two
+    dimensions are unrelated, so stratifying several dimensions of one sample adds no correlation
+    between them.
+
+    The permutation: rounds of multiplication by an odd number, addition and xor-shift, each a
+    bijection of the integers below the next power of two, keyed by a hash of (pixel, dimension);
+    values that land beyond ``cells`` take more rounds ("cycle walking"), which keeps it a
+    bijection of 0..cells-1 (on average under two rounds)."""
+    bits = max(int(cells - 1).bit_length(), 1)
+    mask = np.uint64((1 << bits) - 1)
+    with np.errstate(over="ignore"):
+        key = _mix(pixel.astype(np.uint64) * _GOLDEN + np.uint64(dimension) * _M1)
+    odd_a = (key | np.uint64(1)) & mask
+    odd_b = ((key >> np.uint64(21)) | np.uint64(1)) & mask
+    offset = (key >> np.uint64(42)) & mask
+    half, third = np.uint64(max(bits // 2, 1)), np.uint64(max(bits // 3, 1))
+    index = sample.astype(np.uint64)
+    todo = np.arange(len(index))
+    while len(todo):
+        i = index[todo]
+        with np.errstate(over="ignore"):
+            i = (i * odd_a[todo] + offset[todo]) & mask
+            i ^= i >> half
+            i = (i * odd_b[todo]) & mask
+            i ^= i >> third
+        index[todo] = i
+        todo = todo[i >= np.uint64(cells)]
+    return index.astype(np.int64)
 
 
 def _coprime_step(cells: int) -> int:

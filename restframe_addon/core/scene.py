@@ -117,7 +117,7 @@ class Camera:
 
     ``frame`` holds Blender's ``Camera.view_frame`` corners in camera space,
     ordered top-right, bottom-right, bottom-left, top-left.  For a moving
-    camera (``velocity`` not zero) these describe its optics in its own rest frame.
+    camera (``velocity`` not zero) these describe its optics in its own rest frame, lens included.
     """
 
     matrix: np.ndarray  # (4, 4)
@@ -137,6 +137,25 @@ class Camera:
     sensor_size: tuple[float, float] = (36.0, 24.0)  # mm (width, height) as fitted to the image
     velocity: Velocity = REST
     name: str = "Camera"
+    # depth of field (Cycles' thin lens, in the camera's rest frame; core.lens): radius 0 = a pinhole
+    aperture_radius: float = 0.0  # scene units (the polygon's corners lie on this circle)
+    focus_distance: float = 10.0  # scene units along the view axis (the plane of focus)
+    aperture_blades: int = 0  # < 3: a round aperture
+    aperture_rotation: float = 0.0  # radians
+    aperture_ratio: float = 1.0  # anamorphic: the aperture is narrower across by this factor
+    # motion blur (core.lens): each sample observes at its own time of the camera's own clock
+    shutter_interval: tuple[float, float] | None = None  # seconds from the frame's observation event; None = an instant
+    shutter_curve: np.ndarray | None = None  # the shutter's openness at evenly spaced times of the interval; None = flat
+    rolling_shutter_type: str = "NONE"  # NONE, TOP (rows read out from the top down over the interval)
+    rolling_shutter_duration: float = 0.1  # the share of the interval each row is exposed (Cycles)
+
+    @property
+    def has_depth_of_field(self) -> bool:
+        return self.aperture_radius > 0.0
+
+    @property
+    def has_motion_blur(self) -> bool:
+        return self.shutter_interval is not None
 
 
 @dataclass
@@ -174,4 +193,4 @@ class RenderSettings:
     threads: int = 0  # 0 = all cores
     doppler_range: tuple[float, float] | None = None  # FACTOR display: None = the frame's own range
     doppler_levels: int = 0  # FACTOR display: quantise to N grey levels (0 = continuous)
-    passes: tuple[str, ...] | None = None  # passes to fill besides Combined (render.EXTRA_PASSES names); None = all
+    passes: tuple[str, ...] | None = None  # passes to fill besides Combined (passes.EXTRA_PASSES names); None = all

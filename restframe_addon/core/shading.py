@@ -20,13 +20,15 @@ power of D for spectral densities).  Values are in the frame they are evaluated 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import MappingProxyType
 
 import numpy as np
 
 from . import rows, sampling, spectral
 from .frames import FrameSet, shift_into_frame
+from .passes import facing_normals, hit_doppler, hit_times
 from .scene import Light, Material, Scene
-from .tracer import frames_hit, hit_geometry, occluded, trace_nearest
+from .tracer import TraceCache, frames_hit, occluded, trace_nearest
 
 MIRROR_ROUGHNESS = 0.05  # smoother surfaces reflect by traced mirror rays, rougher ones by GGX highlights
 _MIN_ALPHA = 1e-3
@@ -155,7 +157,7 @@ class Shader:
                  colour, max_bounces: int, searchlight: bool):
         self.frames = frames
         self.materials = materials
-        self.lights = lights
+        self.lights = tuple(lights)
         self.colour = colour
         self.max_bounces = max_bounces
         self.searchlight = searchlight
@@ -163,12 +165,13 @@ class Shader:
         # rounding (relative to its extent), the float64 rounding of far positions (a hundred
         # ulps), and, for the inertial segments of an accelerated body, twice the motion
         # tolerance by which neighbouring segments of the same body may disagree
-        self.epsilon = {}
+        epsilon = {}
         for k in frames.geometry:
             frame = frames.frames[k]
             reach = float(np.max(np.abs(frame.geometry.anchor))) + float(np.max(np.abs(frame.offset)))
             segment = 2.0 * frame.tolerance if frame.window is not None else 0.0
-            self.epsilon[k] = 1e-5 * frame.geometry.extent + 1e-14 * reach + segment
+            epsilon[k] = 1e-5 * frame.geometry.extent + 1e-14 * reach + segment
+        self.epsilon = MappingProxyType(epsilon)
 
     # ------------------------------------------------------------------ helpers
     def _power(self, doppler, exponent: int):
@@ -178,15 +181,17 @@ class Shader:
         return doppler ** (exponent + self.colour.extra_power)
 
     # ------------------------------------------------------------------ rays
-    def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, depth: int, pixel, sample, lam, hits=None):
+    def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, depth: int, pixel, sample, lam, hits=None,
+                 cache: TraceCache | None = None):
         """Radiance arriving at events (tau0, x0) of frame src from backward directions d,
-        at the wavelengths ``lam`` of frame src (None in RGB mode); ``hits`` if already traced.
+        at the wavelengths ``lam`` of frame src (None in RGB mode); ``hits`` if already traced;
+        ``cache``: the calling thread's :class:`~.tracer.TraceCache` (None: keep nothing).
 
         Returns (values (n, C), hits) -- the hits of this ray bundle, for the passes.
         """
         n = len(d)
         if hits is None:
-            hits = trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi)
+            hits = trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi, cache)
         values = np.empty((n, self.colour.channels))
         miss = np.flatnonzero(hits.frame < 0)
         if len(miss):
@@ -201,42 +206,27 @@ class Shader:
             sel = np.flatnonzero(hits.frame == k)
             fmap = self.frames.map(src, int(k))
             d_k, w = hits.d_frame[sel], hits.w[sel]
-            tau_hit = hits.tau_frame[sel] - hits.s_frame[sel]
+            tau_hit = hit_times(hits, sel)
             prim, u, v = hits.prim[sel], hits.u[sel], hits.v[sel]
-            if fmap.is_identity and self.frames.frames[k].spin is None:  # at rest with the viewer: D = 1
+            frame = self.frames.frames[k]
+            if fmap.is_identity and frame.spin is None:  # at rest with the viewer: D = 1
                 values[sel] = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, pixel[sel], sample[sel],
-                                                  _rows(lam, sel))
+                                                  _rows(lam, sel), cache)
                 continue
-            doppler = self.surface_doppler(int(k), prim, u, v, tau_hit, d_k) / w
+            doppler = hit_doppler(frame, prim, u, v, tau_hit, d_k, w)
             local = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, pixel[sel], sample[sel],
-                                        self.colour.shift(_rows(lam, sel), doppler))
+                                        self.colour.shift(_rows(lam, sel), doppler), cache)
             values[sel] = rows.scale(local, self._power(doppler, 4))
         return values, hits
-
-    def surface_doppler(self, k: int, prim, u, v, tau_hit, d_k):
-        """Doppler factor of the surface's own motion in frame k (1 but for spinning bodies:
-        their points move with omega x r), for light leaving along backward directions d_k."""
-        frame = self.frames.frames[k]
-        if frame.spin is None:
-            return np.ones(len(prim))
-        position, _, _ = hit_geometry(frame, prim, u, v, tau_hit)
-        velocity = frame.surface_velocity(position)
-        return np.sqrt(1.0 - rows.dot(velocity, velocity)) / (1.0 + rows.dot(velocity, d_k))
 
     def surface_info(self, k: int, prim, u, v, d_k, tau_hit=None):
         """Position, facing geometric and shading normals, and material index at hits of frame k."""
         frame = self.frames.frames[k]
-        position, ng, ns = hit_geometry(frame, prim, u, v, tau_hit)
-        back = rows.dot(ng, d_k) > 0.0
-        facing = np.where(back, -1.0, 1.0)
-        ng, ns = rows.scale(ng, facing), rows.scale(ns, facing)
-        # a shading normal turned away from the viewer falls back to the geometric one
-        away = rows.dot(ns, d_k) >= 0.0
-        ns[away] = ng[away]
+        position, ng, ns, back = facing_normals(frame, prim, u, v, d_k, tau_hit)
         material = self.materials.clamp(frame.geometry.tri_material[prim])
         return position, ng, ns, material, back
 
-    def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample, lam):
+    def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample, lam, cache):
         frame = self.frames.frames[k]
         position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau)
         uv = None
@@ -249,13 +239,14 @@ class Shader:
         if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
             values *= self.materials.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
         if self.lights:
-            values += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam)
+            values += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
         if self.materials.traces_secondary and depth < self.max_bounces:
-            values += self._secondary(k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam)
+            values += self._secondary(k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam,
+                                      cache)
         return values
 
     # ------------------------------------------------------------------ direct light
-    def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam):
+    def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache):
         mats = self.materials
         diffuse = rows.scale(base, mats.diffuse_weight[mat])
         rough = mats.glossy[mat]
@@ -276,7 +267,7 @@ class Shader:
             sel = np.flatnonzero(lit)
             if len(sel) == 0:
                 continue
-            blocked = occluded(self.frames, k, tau[sel], origin[sel], e_k[sel], eps, s_max[sel] - 2.0 * eps)
+            blocked = occluded(self.frames, k, tau[sel], origin[sel], e_k[sel], eps, s_max[sel] - 2.0 * eps, cache)
             sel = sel[~blocked]
             if len(sel) == 0:
                 continue
@@ -338,7 +329,7 @@ class Shader:
         return e_k, intensity * self._power(doppler, 4) / np.maximum(r, 1e-300) ** 2, doppler, r
 
     # ------------------------------------------------------------------ mirror and glass
-    def _secondary(self, k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam):
+    def _secondary(self, k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam, cache):
         mats = self.materials
         values = np.zeros_like(base)
         active = np.flatnonzero(mats.mirror[mat] | mats.glass[mat])
@@ -356,7 +347,8 @@ class Shader:
         eps = self.epsilon[k]
         reflected = d_a + 2.0 * cos_i[:, None] * n_a
         values[active] += reflect_weight * self._bounce(k, tau[active], position[active] + eps * ng_a, reflected,
-                                                        eps, depth, pixel[active], sample[active], _rows(lam, active))
+                                                        eps, depth, pixel[active], sample[active], _rows(lam, active),
+                                                        cache)
         refr = np.flatnonzero(np.any(transmit_weight > 0.0, axis=1))
         if len(refr):
             k2 = 1.0 - eta[refr] ** 2 * (1.0 - cos_i[refr] ** 2)
@@ -367,13 +359,13 @@ class Shader:
             idx = active[refr]
             values[idx] += transmit_weight[refr] * self._bounce(k, tau[idx], position[idx] - eps * ng_a[refr],
                                                                 transmitted, eps, depth, pixel[idx], sample[idx],
-                                                                _rows(lam, idx))
+                                                                _rows(lam, idx), cache)
         return values
 
-    def _bounce(self, k, tau, origin, d, eps, depth, pixel, sample, lam):
+    def _bounce(self, k, tau, origin, d, eps, depth, pixel, sample, lam, cache):
         if len(d) == 0:
             return np.zeros((0, self.colour.channels))
-        values, _ = self.radiance(k, tau, origin, d, eps, np.inf, depth + 1, pixel, sample, lam)
+        values, _ = self.radiance(k, tau, origin, d, eps, np.inf, depth + 1, pixel, sample, lam, cache=cache)
         return values
 
 

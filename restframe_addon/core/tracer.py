@@ -212,11 +212,39 @@ def _ray_range(frame: RestFrame, tau, origin, d, s_lo, s_hi):
     return frame.window.clip(tau, origin, d, s_lo, s_hi)
 
 
-def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> Hits:
+class TraceCache:
+    """What the tracer derives from a frame set and keeps for later bundles: the culling
+    cones of frames seen from observation events (every tile of a perspective camera shares
+    its event) and the body boxes per source frame.
+
+    Not thread-safe: each render thread (or tile) owns one and passes it explicitly; the
+    frame set itself stays read-only.
+    """
+
+    _MAX_CONES = 4096  # many observation events (animations, secondary bundles): start afresh past this
+
+    def __init__(self):
+        self._cones: dict = {}
+        self._body_boxes: dict[int, tuple] = {}
+
+    def cones(self, key, compute):
+        if key not in self._cones:
+            if len(self._cones) > self._MAX_CONES:
+                self._cones.clear()
+            self._cones[key] = compute()
+        return self._cones[key]
+
+    def body_boxes(self, frames: FrameSet, src: int):
+        if src not in self._body_boxes:
+            self._body_boxes[src] = frames.body_boxes(src)
+        return self._body_boxes[src]
+
+
+def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None = None) -> Hits:
     """The visible (most recent) hit of each backward ray, over all geometry frames.
 
     ``tau0`` (N,), ``x0`` (N, 3), ``d`` (N, 3) unit, in frame ``src``;
-    only hits with ``s_lo <= s <= s_hi`` count.
+    only hits with ``s_lo <= s <= s_hi`` count.  ``cache``: the calling thread's (None: keep nothing).
     """
     n = len(d)
     s_lo = _per_ray(s_lo, n)
@@ -229,7 +257,7 @@ def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> Hits:
         frame = frames.frames[k]
         fmap = frames.map(src, k)
         # culling by bounding cones pays off only when several frames share the rays
-        rays = _toward(frames, src, k, shared, d, bundle) if bundle is not None else None
+        rays = _toward(frames, src, k, shared, d, bundle, cache) if bundle is not None else None
         if rays is not None and len(rays) == 0:
             continue
         d_rays, lo, hi = (d, s_lo, best) if rays is None else (d[rays], s_lo[rays], best[rays])
@@ -320,7 +348,7 @@ def _shared_origin(tau0, x0):
 _CONE_SAMPLES = 16
 
 
-def _toward(frames: FrameSet, src: int, k: int, origin_event, d, bundle):
+def _toward(frames: FrameSet, src: int, k: int, origin_event, d, bundle, cache: TraceCache | None):
     """Indices of rays from one event that point into a cone subtended there by one of the
     frame's bounding spheres, or None when every ray may (the event is inside a sphere, or
     the bundle's own cone lies inside one).
@@ -328,7 +356,11 @@ def _toward(frames: FrameSet, src: int, k: int, origin_event, d, bundle):
     ``bundle`` = (axis, half-angle) of a cone holding every ray: sphere cones that miss it are
     skipped and, where one holds it whole, no ray needs testing.
     """
-    cones = _cones(frames, src, k, origin_event)
+    if cache is None:
+        cones = _cones(frames, src, k, origin_event)
+    else:
+        key = (src, k, origin_event[0], *origin_event[1].tolist())
+        cones = cache.cones(key, lambda: _cones(frames, src, k, origin_event))
     if cones is None:
         return None
     axes, spread = cones
@@ -354,16 +386,12 @@ def _bundle_cone(d):
 
 def _cones(frames: FrameSet, src: int, k: int, origin_event):
     """(axes (m, 3), half-angles (m,)) in frame src of the cones that frame k's bounding spheres
-    subtend at one event, or None when the event is inside one.  Cached per event: every tile
-    of a perspective camera shares it.
+    subtend at one event, or None when the event is inside one.
 
     Each cone is built in frame k and mapped to frame src by aberration, which maps circles
     on the sky to circles: its image is found from ``_CONE_SAMPLES`` rim directions around
     the mapped axis, widened by a margin for the sampling.
     """
-    key = (src, k, origin_event[0], *origin_event[1].tolist())
-    if key in frames.cone_cache:
-        return frames.cone_cache[key]
     frame = frames.frames[k]
     geometry = frame.geometry
     _, x_k = frames.map(src, k).events(np.array(origin_event[0]), origin_event[1])
@@ -392,21 +420,19 @@ def _cones(frames: FrameSet, src: int, k: int, origin_event):
         centre_dirs = src_dirs[:, 0]
         spread = np.max(np.arccos(np.clip(np.einsum("kij,kj->ki", src_dirs[:, 1:], centre_dirs), -1.0, 1.0)), axis=1)
         cones = centre_dirs, np.minimum(spread * 1.05 + 1e-9, np.pi)
-    if len(frames.cone_cache) > 4096:  # many observation events (animations, secondary bundles): start afresh
-        frames.cone_cache.clear()
-    frames.cone_cache[key] = cones
     return cones
 
 
-def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
-    """True where anything in any frame lies on the backward ray with s_lo <= s <= s_hi."""
+def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None = None) -> np.ndarray:
+    """True where anything in any frame lies on the backward ray with s_lo <= s <= s_hi
+    (``cache``: the calling thread's, None: keep nothing)."""
     n = len(d)
     s_lo, s_hi = _per_ray(s_lo, n), _per_ray(s_hi, n)
     blocked = np.zeros(n, dtype=bool)
     reach = _bundle_reach(tau0, x0, d, s_lo, s_hi)
     candidates = frames.candidates(src, tau0, x0)
     if reach is not None:
-        candidates = [k for k, meets in zip(candidates, _may_meet(frames, src, candidates, reach)) if meets]
+        candidates = [k for k, meets in zip(candidates, _may_meet(frames, src, candidates, reach, cache)) if meets]
     for k in candidates:
         todo = np.flatnonzero(~blocked)
         if len(todo) == 0:
@@ -455,7 +481,7 @@ def _bundle_reach(tau0, x0, d, s_lo, s_hi) -> Reach | None:
                  None if bounded else np.array(d[0]))
 
 
-def _may_meet(frames: FrameSet, src: int, ks, reach: Reach) -> np.ndarray:
+def _may_meet(frames: FrameSet, src: int, ks, reach: Reach, cache: TraceCache | None) -> np.ndarray:
     """Which of the frames ``ks`` have a body that can come within reach of the bundle (a mask)?
 
     Every body lies in a box moving uniformly in the source frame (``FrameSet.body_boxes``).
@@ -467,7 +493,8 @@ def _may_meet(frames: FrameSet, src: int, ks, reach: Reach) -> np.ndarray:
     All frames at once: a slab test per frame, vectorised.
     """
     slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
-    t_a, x_a, velocity, half = (a[slots] for a in frames.body_boxes(src))
+    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
+    t_a, x_a, velocity, half = (a[slots] for a in boxes)
     scale = 1.0 + float(np.max(np.abs(reach.hi))) + float(np.max(np.abs(reach.lo)))
     widen = half * (1.0 + 2 * _PAD) + 2 * _PAD * half.max(axis=1, keepdims=True) + 1e-9 * scale
     if reach.direction is None:

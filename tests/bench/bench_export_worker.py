@@ -21,7 +21,8 @@ def main():
 
     import restframe_addon
     from restframe_addon import export
-    from restframe_addon.core.render import Renderer, render_image
+    from restframe_addon.core.prepared import prepare
+    from restframe_addon.core.render import render_image
 
     restframe_addon.register()
     t0 = time.perf_counter()
@@ -38,19 +39,19 @@ def main():
     rss_export = rss_mb()
     settings.threads = 1
     t0 = time.perf_counter()
-    renderer = Renderer(core_scene, settings)
+    prepared = prepare(core_scene, settings)
     prepare_s = time.perf_counter() - t0
     rss_prepare = rss_mb()
-    del renderer, core_scene
+    del prepared, core_scene
     tracemalloc.start()
     core_scene, settings = export.export_scene(depsgraph, resolution=(64, 48), warn=lambda m: None)
     export_peak = tracemalloc.get_traced_memory()[1] / 2**20
     tracemalloc.reset_peak()
     settings.threads = 1
-    renderer = Renderer(core_scene, settings)
+    prepared = prepare(core_scene, settings)
     prepare_peak = tracemalloc.get_traced_memory()[1] / 2**20
     tracemalloc.stop()
-    del renderer
+    del prepared
     t0 = time.perf_counter()
     render_image(core_scene, settings)
     render_s = time.perf_counter() - t0

@@ -14,7 +14,8 @@ from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 from restframe_addon.core import spectral, tracer
 from restframe_addon.core.camera import primary_rays
-from restframe_addon.core.render import Renderer, render_image, render_tiles
+from restframe_addon.core.prepared import prepare
+from restframe_addon.core.render import render_image, render_tiles
 from restframe_addon.core.scene import Light, Material, Mesh, Scene
 
 
@@ -123,11 +124,11 @@ def run(ctx) -> Section:
     # (a) static scene vs plain tracer
     scene, build_plain = static_scene()
     s = settings(res, passes=())  # the plain tracer fills no passes either
-    plain, renderer = build_plain(), Renderer(scene, s)
+    plain, prepared = build_plain(), prepare(scene, s)
     t = interleaved({"plain": lambda: build_plain().render(scene.camera, res, s.tile_size),
                      "restframe": lambda: render_image(scene, s),
                      "plain tiles": lambda: plain.render(scene.camera, res, s.tile_size),
-                     "restframe tiles": lambda: list(render_tiles(scene, s, renderer=renderer))}, repeats)
+                     "restframe tiles": lambda: list(render_tiles(prepared))}, repeats)
     ours = t["restframe"]["result"]["Combined"][..., :3]
     ref = t["plain"]["result"]
     diff = np.abs(ours - ref)

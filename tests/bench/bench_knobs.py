@@ -197,8 +197,8 @@ def against_analytic_ball(scene, s, bound: float) -> dict:
     original = shading.occluded
     shadow, seen = [], {}
 
-    def recording(frames, src, tau0, x0, d, s_lo, s_hi):
-        blocked = original(frames, src, tau0, x0, d, s_lo, s_hi)
+    def recording(frames, src, tau0, x0, d, s_lo, s_hi, cache=None):
+        blocked = original(frames, src, tau0, x0, d, s_lo, s_hi, cache)
         seen["frames"] = frames
         if frames.frames[src].window is not None:
             to_world = frames.map(src, frames.world)

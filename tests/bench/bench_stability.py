@@ -15,7 +15,8 @@ import numpy as np
 
 from bench_common import Goal, Section, ball_scene, look_at_camera, rel_rmse, settings, uv_sphere
 from restframe_addon.core.lorentz import Boost, compose_velocities
-from restframe_addon.core.render import Renderer, render_image
+from restframe_addon.core.prepared import prepare
+from restframe_addon.core.render import render_image
 from restframe_addon.core.scene import Mesh, Scene, Velocity
 from restframe_addon.core.tracer import trace_nearest
 
@@ -176,17 +177,17 @@ def doppler_errors(kind, value, res, camera_beta=(0.0, 0.0, 0.0)):
     scene = Scene(camera=camera, meshes=[Mesh("shell", v, t, velocity=velocity, pivot=(0, 0, 0))])
     s = settings(res)
     passes = render_image(scene, s)
-    renderer = Renderer(scene, s)
+    prepared = prepare(scene, s)
     ys, xs = np.mgrid[0:res[1], 0:res[0]]
-    tau, x, d, s_lo, s_hi = renderer._camera_rays(xs.ravel() + 0.5, ys.ravel() + 0.5)
-    hits = trace_nearest(renderer.frames, renderer.frames.camera, tau, x, d, s_lo, s_hi)
+    tau, x, d, s_lo, s_hi = prepared.rays(xs.ravel() + 0.5, ys.ravel() + 0.5)
+    hits = trace_nearest(prepared.frames, prepared.frames.camera, tau, x, d, s_lo, s_hi)
     d64 = 1.0 / hits.w
     d32 = passes["Doppler"][..., 0].ravel()
-    wall_boost = renderer.frames.frames[hits.frame[hits.frame >= 0][0]].boost if np.any(hits.frame >= 0) else None
+    wall_boost = prepared.frames.frames[hits.frame[hits.frame >= 0][0]].boost if np.any(hits.frame >= 0) else None
     if wall_boost is None:
         return None
     _, wall_ref = make_boost(kind, value, axis=np.array([0.0, -1.0, 0.0]))
-    cam_boost = renderer.frames.frames[renderer.frames.camera].boost
+    cam_boost = prepared.frames.frames[prepared.frames.camera].boost
     cam_ref = None
     if not cam_boost.is_identity:
         # camera frame -> S: the inverse camera boost (velocity -beta_c), then S -> wall frame

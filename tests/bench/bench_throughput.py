@@ -13,9 +13,10 @@ import numpy as np
 
 from bench_common import (ROOT, Goal, Section, ball_scene, box, interleaved, look_at_camera, settings, timed,
                           uv_sphere)
-from restframe_addon.core.render import Renderer, render_image
+from restframe_addon.core.prepared import PreparedScene, prepare
+from restframe_addon.core.render import render_image
 from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity
-from restframe_addon.core.tracer import trace_nearest
+from restframe_addon.core.tracer import TraceCache, trace_nearest
 
 TILE = RenderSettings().tile_size  # the renderer's default tile (128: 16384 rays per batch)
 
@@ -25,23 +26,24 @@ def tiles(res, size=TILE):
             for y in range(0, res[1], size) for x in range(0, res[0], size)]
 
 
-def pipeline_primary(renderer: Renderer, rects):
+def pipeline_primary(prepared: PreparedScene, rects):
     """What the renderer does for primary visibility: camera rays per tile, then trace_nearest."""
+    cache = TraceCache()  # as a render thread keeps it
     hit = 0
     for rect in rects:
-        tau, x, d, s_lo, s_hi = renderer.centre_rays(rect)
-        hits = trace_nearest(renderer.frames, renderer.frames.camera, tau, x, d, s_lo, s_hi)
+        tau, x, d, s_lo, s_hi = prepared.centre_rays(rect)
+        hits = trace_nearest(prepared.frames, prepared.frames.camera, tau, x, d, s_lo, s_hi, cache)
         hit += int(np.count_nonzero(hits.frame >= 0))
     return hit
 
 
-def raw_batches(renderer: Renderer, rects):
+def raw_batches(prepared: PreparedScene, rects):
     """The same camera rays, mapped into each geometry frame once and stored as embree's float32
     input: the floor is one ``embree.run`` per tile and frame with nothing else around it."""
-    frames = renderer.frames
+    frames = prepared.frames
     batches = []
     for rect in rects:
-        tau, x, d, _, _ = renderer.centre_rays(rect)
+        tau, x, d, _, _ = prepared.centre_rays(rect)
         for k in frames.geometry:
             fmap = frames.map(frames.camera, k)
             _, origin = fmap.events(tau, x)
@@ -63,17 +65,17 @@ def raw_primary(batches):
 
 def primary_study(name, scene, res, repeats):
     s = settings(res)
-    renderer = Renderer(scene, s)
+    prepared = prepare(scene, s)
     rects = tiles(res)
-    batches = raw_batches(renderer, rects)
+    batches = raw_batches(prepared, rects)
     t = interleaved({
         "raw": lambda: raw_primary(batches),
-        "pipeline": lambda: pipeline_primary(renderer, rects),
+        "pipeline": lambda: pipeline_primary(prepared, rects),
         "render": lambda: render_image(scene, s),
     }, repeats)
     n = res[0] * res[1]
     tris = sum(len(m.triangles) for m in scene.meshes)
-    return {"name": name, "rays": n, "frames": len(renderer.frames.geometry), "triangles": tris,
+    return {"name": name, "rays": n, "frames": len(prepared.frames.geometry), "triangles": tris,
             "raw": t["raw"]["min"], "pipeline": t["pipeline"]["min"], "render": t["render"]["min"],
             "raw_hits": t["raw"]["result"], "pipe_hits": t["pipeline"]["result"]}
 
@@ -102,7 +104,7 @@ def frames_study(res, repeats):
     many = [0.05 + 0.08 * i for i in range(11)]
     s = settings(res)
     scene1, scene11 = bars_scene(one), bars_scene(many)
-    r1, r11 = Renderer(scene1, s), Renderer(scene11, s)
+    r1, r11 = prepare(scene1, s), prepare(scene11, s)
     rects = tiles(res)
     funcs = {
         "trace 1 frame": lambda: pipeline_primary(r1, rects),
@@ -127,10 +129,10 @@ def triangle_study(segments_list, res, repeats, ctx):
     for segments in segments_list:
         scene = sphere_scene(segments, beta=0.5)
         s = settings(res)
-        build, renderer = timed(lambda: Renderer(scene, s))
+        build, prepared = timed(lambda: prepare(scene, s))
         rects = tiles(res)
-        batches = raw_batches(renderer, rects)
-        t = interleaved({"raw": lambda: raw_primary(batches), "pipeline": lambda: pipeline_primary(renderer, rects),
+        batches = raw_batches(prepared, rects)
+        t = interleaved({"raw": lambda: raw_primary(batches), "pipeline": lambda: pipeline_primary(prepared, rects),
                          "render": lambda: render_image(scene, s)}, repeats)
         tris = len(scene.meshes[0].triangles)
         n = res[0] * res[1]
@@ -166,8 +168,8 @@ def raw_thread_study(repeats, res):
 
     v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, 256, 128)
     scene = Scene(camera=look_at_camera((0, -3, 0), (0, 0, 0)), meshes=[Mesh("ball", v, t)])
-    renderer = Renderer(scene, settings(res))
-    batches = raw_batches(renderer, tiles(res))
+    prepared = prepare(scene, settings(res))
+    batches = raw_batches(prepared, tiles(res))
 
     def two():
         halves = [batches[0::2], batches[1::2]]
@@ -248,7 +250,7 @@ def run(ctx) -> Section:
     sec.goals.append(Goal("primary rays: pipeline / raw embreex", ">= 0.8", f"{worst:.2f} (worst case)", worst >= 0.8,
                           "see hotspots"))
     scene0 = cases[0][1]
-    renderer0 = Renderer(scene0, settings(res))
+    prepared0 = prepare(scene0, settings(res))
     rects0 = tiles(res)
     sec.add(f"Where the time goes (cProfile, {cases[0][0]}, {res[0]}x{res[1]}): own time of the top functions as a "
             "share of the whole call (cumulative share in the last column). embreex's Cython `run` is not seen by "
@@ -259,7 +261,7 @@ def run(ctx) -> Section:
     sec.add("Primary visibility (pipeline):")
     sec.add("")
     sec.table(["function", "own time", "cumulative"],
-              [[r[0], f"{100 * r[1]:.0f}%", f"{100 * r[2]:.0f}%"] for r in hotspots(lambda: pipeline_primary(renderer0, rects0))])
+              [[r[0], f"{100 * r[1]:.0f}%", f"{100 * r[2]:.0f}%"] for r in hotspots(lambda: pipeline_primary(prepared0, rects0))])
     sec.add("render_image (threads=1):")
     sec.add("")
     sec.table(["function", "own time", "cumulative"],
@@ -290,7 +292,7 @@ def run(ctx) -> Section:
     sec.add("### Triangles")
     sec.add("")
     sec.add(f"A sphere moving at 0.5c filling most of a {res_t[0]}x{res_t[1]} view (1 point light), "
-            "tessellated from 1e3 to 1e6 triangles; build = `Renderer(...)` (frames, embree BVH); rates in "
+            "tessellated from 1e3 to 1e6 triangles; build = `prepare(...)` (frames, embree BVH); rates in "
             "million camera rays per second, one thread.")
     sec.add("")
     rows = triangle_study(seg, res_t, repeats, ctx)
@@ -357,7 +359,7 @@ def run(ctx) -> Section:
     e = export_study(sub)
     sec.add(f"A grid primitive with {sub} subdivisions ({e['triangles']:,} triangles, moving at 0.5c), a camera "
             "and a point light built with bpy in a fresh subprocess; `restframe_addon.export.export_scene` on the "
-            "evaluated depsgraph, then `Renderer(...)` (frames + embree BVH), then a 64x48 render_image, one thread. "
+            "evaluated depsgraph, then `prepare(...)` (frames + embree BVH), then a 64x48 render_image, one thread. "
             "Times are untraced; the steps are then repeated under tracemalloc for the peak of Python/numpy "
             "allocations (tracemalloc itself slows them 7-20x, so it is never timed); peak RSS = the worker's "
             "VmHWM (embree's BVH is not seen by tracemalloc but is in the RSS).")
@@ -365,7 +367,7 @@ def run(ctx) -> Section:
     sec.table(["step", "time (s)", "tracemalloc peak (MB)", "peak RSS after the timed step (MB)"],
               [["scene built with bpy", e["build_s"], "-", e["rss_built_mb"]],
                ["export_scene", e["export_s"], e["export_peak_mb"], e["rss_export_mb"]],
-               ["Renderer (frames, BVH)", e["prepare_s"], e["prepare_peak_mb"], e["rss_prepare_mb"]],
+               ["prepare (frames, BVH)", e["prepare_s"], e["prepare_peak_mb"], e["rss_prepare_mb"]],
                ["render_image 64x48 (its own preparation included)", e["render_s"], "-", e["rss_render_mb"]]])
     for k in ("export_s", "prepare_s", "export_peak_mb", "prepare_peak_mb", "rss_render_mb"):
         sec.number(f"export_{k}", e[k])

@@ -190,7 +190,7 @@ def test_cancel_during_export_renders_nothing(scene, monkeypatch):
             raise
 
     monkeypatch.setattr(engine.export, "export_scene", spy_export)
-    monkeypatch.setattr(engine, "Renderer", lambda *args: outcomes.append("traced"))
+    monkeypatch.setattr(engine, "prepare", lambda *args: outcomes.append("traced"))
     monkeypatch.setattr(RestframeRenderEngine, "should_stop", lambda self: True)
     # (no write_still: Blender itself skips writing a cancelled frame)
     assert bpy.ops.render.render() == {'FINISHED'}

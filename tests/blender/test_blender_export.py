@@ -1,13 +1,16 @@
 """Export of the evaluated depsgraph into the core's scene description."""
 
 import math
+import os
+import subprocess
+import sys
 
 import bpy
 import numpy as np
 import pytest
 
 from blender_helpers import add_camera, add_plane, evaluated, export_now
-from restframe_addon import export
+from restframe_addon import export, motion_query
 
 
 def by_name(meshes, name):
@@ -292,7 +295,7 @@ def test_observation_time_uses_subframes_and_fps_base(scene):
     scene.frame_set(25, subframe=0.5)
     fps_base = scene.render.fps_base  # stored in single precision
     assert fps_base == pytest.approx(1.001, rel=1e-7)
-    assert export.observation_time(scene) == pytest.approx(15.5 * fps_base / 30, rel=1e-15)
+    assert motion_query.observation_time(scene) == pytest.approx(15.5 * fps_base / 30, rel=1e-15)
     add_camera(scene)
     out, _, _ = export_now(scene)
     assert out.tau_obs == pytest.approx(4.0 * 15.5 * 1.001 / 30, rel=1e-7)
@@ -338,7 +341,7 @@ def test_keyframed_location_with_velocity_warns(scene):
     still.keyframe_insert("location", frame=1)  # animated but not moving relativistically: fine
     _, _, warnings = export_now(scene)
     assert len(warnings) == 1 and warnings[0].startswith("Jumper: ") and "keyframed location" in warnings[0]
-    assert export.has_animated_location(plane) and export.has_animated_location(still)
+    assert motion_query.has_animated_location(plane) and motion_query.has_animated_location(still)
 
 
 def test_cancel_stops_the_export(scene):
@@ -354,3 +357,12 @@ def test_cancel_stops_the_export(scene):
     with pytest.raises(export.ExportCancelled):
         export_now(scene, should_stop=stop_on_second_check)
     assert len(calls) == 2
+
+
+def test_the_ui_answers_motion_questions_without_the_exporter():
+    """ui.py asks motion_query (and the core's checks), never the export package."""
+    code = ("import sys, restframe_addon.ui; "
+            "print(sorted(m for m in sys.modules if m.startswith('restframe_addon.export')))")
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    result = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=True)
+    assert result.stdout.strip().splitlines()[-1] == "[]"

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from blender_helpers import add_camera, add_plane, add_sun, render_exr, export_now
-from restframe_addon import export
+from restframe_addon import export, motion_query
+from restframe_addon.export.motion import SUBFRAMES
 
 FPS = 24
 
@@ -19,7 +20,7 @@ def key_linear_path(obj, start, beta, c, frames=(1, 25)):
         obj.location = tuple(np.asarray(start) + np.asarray(beta) * c * t)
         obj.keyframe_insert("location", frame=frame)
     action = obj.animation_data.action
-    fcurves = export._fcurves(action, getattr(obj.animation_data, "action_slot", None))
+    fcurves = motion_query.fcurves(action, getattr(obj.animation_data, "action_slot", None))
     for fc in fcurves:
         fc.extrapolation = 'LINEAR'
         for point in fc.keyframe_points:
@@ -70,7 +71,7 @@ def test_trajectory_samples_cover_the_light_travel_time_without_changing_the_fra
     np.testing.assert_allclose(mesh.pivot, plane.matrix_world.translation, atol=1e-12)
     # light from 12 units away takes 1.2 s = 28.8 frames: the samples start earlier than that
     assert traj.frames[0] <= 1 - 28.8 and traj.frames[-1] >= 7
-    assert np.all(np.diff(traj.frames) <= 1.0 / export.SUBFRAMES + 1e-9)
+    assert np.all(np.diff(traj.frames) <= 1.0 / SUBFRAMES + 1e-9)
     t = (traj.frames - scene.restframe.reference_frame) / FPS
     np.testing.assert_allclose(traj.tau, 10.0 * t)
     np.testing.assert_allclose(traj.position[:, 0], 0.5 * 10.0 * t, atol=1e-4)  # extrapolated linearly
@@ -93,6 +94,58 @@ def test_parent_is_static_and_composed(scene):
     state = traj.position[np.argmin(abs(traj.frames - 13))]
     np.testing.assert_allclose(state, (0.0, 5.5, 0.0), atol=1e-5)
     assert warnings == []
+
+
+def test_a_keyed_sharp_turn_is_rounded_for_the_whole_assembly_and_warned(scene, capfd):
+    """The world line is built for the body it carries: its corners are rounded for the
+    assembly's radius (a child included), and a turn too sharp for its samples is reported."""
+    scene.render.fps, scene.render.fps_base = FPS, 1.0
+    add_camera(scene, location=(0.0, 0.0, 12.0))
+    add_sun(scene)
+    body = add_plane(scene, "Turner", size=2.0)
+    for frame, location in ((1, (0.0, 0.0, 0.0)), (13, (3.0, 0.0, 0.0)), (25, (3.0, 3.0, 0.0))):
+        body.location = location  # 3 units in half a second at c = 10: 0.6 c along x, then along y
+        body.keyframe_insert("location", frame=frame)
+    for fc in motion_query.fcurves(body.animation_data.action, getattr(body.animation_data, "action_slot", None)):
+        for point in fc.keyframe_points:
+            point.interpolation = 'LINEAR'
+    arm = add_plane(scene, "Arm", size=1.0, location=(3.0, 0.0, 1.0))
+    arm.parent = body  # moves with the body (same Motion): its far corner sets the radius
+    body.restframe.motion = arm.restframe.motion = 'ANIMATION'
+    scene.frame_set(20)
+    out, _, warnings = export_now(scene)
+    turner, arm_mesh = sorted(out.meshes, key=lambda m: m.name, reverse=True)
+    traj = turner.trajectory
+    assert arm_mesh.trajectory is traj and arm_mesh.pivot == pytest.approx(turner.pivot)
+    radius = math.sqrt(3.5**2 + 0.5**2 + 1.0**2)  # the arm's corner (3.5, 0.5, 1) from the pivot
+    assert traj.body_radius == pytest.approx(radius, rel=1e-6)
+    # the 90 degree turn at frame 13 changes gamma*beta by 0.75*sqrt(2): it wants a corner of
+    # c*t = gamma * radius * |du| = 4.9 but the samples (1/8 frame = 0.052 apart) leave far less
+    at_turn = np.abs(traj.frames[1:-1] - 13.0) < 0.2
+    assert np.all(traj.half[at_turn] > 0.0) and traj.half[at_turn].max() == pytest.approx(0.5 * 10 / FPS / SUBFRAMES)
+    assert any(w.startswith("Turner: the turn at frame 13") and f"radius {radius:.3g}" in w and "too sharp" in w
+               for w in traj.warnings)
+    assert warnings == []  # the world line's own warnings reach the user once, from the render:
+    capfd.readouterr()
+    bpy.ops.render.render()
+    reported = capfd.readouterr().out
+    assert "Warning: RESTframe: Turner: the turn at frame 13" in reported and "too sharp" in reported
+
+
+def test_an_animated_body_with_a_nan_corner_gets_the_radius_of_its_finite_vertices(scene, tmp_path):
+    add_camera(scene, location=(0.0, 0.0, 12.0))
+    add_sun(scene)
+    mesh = bpy.data.meshes.new("Shard")
+    mesh.from_pydata([(0, 0, 0), (2, 0, 0), (0, 1, 0), (math.nan, 0, 0)], [], [(0, 1, 2), (0, 2, 3)])
+    shard = bpy.data.objects.new("Shard", mesh)
+    scene.collection.objects.link(shard)
+    key_linear_path(shard, (0, 0, 0), (0.5, 0, 0), scene.restframe.light_speed)
+    shard.restframe.motion = 'ANIMATION'
+    scene.frame_set(30)  # about the light travel time from the shard to the camera: seen near the origin
+    out, _, _ = export_now(scene)
+    assert out.meshes[0].trajectory.body_radius == 2.0
+    passes = render_exr(scene, tmp_path / "shard.exr")
+    assert np.all(np.isfinite(passes["Combined"])) and (passes["Doppler"] > 0).any()
 
 
 def test_faster_than_light_animation_is_refused_naming_object_and_frames(scene):
@@ -166,7 +219,7 @@ def test_keyframed_emission_is_seen_on_the_emitters_own_clock(scene, tmp_path):
         strength.default_value = value
         strength.keyframe_insert("default_value", frame=frame)
     animation = mat.node_tree.animation_data
-    for fc in export._fcurves(animation.action, getattr(animation, "action_slot", None)):
+    for fc in motion_query.fcurves(animation.action, getattr(animation, "action_slot", None)):
         fc.extrapolation = 'LINEAR'
         for point in fc.keyframe_points:
             point.interpolation = 'LINEAR'

@@ -48,6 +48,7 @@ def test_zip_has_only_its_platforms_wheels(extension_zips, platform):
         names = archive.namelist()
         manifest = tomllib.loads(archive.read("blender_manifest.toml").decode())
     assert "__init__.py" in names and "restframe_addon/engine.py" in names and "restframe_addon/core/render.py" in names
+    assert "restframe_addon/export/scene.py" in names and "restframe_addon/motion_query.py" in names
     assert not [n for n in names if n.startswith(("tests/", "sample_blends/", "tools/", "docs/", ".ci/", ".git"))]
     wheels = sorted(n for n in names if n.startswith("wheels/"))
     assert len(wheels) == 2

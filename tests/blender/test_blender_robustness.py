@@ -86,8 +86,8 @@ def test_degenerate_and_nan_geometry_renders_with_a_warning(scene, tmp_path):
     passes = render_exr(scene, tmp_path / "bad.exr")
     assert np.all(np.isfinite(passes["Combined"])) and (passes["Doppler"] > 0).sum() > 20
     out, settings, _ = export_now(scene)
-    from restframe_addon.core.render import Renderer
-    warnings = Renderer(out, settings).warnings
+    from restframe_addon.core.prepared import prepare
+    warnings = prepare(out, settings).warnings
     assert any(w.startswith("Bad: skipped") for w in warnings)
 
 

@@ -62,7 +62,7 @@ def test_render_panels_draw_every_setting(scene):
     context = context_for(scene)
     shown = set()
     for panel in (ui.RESTFRAME_RENDER_PT_relativity, ui.RESTFRAME_RENDER_PT_sampling, ui.RESTFRAME_RENDER_PT_doppler,
-                  ui.RESTFRAME_RENDER_PT_film, ui.RESTFRAME_RENDER_PT_performance):
+                  ui.RESTFRAME_RENDER_PT_motion_blur, ui.RESTFRAME_RENDER_PT_film, ui.RESTFRAME_RENDER_PT_performance):
         shown |= set(draw(panel, context).get("props", []))
     settings = set(scene.restframe.bl_rna.properties.keys()) - {"rna_type", "name"}
     assert settings <= shown

@@ -412,6 +412,7 @@ def test_blas_runs_on_one_thread_while_tiles_render_and_is_restored_after():
     import sys
 
     from restframe_addon.core import blas
+    from restframe_addon.core.prepared import prepare
     from restframe_addon.core.render import render_tiles
 
     controls = blas._openblas()
@@ -423,7 +424,7 @@ def test_blas_runs_on_one_thread_while_tiles_render_and_is_restored_after():
     v, t = quad((0.0, 5.0, 0.0), (4.0, 4.0), normal_axis=1)
     scene = Scene(camera=look_at_camera((0, 0, 0), (0, 1, 0)), meshes=[Mesh("wall", v, t)])
     seen = []
-    for tile in render_tiles(scene, settings((8, 8), tile_size=4, threads=2)):
+    for tile in render_tiles(prepare(scene, settings((8, 8), tile_size=4, threads=2))):
         seen.append(get_threads())
     assert seen == [1, 1, 1, 1]
     assert get_threads() == before

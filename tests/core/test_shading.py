@@ -199,7 +199,7 @@ def test_culled_shadow_rays_block_exactly_as_unculled_ones(monkeypatch, sun):
     monkeypatch.setattr(tracer, "_may_meet", lambda *a: queried.extend(original(*a)) or original(*a))
     bundles = [slice(i, i + 40) for i in range(0, n, 40)]
     culled = np.concatenate([tracer.occluded(frames, src, tau0[b], x0[b], d[b], 1e-6, s_hi[b]) for b in bundles])
-    monkeypatch.setattr(tracer, "_may_meet", lambda frames, src, ks, reach: np.ones(len(ks), dtype=bool))
+    monkeypatch.setattr(tracer, "_may_meet", lambda frames, src, ks, reach, cache: np.ones(len(ks), dtype=bool))
     full = np.concatenate([tracer.occluded(frames, src, tau0[b], x0[b], d[b], 1e-6, s_hi[b]) for b in bundles])
     np.testing.assert_array_equal(culled, full)
     assert 0 < np.count_nonzero(full) < n

@@ -8,7 +8,8 @@ import pytest
 from shapes import look_at_camera, quad, uv_sphere
 
 from restframe_addon.core import spectral
-from restframe_addon.core.render import Renderer, render_image
+from restframe_addon.core.prepared import prepare
+from restframe_addon.core.render import render_image
 from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity
 
 with warnings.catch_warnings():
@@ -101,7 +102,7 @@ def emitter_scene(beta, k=470, searchlight=True, color=(1.0, 1.0, 1.0), distance
 def centre_values(renderer):
     """Spectral radiance (K,) of the centre camera ray, at the quadrature wavelengths."""
     pixel = np.array([4])
-    tau, x, d, s_lo, s_hi = renderer._camera_rays(np.array([1.5]), np.array([1.5]))
+    tau, x, d, s_lo, s_hi = renderer.rays(np.array([1.5]), np.array([1.5]))
     lam = renderer.colour.camera_wavelengths(pixel, pixel * 0)
     values, hits = renderer.shader.radiance(renderer.frames.camera, tau, x, d, s_lo, s_hi, 0, pixel, pixel * 0, lam)
     return values[0], lam[0], 1.0 / hits.w[0]
@@ -143,7 +144,7 @@ def test_flat_spectra_scale_as_d5_d3_and_the_total_as_d4(beta):
         seen = []
         for b in (0.0, beta):
             scene, settings = emitter_scene(b)
-            renderer = Renderer(scene, settings)
+            renderer = prepare(scene, settings)
             renderer.colour.emission = lambda mat, lam, f=spectrum: f(lam)
             values, lam, doppler = centre_values(renderer)
             seen.append(values @ y_bar)
@@ -153,7 +154,7 @@ def test_flat_spectra_scale_as_d5_d3_and_the_total_as_d4(beta):
     totals = []
     for b in (0.0, beta):
         scene, settings = emitter_scene(b)
-        renderer = Renderer(scene, settings)
+        renderer = prepare(scene, settings)
         renderer.colour.emission = lambda mat, lam: line(lam)
         values, lam, _ = centre_values(renderer)
         totals.append(values.sum() * 1.0)  # 1 nm nodes
@@ -166,7 +167,7 @@ def test_monochrome_emitter_moves_along_the_spectral_locus(target_d):
     """A narrow line at 550 nm seen with Doppler factor D has the chromaticity of the locus at 550/D."""
     beta = (target_d**2 - 1) / (target_d**2 + 1)
     scene, settings = emitter_scene(beta)
-    renderer = Renderer(scene, settings)
+    renderer = prepare(scene, settings)
     renderer.colour.emission = lambda mat, lam: np.exp(-0.5 * ((lam - 550.0) / 3.0) ** 2)
     values, lam, d = centre_values(renderer)
     assert d == pytest.approx(target_d, rel=1e-9)

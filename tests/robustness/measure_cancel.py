@@ -41,7 +41,7 @@ def main():
         return wrapper
 
     engine.export.export_scene = staged("export", engine.export.export_scene)
-    engine.Renderer = staged("building frames and BVH", engine.Renderer)
+    engine.prepare = staged("building frames and BVH", engine.prepare)
     engine.render_tiles = staged("tiles", engine.render_tiles)
     for at in args.at:
         state.update(start=time.monotonic(), seen=None, stages=[])

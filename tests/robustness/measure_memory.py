@@ -3,7 +3,7 @@
     tools/dev.sh tests/robustness/measure_memory.py [--tiles N] [--subdivisions 708]
 
 Builds a 1,002,528-triangle grid moving at 0.5c with bpy, exports it (export_scene), prepares it
-(Renderer: rest frames, embree BVH) and streams the 3840x2160 frame's 64x64 tiles at 16 samples,
+(prepare: rest frames, embree BVH) and streams the 3840x2160 frame's 64x64 tiles at 16 samples,
 one thread, exactly as the render engine does (tiles go to Blender's render result, never into one
 big array).  ``--tiles N`` stops after N tiles (0 = the whole frame): memory per tile is constant, so
 the peak after a few hundred tiles is the peak of the frame; the script prints the RSS after every
@@ -33,7 +33,9 @@ def main():
 
     import restframe_addon
     from restframe_addon import export
-    from restframe_addon.core.render import ALL_PASSES, Renderer, render_tiles
+    from restframe_addon.core.passes import ALL_PASSES
+    from restframe_addon.core.prepared import prepare
+    from restframe_addon.core.render import render_tiles
 
     restframe_addon.register()
     t0 = time.perf_counter()
@@ -50,13 +52,13 @@ def main():
     triangles = sum(len(m.triangles) for m in core_scene.meshes)
     print(f"export: {triangles} triangles, {time.perf_counter() - t0:.1f} s, peak {rss_mb():.0f} MB", flush=True)
     t0 = time.perf_counter()
-    renderer = Renderer(core_scene, settings)
+    prepared = prepare(core_scene, settings)
     print(f"prepare (frames, BVH): {time.perf_counter() - t0:.1f} s, peak {rss_mb():.0f} MB", flush=True)
-    total = len(renderer.tiles())
+    total = len(prepared.tiles())
     limit = args.tiles or total
     t0 = time.perf_counter()
     count = 0
-    for tile in render_tiles(core_scene, settings, lambda: count >= limit, renderer):
+    for tile in render_tiles(prepared, lambda: count >= limit):
         count += 1
         if count in (1, 10) or count % 100 == 0 or count == limit:
             print(f"tile {count}/{total}: {time.perf_counter() - t0:.1f} s, rss {rss_mb('VmRSS:'):.0f} MB, "

@@ -16,16 +16,17 @@ for path in (HERE.parents[1], HERE, HERE.parent / "core"):
 
 from test_robustness_core import many_velocities_scene, settings  # noqa: E402
 
-from restframe_addon.core.render import Renderer, render_tiles  # noqa: E402
+from restframe_addon.core.prepared import prepare  # noqa: E402
+from restframe_addon.core.render import render_tiles  # noqa: E402
 
 
 def main(counts):
     for count in counts:
         scene = many_velocities_scene(count)
         started = time.perf_counter()
-        renderer = Renderer(scene, settings((32, 32)))
+        prepared_scene = prepare(scene, settings((32, 32)))
         prepared = time.perf_counter()
-        list(render_tiles(scene, settings((32, 32)), renderer=renderer))
+        list(render_tiles(prepared_scene))
         print(f"{count} velocities: prepare {prepared - started:.2f} s, 32x32 render {time.perf_counter() - prepared:.2f} s")
 
 

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from restframe_addon.core.render import Renderer, RenderError, render_image, render_tiles
+from restframe_addon.core.prepared import prepare
+from restframe_addon.core.render import RenderError, render_image, render_tiles
 from restframe_addon.core.scene import Light, Mesh, RenderSettings, Scene, Velocity
 from shapes import box, look_at_camera, quad, uv_sphere
 
@@ -70,7 +71,7 @@ def test_huge_resolution_renders_a_border_region_in_bounded_memory():
     centre = res[0] // 2
     region = (centre - 16, centre - 16, centre + 16, centre + 16)
     before = _rss_mb()
-    tiles = list(render_tiles(scene, settings(res, region=region, tile_size=16)))
+    tiles = list(render_tiles(prepare(scene, settings(res, region=region, tile_size=16))))
     assert _rss_mb() - before < 200  # the full image's passes alone would be 560 GB
     assert len(tiles) == 4
     for tile in tiles:
@@ -103,7 +104,7 @@ def test_odd_geometry_renders_or_is_skipped_with_a_warning():
         Mesh("Wall", v + (0, 3, 0), t, velocity=Velocity((0.5, 0, 0))),
     ]
     scene = Scene(camera=look_at_camera((0, -6, 0), (0, 0, 0)), meshes=meshes, lights=[lamp()])
-    renderer = Renderer(scene, settings())
+    renderer = prepare(scene, settings())
     assert any(w.startswith("NaN: skipped 2 triangles") for w in renderer.warnings)
     assert any(w.startswith("BadIndex: skipped 1 triangles") for w in renderer.warnings)
     passes = render_image(scene, settings())
@@ -191,9 +192,9 @@ def test_a_thousand_distinct_velocities_finish():
     """1000 small quads, each with its own velocity (1000 rest frames): prepared and rendered (the time
     it takes is measured by tests/robustness/measure_velocities.py, not asserted)."""
     scene = many_velocities_scene(1000)
-    renderer = Renderer(scene, settings((8, 8)))
+    renderer = prepare(scene, settings((8, 8)))
     assert len(renderer.frames.frames) >= 1000
-    (tile,) = render_tiles(scene, settings((8, 8)), renderer=renderer)  # (a second Renderer: 2000 embree devices)
+    (tile,) = render_tiles(renderer)
     assert_sane(tile.passes)
 
 
@@ -201,8 +202,8 @@ _MANY = """
 import sys
 sys.path[:0] = {paths!r}
 from test_robustness_core import many_velocities_scene, settings
-from restframe_addon.core.render import Renderer
-renderer = Renderer(many_velocities_scene(2000), settings((8, 8)))
+from restframe_addon.core.prepared import prepare
+renderer = prepare(many_velocities_scene(2000), settings((8, 8)))
 print(len(renderer.frames.frames))
 """
 

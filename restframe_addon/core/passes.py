@@ -1,0 +1,130 @@
+"""The render passes: their table, and the per-hit quantities they (and the shading) are made of.
+
+Every pass but Combined holds one exact value of the pixel-centre ray (no sample averaging),
+so that it can be quoted: the Doppler factor D of the surface seen there (the frame's, times
+a spinning surface's own), the world time the light left it, the surface's own clock then,
+its depth, facing normal and object index.  The shading uses the same D (:func:`hit_doppler`)
+and normals (:func:`facing_normals`): one formula for each.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import rows
+from .frames import FrameSet, RestFrame
+from .tracer import Hits, frames_hit, hit_geometry
+
+
+@dataclass(frozen=True)
+class Pass:
+    """One render pass: its name, its channel ids (Blender's letters) and their kind."""
+
+    name: str
+    channels: str
+    kind: str  # 'COLOR', 'VALUE' or 'VECTOR' (Blender's pass types)
+    own: bool = False  # RESTframe's own pass (always filled); else one Blender has (filled where enabled)
+
+
+# The order is the order passes are listed in and registered with Blender.
+TABLE = (
+    Pass("Combined", "RGBA", "COLOR"),
+    Pass("Doppler", "X", "VALUE", own=True),
+    Pass("Emission Time", "X", "VALUE", own=True),
+    Pass("Object Time", "X", "VALUE", own=True),
+    Pass("Depth", "Z", "VALUE"),
+    Pass("Normal", "XYZ", "VECTOR"),
+    Pass("IndexOB", "X", "VALUE"),
+)
+BY_NAME = {p.name: p for p in TABLE}
+PASSES = {p.name: len(p.channels) for p in TABLE if p.own}  # RESTframe's own (Depth, Normal, IndexOB are Blender's)
+EXTRA_PASSES = {p.name: len(p.channels) for p in TABLE if p.name != "Combined"}  # what RenderSettings.passes may ask for
+ALL_PASSES = {p.name: len(p.channels) for p in TABLE}
+
+_MISS_DEPTH = 1e10  # Blender's depth of the background
+
+
+def hit_times(hits: Hits, sel) -> np.ndarray:
+    """Frame times of the hit events of some rays (hit frame coordinates: start time minus path length)."""
+    return hits.tau_frame[sel] - hits.s_frame[sel]
+
+
+def surface_doppler(frame: RestFrame, prim, u, v, tau_hit, d_k) -> np.ndarray:
+    """Doppler factor of the surface's own motion in its frame (1 but for spinning bodies:
+    their points move with omega x r), for light leaving along backward directions d_k."""
+    if frame.spin is None:
+        return np.ones(len(prim))
+    position, _, _ = hit_geometry(frame, prim, u, v, tau_hit)
+    velocity = frame.surface_velocity(position)
+    return np.sqrt(1.0 - rows.dot(velocity, velocity)) / (1.0 + rows.dot(velocity, d_k))
+
+
+def hit_doppler(frame: RestFrame, prim, u, v, tau_hit, d_k, w) -> np.ndarray:
+    """Doppler factor D of the light of hits of one frame as seen by the rays' source: the
+    surface's own factor over the path-length ratio w = s_frame / s (1/D between the frames)."""
+    return surface_doppler(frame, prim, u, v, tau_hit, d_k) / w
+
+
+def facing_normals(frame: RestFrame, prim, u, v, d_k, tau_hit=None):
+    """Position, geometric and shading normals turned toward the viewer, and whether the
+    back was hit, at hits of one frame (frame coordinates).  A shading normal turned away
+    from the viewer falls back to the geometric one."""
+    position, ng, ns = hit_geometry(frame, prim, u, v, tau_hit)
+    back = rows.dot(ng, d_k) > 0.0
+    facing = np.where(back, -1.0, 1.0)
+    ng, ns = rows.scale(ng, facing), rows.scale(ns, facing)
+    away = rows.dot(ns, d_k) >= 0.0
+    ns[away] = ng[away]
+    return position, ng, ns, back
+
+
+def ray_doppler(frames: FrameSet, hits: Hits) -> np.ndarray:
+    """D of every ray's hit (1 / w on a miss, where w = 1)."""
+    doppler = 1.0 / hits.w
+    for k in frames_hit(hits):
+        frame = frames.frames[int(k)]
+        if frame.spin is None:
+            continue
+        sel = np.flatnonzero(hits.frame == k)
+        doppler[sel] = hit_doppler(frame, hits.prim[sel], hits.u[sel], hits.v[sel], hit_times(hits, sel),
+                                   hits.d_frame[sel], hits.w[sel])
+    return doppler
+
+
+def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits) -> dict[str, np.ndarray]:
+    """The passes ``wanted`` (names besides Combined) of camera rays ``rays`` = (tau, x, d, ...)
+    in the camera frame and their ``hits``, as (n, channels) float64 arrays."""
+    tau, x, d = rays[:3]
+    wanted = set(wanted)
+    n = len(d)
+    hit = hits.frame >= 0
+    passes = {}
+    if "Depth" in wanted:
+        passes["Depth"] = np.where(hit, hits.s, _MISS_DEPTH)
+    if "Emission Time" in wanted:
+        # world time of the hit event: back along the ray in the camera frame, then into S
+        world_tau, _ = frames.map(frames.camera, frames.world).events(
+            tau[hit] - hits.s[hit], rows.add_scaled(x[hit], hits.s[hit], d[hit]))
+        passes["Emission Time"] = np.zeros(n)
+        passes["Emission Time"][hit] = world_tau / light_speed
+    per_frame = wanted & {"Doppler", "Normal", "IndexOB", "Object Time"}
+    for name in per_frame:
+        passes[name] = np.zeros((n, len(BY_NAME[name].channels)))
+    if not per_frame:
+        return passes
+    for k in frames_hit(hits):
+        sel = np.flatnonzero(hits.frame == k)
+        frame = frames.frames[int(k)]
+        d_k, tau_hit = hits.d_frame[sel], hit_times(hits, sel)
+        prim, u, v = hits.prim[sel], hits.u[sel], hits.v[sel]
+        if "Doppler" in wanted:
+            passes["Doppler"][sel, 0] = hit_doppler(frame, prim, u, v, tau_hit, d_k, hits.w[sel])
+        if "Normal" in wanted:
+            passes["Normal"][sel] = facing_normals(frame, prim, u, v, d_k, tau_hit)[2]
+        if "IndexOB" in wanted:
+            passes["IndexOB"][sel, 0] = frame.geometry.tri_object_index[prim]
+        if "Object Time" in wanted:
+            passes["Object Time"][sel, 0] = frame.object_clock(tau_hit, prim) / light_speed
+    return passes

@@ -1,0 +1,206 @@
+"""A scene prepared for rendering, once: rest frames with their embree geometry, lights,
+shader, the camera's observation event and rays, the pre-passes over the whole image
+(the Doppler-factor display range, the exposure) and the passes to fill.
+
+A :class:`PreparedScene` is read-only: any number of threads render tiles of it at once
+(:func:`~.render.render_tile`).  Embree scenes cannot be pickled, so a prepared scene
+pickles as its plain :class:`~.scene.Scene` and settings plus the values its pre-passes
+measured; unpickling rebuilds the frames and geometry without measuring again, so
+another process renders the very same pixels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from . import lens
+from .camera import CameraRays
+from .colour import RGBColour, SpectralColour
+from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
+from .passes import EXTRA_PASSES, ray_doppler
+from .scene import RenderSettings, Scene
+from .shading import MaterialTable, PreparedLight, Shader, prepare_lights
+from .tracer import TraceCache, trace_nearest
+from .validation import RenderError, check_render
+
+_EXPOSURE_PREVIEW = 48  # pixels on the longer side of the exposure-normalisation preview
+_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+
+
+@dataclass(frozen=True, eq=False)
+class PreparedScene:
+    """Everything a tile needs, built by :func:`prepare` (not by hand)."""
+
+    scene: Scene
+    settings: RenderSettings
+    frames: FrameSet
+    lights: tuple[PreparedLight, ...]
+    materials: MaterialTable
+    colour: RGBColour | SpectralColour
+    shader: Shader
+    camera_tau: float  # camera-frame time of the observation event: primary rays start then (motion blur: about it)
+    camera_rays: CameraRays
+    passes: tuple[str, ...]  # the passes to fill besides Combined
+    doppler_range: tuple[float, float] | None  # FACTOR display: D shown as black .. white
+    exposure: float  # multiplies Combined (1 unless the exposure is normalised)
+
+    def __reduce__(self):
+        return _rebuild, (self.scene, self.settings, self.doppler_range, self.exposure)
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        return self.frames.warnings
+
+    # ------------------------------------------------------------------ layout
+    @property
+    def region(self) -> tuple[int, int, int, int]:
+        """(x0, y0, x1, y1) of the pixels to render (x1, y1 exclusive): the render region or the whole image."""
+        width, height = self.settings.resolution
+        return self.settings.region or (0, 0, width, height)
+
+    @property
+    def full_image(self) -> tuple[int, int, int, int]:
+        width, height = self.settings.resolution
+        return (0, 0, width, height)
+
+    def tiles(self, area=None) -> list[tuple[int, int, int, int]]:
+        """The tiles of ``area`` (default: the region to render), row by row from the bottom."""
+        x0, y0, x1, y1 = area or self.region
+        size = max(int(self.settings.tile_size), 1)
+        return [
+            (tx, ty, min(tx + size, x1), min(ty + size, y1))
+            for ty in range(y0, y1, size)
+            for tx in range(x0, x1, size)
+        ]
+
+    def pixel_grid(self, rect):
+        """Pixel coordinates and flat image indices of a rectangle of pixels, in row-major order."""
+        x0, y0, x1, y1 = rect
+        xs = np.tile(np.arange(x0, x1, dtype=np.int64), y1 - y0)
+        ys = np.repeat(np.arange(y0, y1, dtype=np.int64), x1 - x0)
+        return xs, ys, ys * self.settings.resolution[0] + xs
+
+    # ------------------------------------------------------------------ rays
+    @property
+    def samples_vary(self) -> bool:
+        """Whether a pixel's camera samples differ by more than their place in the pixel (a lens, a shutter)."""
+        return self.camera_rays.has_lens or self.scene.camera.has_motion_blur
+
+    def rays(self, px, py, grid: bool = False, keys=None):
+        """Camera rays (tau, x, d, s_lo, s_hi) through image points (px, py) (pixels; ``grid``:
+        every px with every py); rays outside a panorama get s_hi = -inf (they hit nothing).
+        With ``keys`` = (pixel ids, sample numbers, samples per pixel) they are camera samples:
+        through the lens, and with motion blur each at its own time of the camera's clock."""
+        origins, d, s_lo, s_hi, valid = self.camera_rays(px, py, grid, keys)
+        camera = self.scene.camera
+        if keys is not None and camera.has_motion_blur:
+            # an inertial camera's rest-frame time runs with its own clock (tau = c t)
+            tau = self.camera_tau + self.scene.light_speed * lens.shutter_times(camera, *keys, self.settings.resolution)
+        else:
+            tau = np.broadcast_to(self.camera_tau, (len(d),))  # read-only views: every ray starts at this time
+        return tau, origins, d, s_lo, s_hi if valid.all() else np.where(valid, s_hi, -np.inf)
+
+    def centre_rays(self, rect):
+        """The pixel-centre camera rays of a rectangle of pixels, in row-major order."""
+        x0, y0, x1, y1 = rect
+        return self.rays(np.arange(x0, x1) + 0.5, np.arange(y0, y1) + 0.5, grid=True)
+
+
+def prepare(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bool] = lambda: False) -> PreparedScene:
+    """Check, build and measure a scene for rendering.
+
+    Raises RenderError (naming the object) for scenes and settings that cannot be rendered.
+    Once ``should_stop()`` is true the build stops early; the result is then incomplete
+    and must not be rendered.
+    """
+    settings = dataclasses.replace(settings)  # its own copy: a caller changing theirs later changes no render
+    prepared = _build(scene, settings, should_stop)
+    doppler_range = settings.doppler_range
+    if settings.doppler_mode == "FACTOR" and doppler_range is None:
+        doppler_range = _measure_doppler_range(prepared, should_stop)
+    exposure = 1.0
+    if settings.normalize_exposure and settings.doppler_mode != "FACTOR":
+        exposure = _measure_exposure(prepared, should_stop)
+    return dataclasses.replace(prepared, doppler_range=doppler_range, exposure=exposure)
+
+
+def _rebuild(scene: Scene, settings: RenderSettings, doppler_range, exposure: float) -> PreparedScene:
+    """A prepared scene from its pickled parts: built again, the pre-passes' values kept."""
+    return dataclasses.replace(_build(scene, settings), doppler_range=doppler_range, exposure=exposure)
+
+
+def _build(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bool] = lambda: False) -> PreparedScene:
+    """Everything but the pre-passes (Doppler range as given, exposure 1)."""
+    check_render(scene, settings, EXTRA_PASSES)
+    try:
+        frames = build_frames(scene, should_stop, MotionSettings(settings.motion_tolerance))
+        lights = tuple(prepare_lights(scene, frames))
+    except ValueError as error:
+        raise RenderError(str(error)) from error
+    materials = MaterialTable(scene.materials, scene.light_speed)
+    if settings.doppler_mode == "SPECTRAL":
+        colour = SpectralColour(materials, lights, scene.world_color, settings.spectral_samples)
+    else:
+        colour = RGBColour(materials, lights, scene.world_color)
+    camera_boost = frames.frames[frames.camera].boost
+    position = np.asarray(scene.camera.matrix, dtype=np.float64)[:3, 3]
+    world_event = position + camera_boost.b * camera_boost.n * scene.tau_obs
+    tau, _ = camera_boost.events(np.array(scene.tau_obs), world_event)
+    return PreparedScene(
+        scene=scene, settings=settings, frames=frames, lights=lights, materials=materials, colour=colour,
+        shader=Shader(frames, materials, lights, colour, settings.max_bounces, settings.searchlight),
+        camera_tau=float(tau),
+        camera_rays=CameraRays(scene.camera, settings.resolution, shift_into_frame(camera_boost, position)),
+        passes=tuple(EXTRA_PASSES) if settings.passes is None else tuple(settings.passes),
+        doppler_range=settings.doppler_range, exposure=1.0)
+
+
+def _measure_doppler_range(prepared: PreparedScene, should_stop) -> tuple[float, float]:
+    """Range of D over the whole image's pixel-centre rays (for the normalised FACTOR
+    display; the whole image, so that regions rendered apart agree with a full render)."""
+    frames = prepared.frames
+    cache = TraceCache()
+    lo, hi = math.inf, -math.inf
+    for rect in prepared.tiles(prepared.full_image):
+        if should_stop():
+            break
+        rays = prepared.centre_rays(rect)
+        hits = trace_nearest(frames, frames.camera, *rays, cache=cache)
+        doppler = ray_doppler(frames, hits)[hits.frame >= 0]
+        if len(doppler):
+            lo, hi = min(lo, doppler.min()), max(hi, doppler.max())
+    return (lo, hi) if lo <= hi else (0.0, 1.0)
+
+
+def _measure_exposure(prepared: PreparedScene, should_stop) -> float:
+    """Exposure that gives the image the mean luminance of the same view without Doppler
+    intensity or colour changes (the paper's dynamic-range re-normalisation, section 4.2).
+
+    Both are estimated on a small preview of the whole image (one ray per preview pixel),
+    so that regions rendered apart agree with a full render.
+    """
+    x0, y0, x1, y1 = prepared.full_image
+    scale = _EXPOSURE_PREVIEW / max(x1 - x0, y1 - y0, 1)
+    nx, ny = max(int((x1 - x0) * scale), 1), max(int((y1 - y0) * scale), 1)
+    gx, gy = np.meshgrid(x0 + (np.arange(nx) + 0.5) * (x1 - x0) / nx, y0 + (np.arange(ny) + 0.5) * (y1 - y0) / ny)
+    px, py = gx.ravel(), gy.ravel()
+    pixel = np.arange(len(px), dtype=np.int64)
+    materials, lights = prepared.materials, prepared.lights
+    plain = Shader(prepared.frames, materials, lights, RGBColour(materials, lights, prepared.scene.world_color),
+                   prepared.settings.max_bounces, searchlight=False)
+    cache = TraceCache()
+    means = []
+    for shader in (prepared.shader, plain):
+        if should_stop():
+            return 1.0
+        lam = shader.colour.camera_wavelengths(pixel, pixel * 0)
+        rays = prepared.rays(px, py)
+        values, _ = shader.radiance(prepared.frames.camera, *rays, 0, pixel, pixel * 0, lam, cache=cache)
+        means.append(float(np.mean(shader.colour.to_rgb(values, lam) @ _LUMINANCE)))
+    rendered, reference = means
+    return reference / rendered if rendered > 0 and reference > 0 else 1.0

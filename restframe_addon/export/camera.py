@@ -1,0 +1,114 @@
+"""The camera: Blender's camera object -> the core Camera, with its image plane, velocity, lens
+(Depth of Field) and shutter (Motion Blur), as Cycles reads them."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core import lens, validation
+from ..core.scene import Camera
+from .errors import ExportError
+from .motion import object_velocity, shutter_frames
+
+
+_PANORAMAS = {"EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID"}
+
+
+def _fitted_sensor(cam, aspect: float) -> tuple[float, float]:
+    """Sensor (width, height) in mm after Blender's sensor fit for this image aspect."""
+    fit = cam.sensor_fit
+    if fit == 'AUTO':
+        fit = 'HORIZONTAL' if aspect >= 1.0 else 'VERTICAL'
+        size = cam.sensor_width
+    else:
+        size = cam.sensor_width if fit == 'HORIZONTAL' else cam.sensor_height
+    return (size, size / aspect) if fit == 'HORIZONTAL' else (size * aspect, size)
+
+
+def depth_of_field(camera_object) -> dict:
+    """The core Camera's lens fields from Blender's Depth of Field panel, as Cycles reads them:
+    aperture radius from the F-stop (half the focal length, in mm read as 1e-3 scene units,
+    over the F-stop; 1 / (2 F-stop) for an orthographic camera), the focus object's distance
+    along the view axis (its bone's, with a subtarget).  Nothing (a pinhole) without Depth of Field."""
+    cam = camera_object.data
+    dof = cam.dof
+    if not dof.use_dof:
+        return {}
+    focus = float(dof.focus_distance)
+    if dof.focus_object is not None:
+        target = dof.focus_object.matrix_world
+        bone = getattr(dof, "focus_subtarget", "")
+        if bone and dof.focus_object.pose is not None and bone in dof.focus_object.pose.bones:
+            target = target @ dof.focus_object.pose.bones[bone].matrix
+        view_axis = np.array(camera_object.matrix_world.col[2][:3])
+        offset = np.array(camera_object.matrix_world.translation) - np.array(target.translation)
+        focus = abs(float(offset @ view_axis)) / float(np.linalg.norm(view_axis))
+    return dict(
+        aperture_radius=lens.aperture_radius(dof.aperture_fstop, None if cam.type == 'ORTHO' else cam.lens),
+        focus_distance=max(focus, 1e-5),
+        aperture_blades=int(dof.aperture_blades),  # Blender's 0 (or the core's < 3): round
+        aperture_rotation=float(dof.aperture_rotation),
+        aperture_ratio=float(dof.aperture_ratio),
+    )
+
+
+SHUTTER_CURVE_POINTS = 256  # the shutter curve tabulated as Cycles does (RAMP_TABLE_SIZE)
+
+
+def motion_blur(scene) -> dict:
+    """The core Camera's shutter fields: the interval in seconds of the camera's own clock, the
+    shutter curve's openness (None when flat) and the rolling shutter; nothing without motion blur."""
+    frames = shutter_frames(scene)
+    if frames is None:
+        return {}
+    seconds_per_frame = scene.render.fps_base / scene.render.fps
+    mapping = scene.render.motion_blur_shutter_curve
+    curve = np.array([mapping.evaluate(mapping.curves[0], x) for x in np.linspace(0.0, 1.0, SHUTTER_CURVE_POINTS)])
+    try:
+        validation.check_shutter_curve(curve)
+    except ValueError as error:
+        raise ExportError(str(error)) from None
+    rf = scene.restframe
+    return dict(
+        shutter_interval=(frames[0] * seconds_per_frame, frames[1] * seconds_per_frame),
+        shutter_curve=None if np.all(curve == curve[0]) else curve,
+        rolling_shutter_type=rf.rolling_shutter_type,
+        rolling_shutter_duration=float(rf.rolling_shutter_duration),
+    )
+
+
+def export_camera(camera_object, scene) -> Camera:
+    """Blender's camera as the core sees it; ``view_frame`` gives the exact image plane."""
+    if camera_object is None:
+        raise ExportError("the scene has no camera: add one and set it as the scene camera")
+    if camera_object.type != 'CAMERA':
+        raise ExportError(f"{camera_object.name}: the scene camera is a {camera_object.type.lower()} object, not a camera")
+    cam = camera_object.data
+    matrix = np.array(camera_object.matrix_world, dtype=np.float64)
+    matrix[:3, :3] /= np.linalg.norm(matrix[:3, :3], axis=0)
+    render = scene.render
+    aspect = (render.resolution_x * render.pixel_aspect_x) / (render.resolution_y * render.pixel_aspect_y)
+    out = Camera(
+        matrix=matrix,
+        kind=cam.type,
+        frame=np.array([tuple(v) for v in cam.view_frame(scene=scene)], dtype=np.float64),
+        clip_start=float(cam.clip_start),
+        clip_end=float(cam.clip_end),
+        sensor_size=_fitted_sensor(cam, aspect),
+        velocity=object_velocity(camera_object),
+        name=camera_object.name,
+        **depth_of_field(camera_object),
+        **motion_blur(scene),
+    )
+    if cam.type == 'PANO':
+        ptype = getattr(cam, "panorama_type", None) or getattr(getattr(cam, "cycles", None), "panorama_type", None)
+        if ptype not in _PANORAMAS:
+            raise ExportError(f"{camera_object.name}: panorama type {ptype} is not supported "
+                              f"(use one of {', '.join(sorted(_PANORAMAS))})")
+        out.panorama_type = ptype
+        out.latitude_range = (float(cam.latitude_min), float(cam.latitude_max))
+        out.longitude_range = (float(cam.longitude_min), float(cam.longitude_max))
+        out.fisheye_fov = float(cam.fisheye_fov)
+        out.fisheye_lens = float(cam.fisheye_lens)
+    return out
+

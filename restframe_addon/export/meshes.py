@@ -1,0 +1,85 @@
+"""Meshes: evaluated loop triangles, materials, corner normals and UVs read in bulk, placed per instance."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import ExportCancelled
+from .materials import MaterialExporter
+
+
+class MeshData:
+    """One evaluated mesh in its object space, ready to be placed per instance."""
+
+    __slots__ = ("vertices", "triangles", "materials", "normals", "uvs")
+
+    def __init__(self, vertices, triangles, materials, normals, uvs):
+        self.vertices, self.triangles, self.materials = vertices, triangles, materials
+        self.normals, self.uvs = normals, uvs
+
+
+def read_mesh(obj, mesh, materials: MaterialExporter, should_stop=lambda: False) -> MeshData | None:
+    """Vertices, loop triangles, global material indices, corner normals and UVs.
+
+    ``should_stop`` is checked between the bulk reads (a million triangles take seconds).
+    """
+
+    def check():
+        if should_stop():
+            raise ExportCancelled()
+
+    tris = mesh.loop_triangles
+    n_tri, n_vert = len(tris), len(mesh.vertices)
+    if n_tri == 0 or n_vert == 0:
+        return None
+    check()
+    vertices = np.empty(n_vert * 3, dtype=np.float32)
+    mesh.vertices.foreach_get("co", vertices)
+    check()
+    triangles = np.empty(n_tri * 3, dtype=np.int32)
+    tris.foreach_get("vertices", triangles)
+    check()
+    slot_of_tri = np.empty(n_tri, dtype=np.int32)
+    tris.foreach_get("material_index", slot_of_tri)
+
+    slots = [slot.material for slot in obj.material_slots] or [None]
+    lookup = np.array([materials.index_of(m) for m in slots], dtype=np.int32)
+    global_materials = lookup[np.clip(slot_of_tri, 0, len(lookup) - 1)]
+
+    corners = None
+    normals = None
+    check()
+    if mesh.normals_domain != 'FACE':  # flat meshes: the tracer's geometric normals are exact
+        corners = np.empty(n_tri * 3, dtype=np.int32)
+        tris.foreach_get("loops", corners)
+        corner_normals = np.empty(len(mesh.loops) * 3, dtype=np.float32)
+        check()
+        mesh.corner_normals.foreach_get("vector", corner_normals)
+        check()
+        normals = corner_normals.reshape(-1, 3)[corners].reshape(n_tri, 3, 3).astype(np.float64)
+
+    uvs = None
+    layer = next((uv for uv in mesh.uv_layers if uv.active_render), None)
+    if layer is not None and any(materials.materials[i].base_color_texture is not None for i in np.unique(lookup)):
+        if corners is None:
+            corners = np.empty(n_tri * 3, dtype=np.int32)
+            tris.foreach_get("loops", corners)
+        corner_uvs = np.empty(len(mesh.loops) * 2, dtype=np.float32)
+        layer.uv.foreach_get("vector", corner_uvs)
+        uvs = corner_uvs.reshape(-1, 2)[corners].reshape(n_tri, 3, 2).astype(np.float64)
+
+    check()
+    return MeshData(vertices.reshape(-1, 3).astype(np.float64), triangles.reshape(-1, 3),
+                     global_materials, normals, uvs)
+
+
+def place(data: MeshData, matrix: np.ndarray):
+    """World-space vertices and normals for one instance transform."""
+    linear, offset = matrix[:3, :3], matrix[:3, 3]
+    vertices = data.vertices @ linear.T + offset
+    normals = None
+    if data.normals is not None:
+        # normals transform with the inverse transpose; row vectors: n @ inv(linear)
+        normals = data.normals @ np.linalg.inv(linear)
+        normals /= np.maximum(np.linalg.norm(normals, axis=2, keepdims=True), 1e-300)
+    return vertices, normals

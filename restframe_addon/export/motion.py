@@ -1,0 +1,150 @@
+"""Motion: velocities, and the world line of a body animated by location keys (Motion = Animation)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..core import validation
+from ..core.motion import Trajectory
+from ..core.scene import Velocity
+from ..motion_query import fcurves, has_animated_location
+from .errors import ExportCancelled, ExportError
+
+
+_SHUTTER_OPENS = {'START': 0.0, 'CENTER': -0.5, 'END': -1.0}  # the frame's place in the shutter, in shutters
+
+
+def shutter_frames(scene) -> tuple[float, float] | None:
+    """The shutter interval in frames from the rendered frame (Blender's Motion Blur panel:
+    shutter length and position), or None without motion blur."""
+    render = scene.render
+    if not render.use_motion_blur or render.motion_blur_shutter <= 0.0:
+        return None
+    opens = _SHUTTER_OPENS[render.motion_blur_position] * render.motion_blur_shutter
+    return opens, opens + render.motion_blur_shutter
+
+
+def object_velocity(obj) -> Velocity:
+    """The object's ``restframe`` velocity, checked: raises ExportError naming the object."""
+    rf = obj.restframe
+    try:
+        return Velocity(*validation.check_velocity(rf.velocity, rf.lorentz_factor, obj.name))
+    except ValueError as error:
+        raise ExportError(str(error)) from None
+
+
+SUBFRAMES = 8  # world-line samples per frame of animation
+MAX_SAMPLES = 20000  # per object: beyond this the samples thin out (long light-travel times)
+
+
+def _location_curves(obj) -> tuple[dict, list[str]]:
+    """{(data_path, index): F-curve} of the object's own location keys, and what is ignored.
+
+    Motion = Animation reads the active action's ``location`` and ``delta_location``
+    curves; NLA strips, drivers and constraints on the location are not evaluated.
+    """
+    anim = obj.original.animation_data
+    curves: dict = {}
+    ignored: list[str] = []
+    if anim is None:
+        return curves, ignored
+    for fc in fcurves(anim.action, getattr(anim, "action_slot", None)):
+        if fc.data_path in {"location", "delta_location"} and not fc.mute:
+            curves[(fc.data_path, fc.array_index)] = fc
+    if any(d.data_path in {"location", "delta_location"} for d in anim.drivers):
+        ignored.append("drivers")
+    if any(not track.mute and track.strips for track in anim.nla_tracks):
+        ignored.append("NLA strips")
+    return curves, ignored
+
+
+def _local_locations(obj, curves: dict, frames: np.ndarray) -> np.ndarray:
+    """location + delta_location (the local matrix's translation) at each frame, (N, 3)."""
+    out = np.empty((len(frames), 3))
+    base = obj.original
+    for i in range(3):
+        total = np.zeros(len(frames))
+        for path in ("location", "delta_location"):
+            fc = curves.get((path, i))
+            if fc is None:
+                total += float(getattr(base, path)[i])
+            else:
+                evaluate = fc.evaluate
+                total += np.fromiter((evaluate(f) for f in frames), dtype=np.float64, count=len(frames))
+        out[:, i] = total
+    return out
+
+
+def body_radius(vertices: np.ndarray, triangles: np.ndarray, pivot) -> float:
+    """The largest distance from the pivot of a (finite) vertex of the triangles: the rigid body's
+    radius, which sets how widely its world line's corners are rounded."""
+    used = np.zeros(len(vertices), dtype=bool)
+    used[triangles] = True
+    distance = np.linalg.norm(vertices[used] - np.asarray(pivot, dtype=np.float64), axis=1)
+    return float(np.max(distance[np.isfinite(distance)], initial=0.0))
+
+
+def object_trajectory(root, scene, camera_position, radius: float, *, should_stop=lambda: False,
+                      warn=print) -> Trajectory:
+    """The assembly pivot's world line from its location keys (Motion = Animation).
+
+    ``radius`` is the assembly's ``body_radius`` about the pivot (every mesh moving with it),
+    so the world line is built with its corners rounded for that body.
+
+    Samples ``SUBFRAMES`` per frame from before the scene's start frame (early enough
+    for light from any sampled position to reach the camera) up to just past the
+    rendered frame; the F-curves are evaluated directly, so the scene's current frame
+    never changes.  Supported: the object's own location/delta location keys; a parent
+    is taken as static at its pose of the rendered frame.  Raises ExportError (naming
+    the object and frames) when the motion reaches c, ExportCancelled on Esc.
+    """
+    rf = scene.restframe
+    c = rf.light_speed
+    fps = scene.render.fps / scene.render.fps_base
+    curves, ignored = _location_curves(root)
+    if not curves:
+        warn(f"{root.name}: Motion is Animation but its location has no keyframes: it stays at rest")
+    if ignored:
+        warn(f"{root.name}: Motion = Animation uses the location keys only ({' and '.join(ignored)} ignored)")
+    parent_matrix = np.eye(4)
+    if root.parent is not None:
+        parent_matrix = (np.array(root.parent.matrix_world, dtype=np.float64)
+                         @ np.array(root.matrix_parent_inverse, dtype=np.float64))
+        if has_animated_location(root.parent):
+            warn(f"{root.name}: its parent '{root.parent.name}' is animated; Motion = Animation takes "
+                 "the parent as static (pose of the rendered frame)")
+
+    def world(frames):
+        local = _local_locations(root, curves, frames)
+        return local @ parent_matrix[:3, :3].T + parent_matrix[:3, 3]
+
+    current = scene.frame_current + scene.frame_subframe
+    first = min(float(scene.frame_start), current)
+    end = current + 1.0 + max((shutter_frames(scene) or (0.0, 0.0))[1], 0.0)  # past the shutter's closing
+    # how far back light can come from: the farthest sampled position, plus the body's radius
+    coarse = np.linspace(first, end, int(min(end - first, 2000)) + 2)
+    reach = float(np.linalg.norm(world(coarse) - np.asarray(camera_position), axis=1).max()) + radius
+    start = first - math.ceil(2.0 * reach / c * fps) - 1.0
+    if not math.isfinite(start):
+        raise ExportError(f"{root.name}: the animated location is not a finite number")
+    count = int(min((end - start) * SUBFRAMES, MAX_SAMPLES)) + 1
+    frames = np.linspace(start, end, count)
+    if should_stop():
+        raise ExportCancelled()
+    position = world(frames)
+    if should_stop():
+        raise ExportCancelled()
+    tau = c * (frames - rf.reference_frame) / fps
+    evaluated = np.asarray(root.matrix_world.translation)
+    here = world(np.array([current]))[0]
+    if np.linalg.norm(here - evaluated) > max(1e-6 * (1.0 + np.linalg.norm(evaluated)), rf.motion_tolerance):
+        warn(f"{root.name}: its location at this frame differs from the keyframed one by "
+             f"{np.linalg.norm(here - evaluated):.3g} (constraints, drivers or parents?); "
+             "Motion = Animation follows the keys")
+    try:
+        return Trajectory(tau=tau, position=position, name=root.name, frames=frames, body_radius=radius)
+    except ValueError as error:
+        raise ExportError(str(error)) from error
+

@@ -1,0 +1,157 @@
+"""Evaluated Blender data -> :mod:`restframe_addon.core.scene` (pure data, nothing modified).
+
+Everything is read from the evaluated depsgraph, so modifiers, geometry nodes,
+curves, text, metaballs and (collection) instances arrive as the triangles
+Blender itself would render.  Mesh data moves through ``foreach_get`` into numpy;
+a mesh instanced many times is read once and only transformed per instance.
+The user's data is never written: no ``to_mesh`` copies, no edits, no saves.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from ..core import validation
+from ..core.scene import Light, Mesh, RenderSettings, Scene, Velocity
+from ..motion_query import assembly_root, has_animated_location, observation_time
+from .camera import export_camera
+from .errors import ExportCancelled, ExportError
+from .lights import export_light, world_color
+from .materials import MaterialExporter
+from .meshes import MeshData, place, read_mesh
+from .motion import body_radius, object_trajectory, object_velocity
+from .settings import render_settings
+
+
+def _instance_source(inst):
+    """The object whose velocity an instance takes, and where its assembly pivot is.
+
+    An instance moves with its instancer (collection instance empty, particle
+    emitter, the curve/text object of its own evaluated geometry) when that has
+    a velocity; otherwise with the instanced object's own velocity, pivoting at
+    the instance's origin.
+    """
+    parent = inst.parent
+    if inst.is_instance and parent is not None and (parent.restframe.is_moving or parent.restframe.is_animated
+                                                    or any(parent.restframe.angular_velocity)):
+        return parent, tuple(assembly_root(parent).matrix_world.translation)
+    obj = inst.object
+    if inst.is_instance:
+        return obj, tuple(inst.matrix_world.translation)
+    return obj, tuple(assembly_root(obj).matrix_world.translation)
+
+
+def export_scene(depsgraph, camera_object=None, *, resolution=None,
+                 should_stop: Callable[[], bool] = lambda: False,
+                 warn: Callable[[str], None] = print) -> tuple[Scene, RenderSettings]:
+    """Build the core Scene and RenderSettings for the depsgraph's frame.
+
+    Raises ExportError for scenes that cannot be rendered and ExportCancelled as
+    soon as ``should_stop()`` is true (checked between objects).
+    """
+    scene = depsgraph.scene_eval
+    rf = scene.restframe
+    try:
+        validation.check_light_speed(rf.light_speed)
+    except ValueError as error:
+        raise ExportError(str(error)) from None
+    warned: set[str] = set()
+
+    def warn_once(message: str) -> None:
+        if message not in warned:
+            warned.add(message)
+            warn(message)
+
+    if camera_object is None:
+        camera_object = scene.camera
+    if camera_object is not None:
+        camera_object = camera_object.evaluated_get(depsgraph)
+    camera = export_camera(camera_object, scene)
+    materials = MaterialExporter(warn_once, scene)
+    bodies: list[tuple[int | None, dict]] = []  # (assembly key of an animated body, Mesh fields) per mesh
+    lights: list[Light] = []
+    cache: dict[tuple, MeshData | None] = {}
+    roots: dict[int, object] = {}  # animated assembly key -> its root, whose keys give the world line
+    radii: dict[int, float] = {}  # animated assembly key -> body_radius over all its meshes
+    jumping: set[str] = set()
+    camera_position = tuple(camera_object.matrix_world.translation)
+
+    for inst in depsgraph.object_instances:
+        if should_stop():
+            raise ExportCancelled()
+        obj = inst.object
+        if obj.type not in {'MESH', 'LIGHT'} or not inst.show_self:
+            continue
+        source, pivot = _instance_source(inst)
+        animated = source.restframe.is_animated
+        # an animated body's velocity comes from its world line (lights keep theirs)
+        velocity = Velocity() if animated and obj.type == 'MESH' else object_velocity(source)
+        spin = tuple(float(w) for w in source.restframe.angular_velocity)
+        if not animated and not velocity.is_zero and has_animated_location(source):
+            jumping.add(source.name)
+        matrix = np.array(inst.matrix_world, dtype=np.float64)
+        name = f"{inst.parent.name}/{obj.name}" if inst.is_instance and inst.parent is not None else obj.name
+        if obj.type == 'LIGHT':
+            if animated or any(spin):
+                warn_once(f"{source.name}: lights move only at a constant velocity "
+                          "(Motion = Animation and Angular Velocity are ignored)")
+            lights.append(export_light(obj, matrix, velocity, pivot))
+            continue
+        body = None
+        if animated:
+            if any(spin):
+                warn_once(f"{source.name}: Angular Velocity is ignored with Motion = Animation")
+            root = assembly_root(source)
+            body = root.original.as_pointer()
+            roots.setdefault(body, root)
+        elif any(spin):
+            try:
+                validation.check_angular_velocity(spin, source.name)
+            except ValueError as error:
+                raise ExportError(str(error)) from None
+        mesh = obj.data
+        key = (mesh.as_pointer(), tuple(slot.material.as_pointer() if slot.material else 0
+                                        for slot in obj.material_slots))
+        if key not in cache:
+            cache[key] = read_mesh(obj, mesh, materials, should_stop)
+        data = cache[key]
+        if data is None:
+            continue
+        if should_stop():
+            raise ExportCancelled()
+        vertices, normals = place(data, matrix)
+        if body is not None:
+            radii[body] = max(radii.get(body, 0.0), body_radius(vertices, data.triangles, pivot))
+        bodies.append((body, dict(
+            name=name,
+            vertices=vertices,
+            triangles=data.triangles,
+            velocity=velocity,
+            pivot=pivot,
+            material_indices=data.materials,
+            corner_normals=normals,
+            corner_uvs=data.uvs,
+            object_index=int(obj.pass_index),
+            angular_velocity=spin if any(spin) and body is None else None,
+        )))
+
+    # each world line is built once its whole body is known, so its corners are rounded for that body
+    trajectories = {body: object_trajectory(root, scene, camera_position, radii.get(body, 0.0),
+                                            should_stop=should_stop, warn=warn_once)
+                    for body, root in roots.items()}
+    meshes = [Mesh(**fields, trajectory=trajectories.get(body)) for body, fields in bodies]
+    for name in sorted(jumping):
+        warn_once(f"{name}: has a velocity and a keyframed location, so it jumps between frames "
+                  "(set its Motion to Animation to follow the keyframed path)")
+    out = Scene(
+        camera=camera,
+        meshes=meshes,
+        materials=materials.materials,
+        lights=lights,
+        world_color=world_color(scene, warn_once),
+        tau_obs=rf.light_speed * observation_time(scene),
+        light_speed=rf.light_speed,
+    )
+    return out, render_settings(scene, resolution, depsgraph.view_layer)

@@ -1,0 +1,185 @@
+"""The prepared scene: one immutable object that any tile split, thread count or process
+renders to the same bits; nothing in it changes while it renders."""
+
+import multiprocessing
+import pickle
+from concurrent.futures import ProcessPoolExecutor
+from types import MappingProxyType
+
+import numpy as np
+import pytest
+from shapes import box, look_at_camera, quad, uv_sphere
+
+from restframe_addon.core import prepared as prepared_module
+from restframe_addon.core import render
+from restframe_addon.core.lorentz import Boost
+from restframe_addon.core.motion import Trajectory
+from restframe_addon.core.passes import ALL_PASSES, EXTRA_PASSES, PASSES
+from restframe_addon.core.prepared import prepare
+from restframe_addon.core.render import render_image, render_tile, render_tiles
+from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity
+from restframe_addon.core.tracer import TraceCache, trace_nearest
+from restframe_addon.core.validation import check_velocity
+
+
+def busy_scene(camera_velocity=Velocity()):
+    """A moving box, a glass ball, a spinning mirror ball and an animated emitter over a floor,
+    lit by a soft lamp, a sun and a moving area light: every code path of a tile."""
+    floor, cube = quad((0.0, 0.0, -1.5), (30.0, 30.0)), box((-2.0, 6.0, 0.0), (1.5, 1.5, 1.5))
+    ball, spinner = uv_sphere((2.0, 7.0, 0.0), 1.0, 16, 8), uv_sphere((0.0, 9.0, 1.5), 1.2, 16, 8)
+    comet = uv_sphere((0.0, 0.0, 0.0), 0.6, 12, 6)
+    tau = np.linspace(-40.0, 10.0, 6)
+    path = np.stack([4.0 + 0.0 * tau, 8.0 + 0.3 * tau, 0.001 * (tau + 40.0) ** 1.5], axis=1)
+    meshes = [
+        Mesh("floor", *floor, object_index=1),
+        Mesh("cube", *cube, velocity=Velocity((0.6, 0.0, 0.0)), pivot=(-2.0, 6.0, 0.0),
+             material_indices=np.full(12, 1), object_index=2),
+        Mesh("ball", *ball, velocity=Velocity((0.0, -0.5, 0.2)), pivot=(2.0, 7.0, 0.0),
+             material_indices=np.full(len(ball[1]), 2), object_index=3),
+        Mesh("spinner", *spinner, pivot=(0.0, 9.0, 1.5), angular_velocity=(0.0, 0.0, 0.4),
+             material_indices=np.full(len(spinner[1]), 3), object_index=4),
+        Mesh("comet", *comet, trajectory=Trajectory(tau, path, name="comet"),
+             material_indices=np.full(len(comet[1]), 4), object_index=5),
+    ]
+    materials = [Material("floor", (0.7, 0.7, 0.7), roughness=0.8), Material("cube", (0.9, 0.3, 0.2), roughness=0.3),
+                 Material("glass", roughness=0.0, transmission=1.0, ior=1.45),
+                 Material("mirror", (0.9, 0.9, 0.9), metallic=1.0, roughness=0.0),
+                 Material("glow", emission=(0.5, 2.0, 0.5))]
+    lights = [Light("lamp", "POINT", (0.0, 2.0, 4.0), power=800.0, radius=0.3),
+              Light("sun", "SUN", (0.0, 0.0, 10.0), power=2.0, sun_angle=0.05),
+              Light("panel", "AREA", (3.0, 4.0, 3.0), power=300.0, velocity=Velocity((0.0, 0.3, 0.0)))]
+    return Scene(camera=look_at_camera((0.0, -2.0, 1.0), (0.0, 7.0, 0.0), velocity=camera_velocity), meshes=meshes,
+                 materials=materials, lights=lights, light_speed=1.0, tau_obs=9.0)
+
+
+def settings(**kw):
+    return RenderSettings(**{"resolution": (24, 18), "threads": 1, "samples": 2, **kw})
+
+
+def assert_same_passes(a: dict, b: dict):
+    assert a.keys() == b.keys()
+    for name in a:
+        assert a[name].dtype == b[name].dtype and a[name].shape == b[name].shape, name
+        assert np.array_equal(a[name].view(np.uint8), b[name].view(np.uint8)), name  # bit for bit
+
+
+def assemble(prepared, tiles):
+    width, height = prepared.settings.resolution
+    out = {name: np.zeros((height, width, ALL_PASSES[name]), np.float32) for name in ("Combined", *prepared.passes)}
+    for tile in tiles:
+        assert tile.complete
+        for name, data in tile.passes.items():
+            out[name][tile.y0:tile.y1, tile.x0:tile.x1] = data
+    return out
+
+
+MODES = [dict(), dict(doppler_mode="SPECTRAL", spectral_samples=6, normalize_exposure=True),
+         dict(doppler_mode="FACTOR", doppler_levels=4), dict(film_transparent=True, searchlight=False)]
+
+
+@pytest.mark.parametrize("mode", MODES, ids=["rgb", "spectral", "factor", "transparent"])
+def test_any_tile_split_renders_the_same_bits_as_render_image(mode):
+    """Odd tiles of render_tile, each with a fresh trace cache, against render_image's 16-px tiles."""
+    scene = busy_scene()
+    whole = render_image(scene, settings(tile_size=16, **mode))
+    prepared = prepare(scene, settings(**mode))
+    rects = [(x, y, min(x + 7, 24), min(y + 5, 18)) for y in range(0, 18, 5) for x in range(0, 24, 7)]
+    assert_same_passes(assemble(prepared, [render_tile(prepared, rect) for rect in rects]), whole)
+
+
+def test_two_threads_render_the_same_bits_as_one():
+    prepared = prepare(busy_scene(Velocity((0.0, 0.4, 0.0))), settings(tile_size=4))
+    one = assemble(prepared, render_tiles(prepared, threads=1))
+    assert_same_passes(assemble(prepared, render_tiles(prepared, threads=2)), one)
+
+
+def test_a_pickled_prepared_scene_renders_the_same_bits_without_measuring_again(monkeypatch):
+    scene = busy_scene(Velocity((0.0, 0.4, 0.0)))
+    for mode in (dict(doppler_mode="FACTOR"), dict(doppler_mode="SPECTRAL", spectral_samples=4,
+                                                     normalize_exposure=True)):
+        prepared = prepare(scene, settings(**mode))
+        data = pickle.dumps(prepared)
+
+        def measured_again(*args):
+            raise AssertionError("the pre-pass ran again")
+
+        with monkeypatch.context() as patch:
+            patch.setattr(prepared_module, "_measure_doppler_range", measured_again)
+            patch.setattr(prepared_module, "_measure_exposure", measured_again)
+            rebuilt = pickle.loads(data)
+        assert (rebuilt.doppler_range, rebuilt.exposure) == (prepared.doppler_range, prepared.exposure)
+        assert rebuilt.frames is not prepared.frames
+        rect = (3, 2, 20, 15)
+        assert_same_passes(render_tile(rebuilt, rect).passes, render_tile(prepared, rect).passes)
+
+
+def test_another_process_renders_the_same_tile():
+    """What a process-parallel renderer does: send the prepared scene, get a tile back."""
+    prepared = prepare(busy_scene(), settings())
+    rect = (0, 0, 24, 18)
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        tile = pool.submit(render_tile, prepared, rect).result(timeout=120)
+    assert_same_passes(tile.passes, render_tile(prepared, rect).passes)
+
+
+def test_the_frame_set_is_read_only_and_rendering_changes_nothing_in_it():
+    prepared = prepare(busy_scene(), settings(tile_size=8))
+    frames = prepared.frames
+    before = dict(vars(frames))
+    assemble(prepared, render_tiles(prepared, threads=2))
+    assert vars(frames).keys() == before.keys()
+    for name, value in vars(frames).items():
+        assert value is before[name], name
+        assert isinstance(value, (int, tuple, MappingProxyType, np.ndarray)), f"FrameSet.{name} is a {type(value)}"
+        if isinstance(value, np.ndarray):
+            assert not value.flags.writeable, name
+    for k in frames.geometry:
+        geometry = frames.frames[k].geometry
+        assert not geometry.vertices.flags.writeable and not geometry.face_normals.flags.writeable
+    with pytest.raises(Exception):
+        prepared.exposure = 2.0
+
+
+def test_the_trace_cache_changes_no_hit():
+    """Culling cones and body boxes kept by a TraceCache give the very hits computed afresh."""
+    prepared = prepare(busy_scene(), settings())
+    frames, cache = prepared.frames, TraceCache()
+    for rect in prepared.tiles() * 2:  # the second round reads the cache
+        rays = prepared.centre_rays(rect)
+        cached, fresh = trace_nearest(frames, frames.camera, *rays, cache), trace_nearest(frames, frames.camera, *rays)
+        for name in ("frame", "s", "prim", "u", "v"):
+            assert np.array_equal(getattr(cached, name), getattr(fresh, name))
+
+
+def test_render_tiles_never_yields_a_tile_cut_short(monkeypatch):
+    """Esc between the sample batches of a tile: render_tile says so, render_tiles drops it."""
+    monkeypatch.setattr(render, "_MAX_VALUES", 24 * 18 * 3)  # one sample per batch
+    prepared = prepare(busy_scene(), settings(samples=3, tile_size=64))
+
+    def stop_from_call(n):
+        calls = []
+        return lambda: calls.append(1) or len(calls) >= n
+
+    tile = render_tile(prepared, prepared.region, stop_from_call(1))  # asked first before the second batch
+    assert not tile.complete
+    assert render_tile(prepared, prepared.region, stop_from_call(3)).complete
+    assert list(render_tiles(prepared, stop_from_call(2))) == []  # asked once before the tile, then in it
+
+
+def test_velocity_errors_have_one_wording_in_every_layer():
+    """The core's boost and the add-on's export both word a tachyon the same (validation.py)."""
+    with pytest.raises(ValueError) as core:
+        Boost.from_velocity((0.0, 0.0, 1.5), name="Tachyon")
+    assert str(core.value) == ("Tachyon: speed 1.5 c is not below the speed of light; "
+                               "use the Lorentz factor for speeds very close to c")
+    with pytest.raises(ValueError, match="Tachyon: a Lorentz factor must be at least 1 .got 0.5.; 0 means unused"):
+        check_velocity((0.1, 0.0, 0.0), 0.5, "Tachyon")
+    with pytest.raises(ValueError, match="Tachyon: a Lorentz factor above 1 needs a velocity"):
+        Boost.from_velocity((0.0, 0.0, 0.0), 3.0, name="Tachyon")
+
+
+def test_the_pass_table_keeps_its_public_names_and_order():
+    assert list(PASSES) == ["Doppler", "Emission Time", "Object Time"]
+    assert EXTRA_PASSES == {"Doppler": 1, "Emission Time": 1, "Object Time": 1, "Depth": 1, "Normal": 3, "IndexOB": 1}
+    assert list(ALL_PASSES) == ["Combined", *EXTRA_PASSES] and ALL_PASSES["Combined"] == 4
+    assert (render.PASSES, render.EXTRA_PASSES, render.ALL_PASSES) == (PASSES, EXTRA_PASSES, ALL_PASSES)

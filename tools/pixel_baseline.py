@@ -1,0 +1,148 @@
+"""Pixel baseline: render every sample .blend and a few core scenes, save or compare every pass.
+
+    tools/dev.sh tools/pixel_baseline.py save /work/baseline       # on the code to keep bit-identical
+    tools/dev.sh tools/pixel_baseline.py compare /work/baseline    # after a change: exit 1 unless identical
+    tools/dev.sh tools/pixel_baseline.py compare /work/baseline -k moving_sphere -k core_
+
+The sample scenes go through the whole headless path (bpy, the RESTFRAME engine, a 32-bit
+multilayer EXR, as sample_blends/samplelib.py renders them) at a small resolution (the longer
+side ``--size`` pixels) with the samples saved in each file; the core scenes through
+``render_image``.  Each scene's passes go to ``FOLDER/<name>.npz``.  The renderer is
+deterministic (every random number is keyed by pixel and sample), so any refactor that keeps
+the physics must reproduce these arrays bit for bit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = ROOT / "sample_blends"
+sys.path[:0] = [str(ROOT), str(SAMPLES), str(ROOT / "tests" / "core")]
+
+
+def sample_scenes(size: int):
+    """name -> render(): every committed sample .blend through the engine."""
+    def render(blend: Path):
+        import samplelib
+
+        def small(scene):
+            render = scene.render
+            render.resolution_percentage = max(1, min(100, round(100 * size / max(render.resolution_x,
+                                                                                     render.resolution_y))))
+        with tempfile.TemporaryDirectory() as folder:
+            passes, _ = samplelib.render_blend(str(blend), Path(folder) / "frame.exr", prepare=small)
+        return passes
+    return {blend.stem: (lambda blend=blend: render(blend)) for blend in sorted(SAMPLES.glob("*.blend"))}
+
+
+def core_scenes():
+    """name -> render(): scenes built in numpy covering the core's modes (moving, spinning and
+    animated bodies, spectral colour, the Doppler-factor display, exposure, glass, regions)."""
+    from shapes import box, look_at_camera, quad, uv_sphere
+
+    from restframe_addon.core.motion import Trajectory
+    from restframe_addon.core.render import render_image
+    from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity
+
+    def scene(**kw):
+        floor = quad((0.0, 0.0, -1.5), (30.0, 30.0))
+        cube = box((-2.0, 6.0, 0.0), (1.5, 1.5, 1.5))
+        ball = uv_sphere((2.0, 7.0, 0.0), 1.0, segments=24, rings=12)
+        spinner = uv_sphere((0.0, 9.0, 1.5), 1.2, segments=24, rings=12)
+        comet = uv_sphere((0.0, 0.0, 0.0), 0.6, segments=16, rings=8)
+        tau = np.linspace(-40.0, 10.0, 6)
+        path = np.stack([4.0 + 0.0 * tau, 8.0 + 0.3 * tau, 0.02 * (tau + 40.0) ** 1.5 * 0.05], axis=1)
+        meshes = [
+            Mesh("floor", *floor, material_indices=np.zeros(2, int), object_index=1),
+            Mesh("cube", *cube, velocity=Velocity((0.6, 0.0, 0.0)), pivot=(-2.0, 6.0, 0.0),
+                 material_indices=np.full(12, 1), object_index=2),
+            Mesh("ball", *ball, velocity=Velocity((0.0, -0.5, 0.2)), pivot=(2.0, 7.0, 0.0),
+                 material_indices=np.full(len(ball[1]), 2), object_index=3),
+            Mesh("spinner", *spinner, pivot=(0.0, 9.0, 1.5), angular_velocity=(0.0, 0.0, 0.4),
+                 material_indices=np.full(len(spinner[1]), 3), object_index=4),
+            Mesh("comet", *comet, trajectory=Trajectory(tau, path, name="comet"),
+                 material_indices=np.full(len(comet[1]), 4), object_index=5),
+        ]
+        materials = [Material("floor", (0.7, 0.7, 0.7), roughness=0.8),
+                     Material("cube", (0.9, 0.3, 0.2), roughness=0.3),
+                     Material("glass", (1.0, 1.0, 1.0), roughness=0.0, transmission=1.0, ior=1.45),
+                     Material("mirror", (0.9, 0.9, 0.9), metallic=1.0, roughness=0.0),
+                     Material("glow", emission=(0.5, 2.0, 0.5),
+                              emission_curve=(np.array([-1e-7, 1e-7]), np.array([0.2, 1.0])))]
+        lights = [Light("lamp", "POINT", (0.0, 2.0, 4.0), power=800.0, radius=0.3),
+                  Light("sun", "SUN", (0.0, 0.0, 10.0), power=2.0, sun_angle=0.05),
+                  Light("panel", "AREA", (3.0, 4.0, 3.0), power=300.0, velocity=Velocity((0.0, 0.3, 0.0)))]
+        return Scene(camera=look_at_camera((0.0, -2.0, 1.0), (0.0, 7.0, 0.0), **kw), meshes=meshes,
+                     materials=materials, lights=lights, light_speed=1.0, tau_obs=9.0)
+
+    def settings(**kw):
+        return RenderSettings(**{"resolution": (40, 30), "threads": 1, "tile_size": 16, **kw})
+
+    moving = Velocity((0.0, 0.4, 0.0))
+    return {
+        "core_rgb": lambda: render_image(scene(), settings(samples=2)),
+        "core_spectral_exposure": lambda: render_image(scene(), settings(doppler_mode="SPECTRAL", spectral_samples=8,
+                                                                         normalize_exposure=True)),
+        "core_factor_levels": lambda: render_image(scene(velocity=moving), settings(doppler_mode="FACTOR",
+                                                                                   doppler_levels=5, samples=3)),
+        "core_factor_region": lambda: render_image(scene(), settings(doppler_mode="FACTOR", region=(5, 4, 33, 27),
+                                                                     film_transparent=True)),
+        "core_moving_camera_transparent": lambda: render_image(scene(velocity=moving), settings(
+            film_transparent=True, searchlight=False, passes=("Doppler", "Normal"))),
+    }
+
+
+def scenes(size: int):
+    return {**sample_scenes(size), **core_scenes()}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("mode", choices=("save", "compare"))
+    parser.add_argument("folder", type=Path)
+    parser.add_argument("-k", action="append", default=[], help="only scenes whose name contains this (repeatable)")
+    parser.add_argument("--size", type=int, default=64, help="pixels on the longer side of the sample renders")
+    args = parser.parse_args(argv)
+    chosen = {name: render for name, render in scenes(args.size).items()
+              if not args.k or any(k in name for k in args.k)}
+    if args.mode == "save":
+        args.folder.mkdir(parents=True, exist_ok=True)
+        os.chmod(args.folder, 0o755)
+    failures = []
+    for name, render in chosen.items():
+        passes = {key: np.asarray(value) for key, value in render().items()}
+        path = args.folder / f"{name}.npz"
+        if args.mode == "save":
+            np.savez_compressed(path, **passes)
+            os.chmod(path, 0o644)
+            print(f"saved {name}: {', '.join(sorted(passes))}", flush=True)
+            continue
+        with np.load(path) as reference:
+            expected = dict(reference)
+        problems = [f"passes {sorted(passes)} != {sorted(expected)}"] if passes.keys() != expected.keys() else []
+        for key in sorted(passes.keys() & expected.keys()):
+            a, b = passes[key], expected[key]
+            if a.shape != b.shape or a.dtype != b.dtype:
+                problems.append(f"{key}: {a.shape} {a.dtype} != {b.shape} {b.dtype}")
+            elif not np.array_equal(a.view(np.uint8), b.view(np.uint8)):
+                differ = np.count_nonzero(a != b) + np.count_nonzero(np.isnan(a) != np.isnan(b))
+                problems.append(f"{key}: {differ} values differ (max |diff| "
+                                f"{np.nanmax(np.abs(a.astype(np.float64) - b)):.3g})")
+        print(f"{'identical' if not problems else 'DIFFERENT'} {name}{': ' if problems else ''}{'; '.join(problems)}",
+              flush=True)
+        if problems:
+            failures.append(name)
+    if args.mode == "compare":
+        print(f"{len(chosen) - len(failures)} of {len(chosen)} scenes bit-identical", flush=True)
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
