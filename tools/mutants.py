@@ -51,8 +51,7 @@ MOTION_QUERY = "restframe_addon/motion_query.py"
 LORENTZ, FRAMES, TRACER, SHADING, RENDER, COLOUR, PASSES, PREPARED, VALIDATION = (
     CORE + m for m in ("lorentz.py", "frames.py", "tracer.py", "shading.py", "render.py", "colour.py", "passes.py",
                        "prepared.py", "validation.py"))
-T_RENDER, T_SHADING, T_LORENTZ, T_MOTION = ("tests/core/" + m for m in ("test_render.py", "test_shading.py",
-                                                                       "test_lorentz.py", "test_motion.py"))
+T_RENDER, T_SHADING, T_LORENTZ = ("tests/core/" + m for m in ("test_render.py", "test_shading.py", "test_lorentz.py"))
 T_SPECTRAL = "tests/core/test_spectral.py"
 T_OBSERVERS = "tests/core/test_observers.py"
 T_LIGHTS = "tests/core/test_moving_lights.py"
