@@ -591,7 +591,9 @@ def _add_rotation(frames, mesh, scene: Scene, settings: MotionSettings, warnings
         return
     omega = np.asarray(mesh.angular_velocity, dtype=np.float64) / scene.light_speed  # rad per unit c*t
     validation.check_angular_velocity(mesh.angular_velocity, mesh.name)
-    validation.check_rim_speed(float(np.linalg.norm(omega)) * geometry.radius, mesh.name)
+    # a body point moves at |omega x r|: its distance from the axis counts, not from the pivot
+    used = geometry.vertices[np.unique(geometry.triangles)]
+    validation.check_rim_speed(float(np.max(np.linalg.norm(np.cross(omega, used), axis=1))), mesh.name)
     t0 = clock_shift(boost, pivot)
     frames.append(RestFrame(index=len(frames), velocity=mesh.velocity, boost=boost, names=[mesh.name],
                             geometry=geometry, offset=pivot + shift_into_frame(boost, pivot),

@@ -57,6 +57,7 @@ class Material:
     # clock reading of each seen event (optical clocks); linear between keys, constant beyond
     emission_curve: tuple[np.ndarray, np.ndarray] | None = None
     base_color_texture: np.ndarray | None = None  # (H, W, 3) scene-linear, row 0 = bottom (Blender order)
+    base_color_interpolation: str = "Linear"  # "Linear" (bilinear) or "Closest" (nearest pixel), as Blender's
 
 
 @dataclass

@@ -25,10 +25,12 @@ from types import MappingProxyType
 import numpy as np
 
 from . import rows, sampling, spectral
+from .bsdf import dielectric_f0, fresnel_dielectric, ggx_reflection
 from .frames import FrameSet, shift_into_frame
 from .passes import facing_normals, hit_doppler, hit_times
 from .scene import Light, Material, Scene
 from .tracer import TraceCache, frames_hit, occluded, trace_nearest
+from .world import image_lookup
 
 MIRROR_ROUGHNESS = 0.05  # smoother surfaces reflect by traced mirror rays, rougher ones by GGX highlights
 _MIN_ALPHA = 1e-3
@@ -60,13 +62,14 @@ class MaterialTable:
         self.transmission = np.clip([m.transmission for m in materials], 0.0, 1.0)
         self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
         self.textures = [m.base_color_texture for m in materials]
+        self.closest = [m.base_color_interpolation == "Closest" for m in materials]
         self.mirror = self.roughness < MIRROR_ROUGHNESS
         self.glass = self.transmission > 0.0
         self.traces_secondary = bool(np.any(self.mirror | self.glass))
         # the direct-light lobes, per material (worked out once, gathered per hit)
         self.diffuse_weight = (1.0 - self.metallic) * (1.0 - self.transmission) / np.pi
         # Specular IOR Level scales the whole dielectric lobe (0 = none), grazing reflection included
-        self.f0_dielectric = np.minimum(_dielectric_f0(self.ior) * self.specular_scale, 1.0) * (1.0 - self.metallic)
+        self.f0_dielectric = np.minimum(dielectric_f0(self.ior) * self.specular_scale, 1.0) * (1.0 - self.metallic)
         self.f90 = np.minimum(self.specular_scale, 1.0) * (1.0 - self.metallic) + self.metallic
         self.alpha = np.maximum(self.roughness**2, _MIN_ALPHA)
         # rough surfaces with a specular lobe get GGX highlights (Specular IOR Level 0, not metallic: none)
@@ -85,7 +88,7 @@ class MaterialTable:
         return np.clip(index, 0, len(self.materials) - 1)
 
     def base_color(self, index, uv):
-        """Base colour per hit, with image textures looked up (bilinear, repeat) where present."""
+        """Base colour per hit, with image textures looked up (bilinear or closest, repeat) where present."""
         color = self.base[index]
         if uv is None:
             return color
@@ -94,24 +97,9 @@ class MaterialTable:
                 continue
             sel = np.flatnonzero(index == m)
             if len(sel):
-                color[sel] = _sample_texture(texture, uv[sel])
+                color[sel] = image_lookup(texture[..., :3], uv[sel, 0], uv[sel, 1],
+                                          "Closest" if self.closest[m] else "Linear")
         return color
-
-
-def _sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    h, w = texture.shape[:2]
-    x = (uv[:, 0] % 1.0) * w - 0.5
-    y = (uv[:, 1] % 1.0) * h - 0.5
-    x0 = np.floor(x).astype(np.int64)
-    y0 = np.floor(y).astype(np.int64)
-    fx = (x - x0)[:, None]
-    fy = (y - y0)[:, None]
-    x0, x1 = x0 % w, (x0 + 1) % w
-    y0, y1 = y0 % h, (y0 + 1) % h
-    t = texture[..., :3]
-    top = t[y1, x0] * (1 - fx) + t[y1, x1] * fx
-    bottom = t[y0, x0] * (1 - fx) + t[y0, x1] * fx
-    return bottom * (1 - fy) + top * fy
 
 
 @dataclass
@@ -274,7 +262,7 @@ class Shader:
             brdf = diffuse[sel].copy()
             r = sel[rough[sel]]
             if len(r):
-                brdf[rough[sel]] += _ggx(ns[r], view[r], e_k[r], alpha[r], f0[r], f90[r])
+                brdf[rough[sel]] += ggx_reflection(ns[r], view[r], e_k[r], alpha[r], f0[r], f90[r])
             emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel))
             total[sel] += rows.scale(brdf * emitted, strength[sel] * cos_n[sel])
         return total
@@ -340,7 +328,7 @@ class Shader:
         cos_i = -np.einsum("ij,ij->i", n_a, d_a)
         # relative index of refraction across the surface, as the ray leaves the viewer's side
         eta = np.where(back[active], mats.ior[m], 1.0 / mats.ior[m])
-        fresnel = np.minimum(_fresnel_dielectric(cos_i, eta) * mats.specular_scale[m], 1.0)
+        fresnel = np.minimum(fresnel_dielectric(cos_i, eta) * mats.specular_scale[m], 1.0)
         metallic = mats.metallic[m][:, None]
         reflect_weight = fresnel[:, None] * (1.0 - metallic) + base[active] * metallic
         transmit_weight = ((1.0 - fresnel) * mats.transmission[m])[:, None] * (1.0 - metallic)
@@ -372,38 +360,6 @@ class Shader:
 def _rows(lam, index):
     """The wavelengths of some rays (None in RGB mode)."""
     return None if lam is None else lam[index]
-
-
-def _dielectric_f0(ior):
-    return ((ior - 1.0) / (ior + 1.0)) ** 2
-
-
-def _fresnel_dielectric(cos_i, eta):
-    """Unpolarised Fresnel reflectance; eta = n_incident / n_transmitted; 1 for total internal reflection."""
-    cos_i = np.clip(cos_i, 0.0, 1.0)
-    sin_t2 = eta**2 * (1.0 - cos_i**2)
-    cos_t = np.sqrt(np.maximum(1.0 - sin_t2, 0.0))
-    rs = (eta * cos_i - cos_t) / np.maximum(eta * cos_i + cos_t, 1e-300)
-    rp = (cos_i - eta * cos_t) / np.maximum(cos_i + eta * cos_t, 1e-300)
-    return np.where(sin_t2 >= 1.0, 1.0, 0.5 * (rs**2 + rp**2))
-
-
-def _ggx(n, view, light, alpha, f0, f90):
-    """Cook-Torrance GGX specular BRDF (Schlick Fresnel from f0 to f90, separable Smith shadowing)."""
-    h = rows.normalized(view + light)
-    n_h = np.clip(rows.dot(n, h), 0.0, 1.0)
-    n_v = np.clip(rows.dot(n, view), 1e-6, 1.0)
-    n_l = np.clip(rows.dot(n, light), 1e-6, 1.0)
-    v_h = np.clip(rows.dot(view, h), 0.0, 1.0)
-    a2 = alpha**2
-    ndf = a2 / (np.pi * (n_h**2 * (a2 - 1.0) + 1.0) ** 2)
-
-    def smith(c):
-        return 2.0 * c / (c + np.sqrt(a2 + (1.0 - a2) * c * c))
-
-    schlick = (1.0 - v_h) ** 5
-    fresnel = rows.scale(f0, 1.0 - schlick) + (f90 * schlick)[:, None]
-    return rows.scale(fresnel, ndf * smith(n_v) * smith(n_l) / (4.0 * n_v * n_l))
 
 
 def _spot_falloff(cos_angle, spot_size, blend):

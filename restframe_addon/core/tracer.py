@@ -86,9 +86,13 @@ def _query(frame: RestFrame, tau, origin, d, t_lo, t_hi, occlusion: bool):
 
 
 def _local_query(geometry, origin, d, t_lo, t_hi, occlusion: bool):
-    if origin.ndim == 1 and _direct_reach(geometry, origin, t_lo):
-        # a ray with t_hi < t_lo cannot meet the bounds before t_hi: embree finds nothing for it
-        return _embree_query(geometry, origin - geometry.anchor, d, t_hi, occlusion)
+    if origin.ndim == 1:
+        direct = _direct_reach(geometry, origin, t_lo)
+        if direct.all():
+            # a ray with t_hi < t_lo cannot meet the bounds before t_hi: embree finds nothing for it
+            return _embree_query(geometry, origin - geometry.anchor, d, t_hi, occlusion)
+        if direct.any():  # each ray takes its own route, whatever else is in the bundle
+            return _split_query(geometry, origin, d, t_lo, t_hi, occlusion, direct)
     enter, leave = _clip_to_bounds(geometry, origin, d, t_lo, t_hi)
     inside = enter <= leave
     if inside.all():  # every ray reaches the bounds (the common case up close): no gathers
@@ -112,21 +116,46 @@ def _local_query(geometry, origin, d, t_lo, t_hi, occlusion: bool):
 _DIRECT_REACH = 4.0  # in extents: how far a shared origin may be from the bounds' centre for unclipped queries
 
 
-def _direct_reach(geometry, origin, t_lo) -> bool:
-    """Can rays from one shared (local) origin go to embree unclipped?
+def _direct_reach(geometry, origin, t_lo) -> np.ndarray:
+    """Which rays from one shared (local) origin can go to embree unclipped (a mask)?
 
-    Yes when the origin is near enough to the geometry that float32 coordinates relative to
-    the anchor lose no more than the geometry's own float32 vertices, and no part of the
-    bounds is nearer than the rays' start (embree starts every ray at 0).
+    Those whose origin is near enough to the geometry that float32 coordinates relative to
+    the anchor lose no more than the geometry's own float32 vertices, and for which no part
+    of the bounds is nearer than the ray's start (embree starts every ray at 0).  Decided
+    per ray: the two routes round differently in float32, and a ray's hit must not depend
+    on the tile or batch it is traced in.
     """
     offset = (origin - geometry.anchor).tolist()
     half = (0.5 * (geometry.hi - geometry.lo)).tolist()
     reach = _DIRECT_REACH * geometry.extent
     if math.fsum(c * c for c in offset) > reach * reach:
-        return False
+        return np.zeros(len(t_lo), dtype=bool)
     pad = _padding(geometry)
     gap = math.sqrt(math.fsum(max(abs(c) - h - pad, 0.0) ** 2 for c, h in zip(offset, half)))
-    return float(t_lo.max()) <= gap
+    return t_lo <= gap
+
+
+def _split_query(geometry, origin, d, t_lo, t_hi, occlusion: bool, direct):
+    """Rays from one shared origin, the ``direct`` ones unclipped and the others clipped."""
+    n = len(d)
+    parts = [(np.flatnonzero(direct), True), (np.flatnonzero(~direct), False)]
+    if occlusion:
+        blocked = np.zeros(n, dtype=bool)
+        for idx, unclipped in parts:
+            if unclipped:
+                blocked[idx] = _embree_query(geometry, origin - geometry.anchor, d[idx], t_hi[idx], occlusion)
+            else:
+                blocked[idx] = _local_query(geometry, origin, d[idx], t_lo[idx], t_hi[idx], occlusion)
+        return blocked
+    t, prim = np.full(n, np.inf), np.full(n, -1, dtype=np.int32)
+    u, v = np.zeros(n, dtype=np.float32), np.zeros(n, dtype=np.float32)
+    for idx, unclipped in parts:
+        if unclipped:
+            part = _embree_query(geometry, origin - geometry.anchor, d[idx], t_hi[idx], occlusion)
+        else:
+            part = _local_query(geometry, origin, d[idx], t_lo[idx], t_hi[idx], occlusion)
+        t[idx], prim[idx], u[idx], v[idx] = part
+    return t, prim, u, v
 
 
 def _clipped_query(geometry, origin, d, enter, leave, occlusion: bool):
@@ -336,12 +365,12 @@ def _update(hits: Hits, best, where, k, s, t, w, prim, u, v, d_frame, tau_frame)
 
 
 def _shared_origin(tau0, x0):
-    """(tau, x) when every ray starts at the same event (a perspective camera's rays), else None."""
-    if len(tau0) == 0:
+    """(tau, x) when every ray starts at the same event by construction (broadcast views: a
+    perspective camera's rays), else None.  Rays that merely happen to start at one event
+    (a bundle of one) are traced as any others: the shared route rounds differently, and a
+    ray's hit must not depend on the bundle it is traced in."""
+    if len(tau0) == 0 or not (tau0.strides[0] == 0 and x0.strides[0] == 0):
         return None
-    if not (tau0.strides[0] == 0 and x0.strides[0] == 0):  # broadcast views are shared by construction
-        if not (np.all(tau0 == tau0[0]) and np.all(x0 == x0[0])):
-            return None
     return float(tau0[0]), np.array(x0[0])
 
 

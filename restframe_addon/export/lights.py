@@ -10,18 +10,41 @@ from ..core.scene import Light, Velocity
 from .materials import output_node, upstream
 
 
-def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot) -> Light:
+def node_emission(data, name: str, warn: Callable[[str], None]) -> tuple[np.ndarray, float]:
+    """(colour, strength) of the Emission node in a light's node tree, which Cycles multiplies
+    into the light's own colour and power; (white, 1) without nodes, black when nothing feeds
+    the Light Output."""
+    tree = data.node_tree
+    if tree is None or not data.use_nodes:
+        return np.ones(3), 1.0
+    output = tree.get_output_node('CYCLES')
+    if output is None:
+        return np.ones(3), 1.0
+    node = upstream(output.inputs["Surface"])
+    if node is None:
+        return np.zeros(3), 0.0
+    if node.type != 'EMISSION':
+        warn(f"Light '{name}': shader '{node.bl_label}' in its node tree is not supported, ignored")
+        return np.ones(3), 1.0
+    color, strength = node.inputs["Color"], node.inputs["Strength"]
+    if upstream(color) is not None or upstream(strength) is not None:
+        warn(f"Light '{name}': links into its Emission node are not supported, using their values")
+    return np.asarray(color.default_value[:3], dtype=np.float64), float(strength.default_value)
+
+
+def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Callable[[str], None] = print) -> Light:
     data = obj.data
     rotation = matrix[:3, :3] / np.linalg.norm(matrix[:3, :3], axis=0)
+    tint, strength = node_emission(data, obj.name, warn)
     light = Light(
         name=obj.name,
         kind=data.type,
         position=tuple(matrix[:3, 3]),
         matrix=rotation,
-        color=tuple(float(c) for c in data.color[:3]),
+        color=tuple(float(c) for c in np.asarray(data.color[:3], dtype=np.float64) * tint),
         # a black body (a spectrum the core Doppler-shifts), tinted by the colour
         temperature=float(data.temperature) if getattr(data, "use_temperature", False) else 0.0,
-        power=float(data.energy) * 2.0 ** float(getattr(data, "exposure", 0.0)),
+        power=float(data.energy) * 2.0 ** float(getattr(data, "exposure", 0.0)) * strength,
         velocity=velocity,
         pivot=pivot,
     )

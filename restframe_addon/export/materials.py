@@ -9,24 +9,53 @@ import numpy as np
 
 from ..core.scene import Material
 from ..motion_query import fcurves
+from .images import ImageMissing, image_texture
 from .motion import MAX_SAMPLES, SUBFRAMES
 
-
-def _linear_from_srgb(c: np.ndarray) -> np.ndarray:
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+IDENTITY_UV = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # (2, 3) affine map of (u, v, 1)
 
 
-def upstream(socket):
-    """The node feeding a socket, through reroutes; None if unlinked."""
+def upstream_link(socket):
+    """The link feeding a socket, through reroutes; None if unlinked (or muted)."""
     while socket is not None and socket.is_linked:
         link = socket.links[0]
         if not link.is_valid or link.is_muted:
             return None
-        node = link.from_node
-        if node.type != 'REROUTE':
-            return node
-        socket = node.inputs[0]
+        if link.from_node.type != 'REROUTE':
+            return link
+        socket = link.from_node.inputs[0]
     return None
+
+
+def upstream(socket):
+    """The node feeding a socket, through reroutes; None if unlinked."""
+    link = upstream_link(socket)
+    return link.from_node if link is not None else None
+
+
+def _euler_matrix(angles) -> np.ndarray:
+    """Blender's XYZ Euler rotation: Rz @ Ry @ Rx."""
+    (cx, cy, cz), (sx, sy, sz) = np.cos(angles), np.sin(angles)
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def mapping_affine(kind: str, location, rotation, scale) -> np.ndarray:
+    """The Mapping node on a UV (u, v, 0) as the (2, 3) affine map of (u, v, 1) it amounts to
+    (an image texture reads x and y only, so the map is exact)."""
+    rotate = _euler_matrix(np.asarray(rotation, dtype=np.float64))
+    location, scale = np.asarray(location, dtype=np.float64), np.asarray(scale, dtype=np.float64)
+    if kind == 'TEXTURE':  # the inverse of Point: (R^T (v - location)) / scale
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inverse_scale = np.where(scale != 0.0, 1.0 / scale, 0.0)
+        linear = inverse_scale[:, None] * rotate.T
+        offset = -linear @ location
+    else:  # Point: R (v * scale) + location; Vector: without the location
+        linear = rotate * scale[None, :]
+        offset = location if kind == 'POINT' else np.zeros(3)
+    return np.column_stack([linear[:2, :2], offset[:2]])
 
 
 def output_node(id_data):
@@ -46,6 +75,8 @@ class MaterialExporter:
         self.scene = scene
         self.materials: list[Material] = [Material(name="Default")]
         self._index: dict[int, int] = {}
+        # material index -> (2, 3) affine map of its texture's UVs (Mapping node, UDIM layout)
+        self.uv_transforms: dict[int, np.ndarray] = {}
 
     def index_of(self, material) -> int:
         if material is None:
@@ -54,23 +85,28 @@ class MaterialExporter:
         index = self._index.get(key)
         if index is None:
             index = len(self.materials)
-            self.materials.append(self._convert(material))
+            converted, uv_transform = self._convert(material)
+            self.materials.append(converted)
+            if uv_transform is not None:
+                self.uv_transforms[index] = uv_transform
             self._index[key] = index
         return index
 
-    def _convert(self, mat) -> Material:
+    def _convert(self, mat) -> tuple[Material, np.ndarray | None]:
+        """The material, and the affine map of its texture's UVs (None: as they are)."""
         out = Material(name=mat.name)
         output = output_node(mat)
         node = upstream(output.inputs["Surface"]) if output is not None else None
         if node is None and output is not None:  # a node tree with nothing on Surface renders black
             out.base_color, out.specular_ior_level = (0.0, 0.0, 0.0), 0.0
-            return out
+            return out, None
         if node is None:
             out.base_color = tuple(mat.diffuse_color[:3])
             out.metallic, out.roughness = float(mat.metallic), float(mat.roughness)
-            return out
+            return out, None
+        uv_transform = None
         if node.type == 'BSDF_PRINCIPLED':
-            self._principled(mat, node, out)
+            uv_transform = self._principled(mat, node, out)
         elif node.type == 'EMISSION':  # emits, reflects nothing
             out.base_color, out.specular_ior_level = (0.0, 0.0, 0.0), 0.0
             out.emission = self._emission(mat, node.inputs["Color"], node.inputs["Strength"], out)
@@ -82,15 +118,23 @@ class MaterialExporter:
                       "using its viewport display colour (use a Principled BSDF)")
             out.base_color = tuple(mat.diffuse_color[:3])
             out.metallic, out.roughness = float(mat.metallic), float(mat.roughness)
-        return out
+        return out, uv_transform
 
-    def _principled(self, mat, node, out: Material) -> None:
+    def _principled(self, mat, node, out: Material) -> np.ndarray | None:
+        """Fills ``out``; returns the affine map of the base colour texture's UVs (None: as they are)."""
         inputs = node.inputs
         base = inputs["Base Color"]
         texture_node = upstream(base)
+        uv_transform = None
         if texture_node is not None and texture_node.type == 'TEX_IMAGE':
-            out.base_color_texture = self._image(mat, texture_node)
+            out.base_color_texture, uv_transform = self._image(mat, texture_node)
             out.base_color = tuple(base.default_value[:3])
+            out.base_color_interpolation = 'Closest' if texture_node.interpolation == 'Closest' else 'Linear'
+            if texture_node.interpolation not in {'Linear', 'Closest'}:
+                self.warn(f"Material '{mat.name}': {texture_node.interpolation} image interpolation is read as Linear")
+            if texture_node.extension != 'REPEAT' or texture_node.projection != 'FLAT':
+                self.warn(f"Material '{mat.name}': image extension '{texture_node.extension}' / projection "
+                          f"'{texture_node.projection}' are read as Repeat / Flat")
         else:
             out.base_color = self._color(mat, base)
         out.metallic = self._value(mat, inputs["Metallic"])
@@ -99,6 +143,7 @@ class MaterialExporter:
         out.specular_ior_level = self._value(mat, inputs["Specular IOR Level"])
         out.transmission = self._value(mat, inputs["Transmission Weight"])
         out.emission = self._emission(mat, inputs["Emission Color"], inputs["Emission Strength"], out)
+        return uv_transform
 
     def _emission(self, mat, color, strength, out: Material):
         """Emission colour * strength; a keyframed strength becomes an optical-clock curve."""
@@ -146,26 +191,55 @@ class MaterialExporter:
             self._unsupported_link(mat, socket)
         return float(socket.default_value)
 
-    def _image(self, mat, node) -> np.ndarray | None:
-        """The image's pixels as scene-linear RGB (H, W, 3), row 0 = bottom; None if missing."""
+    def _uv_source(self, mat, link) -> bool:
+        """Whether a link carries the mesh's UVs (Texture Coordinate UV or a UV Map node)."""
+        if link is None:
+            return True
+        node = link.from_node
+        if node.type == 'UVMAP' or (node.type == 'TEX_COORD' and link.from_socket.name == 'UV'):
+            return True
+        self.warn(f"Material '{mat.name}': texture coordinates from '{node.bl_label}' are not supported, using the UVs")
+        return False
+
+    def _uv_transform(self, mat, node) -> np.ndarray:
+        """The (2, 3) affine map the image texture's Vector input applies to the UVs."""
+        link = upstream_link(node.inputs["Vector"])
+        if link is None or link.from_node.type != 'MAPPING':
+            self._uv_source(mat, link)
+            return IDENTITY_UV
+        mapping = link.from_node
+        self._uv_source(mat, upstream_link(mapping.inputs["Vector"]))
+        if mapping.vector_type == 'NORMAL':
+            self.warn(f"Material '{mat.name}': a Normal-type Mapping on the UVs is not supported, ignored")
+            return IDENTITY_UV
+        values = []
+        for name, unused in (("Location", (0.0, 0.0, 0.0)), ("Rotation", (0.0, 0.0, 0.0)), ("Scale", (1.0, 1.0, 1.0))):
+            socket = mapping.inputs.get(name)  # (a Vector mapping has no Location)
+            if socket is not None and upstream(socket) is not None:
+                self._unsupported_link(mat, socket)
+            values.append(tuple(socket.default_value) if socket is not None else unused)
+        return mapping_affine(mapping.vector_type, *values)
+
+    def _image(self, mat, node) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The image's pixels as scene-linear RGB (H, W, 3) float32, row 0 = bottom (None if missing),
+        and the affine map of its UVs (Mapping node, UDIM tile layout; None: as they are)."""
         image = node.image
         if image is None:
             self.warn(f"Material '{mat.name}': the image texture node has no image")
-            return None
-        width, height = image.size
-        channels = image.channels
-        if width == 0 or height == 0 or not image.has_data:
+            return None, None
+        if image.source == 'MOVIE':
+            self.warn(f"Image '{image.name}' (material '{mat.name}'): movie textures are not supported; "
+                      "using the base colour")
+            return None, None
+        frame = self.scene.frame_current if self.scene is not None else 1
+        try:
+            texture = image_texture(image, node.image_user, frame, self.warn)
+        except ImageMissing as missing:
             self.warn(f"Image '{image.name}' (material '{mat.name}') could not be loaded: "
-                      f"'{image.filepath}' is missing; using the base colour")
-            return None
-        pixels = np.empty(width * height * channels, dtype=np.float32)
-        image.pixels.foreach_get(pixels)
-        pixels = pixels.reshape(height, width, channels)
-        rgb = pixels[..., :3] if channels >= 3 else np.repeat(pixels[..., :1], 3, axis=2)
-        space = image.colorspace_settings.name
-        if not image.is_float and space not in {"Non-Color", "Linear Rec.709", "Linear", "Raw"}:
-            if "sRGB" not in space:
-                self.warn(f"Image '{image.name}': colour space '{space}' is read as sRGB")
-            rgb = _linear_from_srgb(rgb)
-        return np.ascontiguousarray(rgb, dtype=np.float32)
-
+                      f"'{missing}' is missing; using the base colour")
+            return None, None
+        transform = self._uv_transform(mat, node)
+        columns, rows = texture.tiles
+        if (columns, rows) != (1, 1):  # tile (i, j) covers UVs [i, i+1) x [j, j+1) of the side-by-side layout
+            transform = np.array([[1.0 / columns], [1.0 / rows]]) * transform
+        return texture.pixels, None if np.array_equal(transform, IDENTITY_UV) else transform

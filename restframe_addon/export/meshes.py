@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import ExportCancelled
+from .keyed_speed import is_finite
 from .materials import MaterialExporter
 
 
@@ -67,16 +68,23 @@ def read_mesh(obj, mesh, materials: MaterialExporter, should_stop=lambda: False)
         corner_uvs = np.empty(len(mesh.loops) * 2, dtype=np.float32)
         layer.uv.foreach_get("vector", corner_uvs)
         uvs = corner_uvs.reshape(-1, 2)[corners].reshape(n_tri, 3, 2).astype(np.float64)
+        for index, affine in materials.uv_transforms.items():  # Mapping nodes, UDIM layouts
+            sel = global_materials == index
+            if np.any(sel):
+                uvs[sel] = uvs[sel] @ affine[:, :2].T + affine[:, 2]
 
     check()
-    return MeshData(vertices.reshape(-1, 3).astype(np.float64), triangles.reshape(-1, 3),
+    vertices = vertices.reshape(-1, 3).astype(np.float64)
+    vertices[~is_finite(vertices)] = np.inf  # Blender keeps an inf as 3.4e38: the core skips such triangles
+    return MeshData(vertices, triangles.reshape(-1, 3),
                      global_materials, normals, uvs)
 
 
 def place(data: MeshData, matrix: np.ndarray):
     """World-space vertices and normals for one instance transform."""
     linear, offset = matrix[:3, :3], matrix[:3, 3]
-    vertices = data.vertices @ linear.T + offset
+    with np.errstate(invalid="ignore"):  # non-finite vertices stay non-finite: the core skips them
+        vertices = data.vertices @ linear.T + offset
     normals = None
     if data.normals is not None:
         # normals transform with the inverse transpose; row vectors: n @ inv(linear)

@@ -11,6 +11,7 @@ from ..core.motion import Trajectory
 from ..core.scene import Velocity
 from ..motion_query import fcurves, has_animated_location
 from .errors import ExportCancelled, ExportError
+from .keyed_speed import KeyedCurve, fastest, is_finite, non_finite_key
 
 
 _SHUTTER_OPENS = {'START': 0.0, 'CENTER': -0.5, 'END': -1.0}  # the frame's place in the shutter, in shutters
@@ -83,7 +84,7 @@ def body_radius(vertices: np.ndarray, triangles: np.ndarray, pivot) -> float:
     used = np.zeros(len(vertices), dtype=bool)
     used[triangles] = True
     distance = np.linalg.norm(vertices[used] - np.asarray(pivot, dtype=np.float64), axis=1)
-    return float(np.max(distance[np.isfinite(distance)], initial=0.0))
+    return float(np.max(distance[is_finite(distance)], initial=0.0))
 
 
 def object_trajectory(root, scene, camera_position, radius: float, *, should_stop=lambda: False,
@@ -93,12 +94,13 @@ def object_trajectory(root, scene, camera_position, radius: float, *, should_sto
     ``radius`` is the assembly's ``body_radius`` about the pivot (every mesh moving with it),
     so the world line is built with its corners rounded for that body.
 
-    Samples ``SUBFRAMES`` per frame from before the scene's start frame (early enough
-    for light from any sampled position to reach the camera) up to just past the
-    rendered frame; the F-curves are evaluated directly, so the scene's current frame
+    Samples ``SUBFRAMES`` per frame, and every key, from before the scene's start frame
+    (early enough for light from any sampled position to reach the camera) up to just past
+    the rendered frame; the F-curves are evaluated directly, so the scene's current frame
     never changes.  Supported: the object's own location/delta location keys; a parent
     is taken as static at its pose of the rendered frame.  Raises ExportError (naming
-    the object and frames) when the motion reaches c, ExportCancelled on Esc.
+    the object and frames) when the keyed curves, differentiated per segment, reach c
+    anywhere (``_refuse_light_speed``), ExportCancelled on Esc.
     """
     rf = scene.restframe
     c = rf.light_speed
@@ -116,6 +118,13 @@ def object_trajectory(root, scene, camera_position, radius: float, *, should_sto
             warn(f"{root.name}: its parent '{root.parent.name}' is animated; Motion = Animation takes "
                  "the parent as static (pose of the rendered frame)")
 
+    keyed = {key: KeyedCurve.from_fcurve(fc) for key, fc in curves.items()}
+    for (path, index), curve in keyed.items():
+        frame = non_finite_key(curve)
+        if frame is not None:
+            raise ExportError(f"{root.name}: the {path}[{index}] key at frame {frame:g} is not a finite number "
+                              "(NaN or inf): Motion = Animation cannot follow it")
+
     def world(frames):
         local = _local_locations(root, curves, frames)
         return local @ parent_matrix[:3, :3].T + parent_matrix[:3, 3]
@@ -125,12 +134,18 @@ def object_trajectory(root, scene, camera_position, radius: float, *, should_sto
     end = current + 1.0 + max((shutter_frames(scene) or (0.0, 0.0))[1], 0.0)  # past the shutter's closing
     # how far back light can come from: the farthest sampled position, plus the body's radius
     coarse = np.linspace(first, end, int(min(end - first, 2000)) + 2)
-    reach = float(np.linalg.norm(world(coarse) - np.asarray(camera_position), axis=1).max()) + radius
+    seen = world(coarse)
+    if not np.all(is_finite(seen)):
+        raise ExportError(f"{root.name}: the animated location is not a finite number")
+    reach = float(np.linalg.norm(seen - np.asarray(camera_position), axis=1).max()) + radius
     start = first - math.ceil(2.0 * reach / c * fps) - 1.0
     if not math.isfinite(start):
         raise ExportError(f"{root.name}: the animated location is not a finite number")
     count = int(min((end - start) * SUBFRAMES, MAX_SAMPLES)) + 1
-    frames = np.linspace(start, end, count)
+    keys = np.concatenate([curve.key_frame for curve in keyed.values()] + [np.empty(0)])
+    # the keys themselves are samples too: a short burst between two keys is not averaged away
+    frames = _samples_with_keys(start, end, count, keys)
+    _refuse_light_speed(root.name, keyed, parent_matrix, frames, fps / c)
     if should_stop():
         raise ExportCancelled()
     position = world(frames)
@@ -148,3 +163,58 @@ def object_trajectory(root, scene, camera_position, radius: float, *, should_sto
     except ValueError as error:
         raise ExportError(str(error)) from error
 
+
+def _samples_with_keys(start: float, end: float, count: int, keys: np.ndarray) -> np.ndarray:
+    """``count`` even samples of [start, end] and every key inside, without the even samples that
+    come within a quarter step of a key (a sliver interval would leave a key's corner no room)."""
+    grid = np.linspace(start, end, count)
+    keys = np.unique(keys[(keys > start) & (keys < end)])
+    if len(keys) == 0:
+        return grid
+    step = (end - start) / max(count - 1, 1)
+    nearest = np.clip(np.searchsorted(keys, grid), 1, len(keys)) - 1
+    gap = np.minimum(np.abs(grid - keys[nearest]), np.abs(grid - keys[np.minimum(nearest + 1, len(keys) - 1)]))
+    keep = gap >= 0.25 * step
+    keep[[0, -1]] = True
+    return np.union1d(grid[keep], keys)
+
+
+def _refuse_light_speed(name: str, keyed: dict, parent_matrix: np.ndarray, frames: np.ndarray,
+                        to_c: float) -> None:
+    """Raise ExportError (naming the object and the frames) where the keyed location, differentiated
+    per key segment, reaches the speed of light within ``frames``; a jump is infinitely fast.
+    ``to_c`` turns scene units per frame into units of c (fps / c)."""
+    lo, hi = frames[0], frames[-1]
+    jumps = sorted({f for curve in keyed.values() for f in curve.jumps() if lo <= f <= hi})
+    if jumps:
+        listed = ", ".join(f"{f:g}" for f in jumps[:5]) + (f" and {len(jumps) - 5} more" if len(jumps) > 5 else "")
+        raise ExportError(f"{name}: the keyed location jumps (CONSTANT interpolation or two keys on one frame) "
+                          f"at frame {listed}: infinitely fast, not below the speed of light; "
+                          "use Linear or Bezier interpolation")
+    if not keyed:
+        return
+    vertical = sorted({f for curve in keyed.values() for f in curve.vertical() if lo <= f <= hi})
+    if vertical:
+        raise ExportError(f"{name}: the keyed location's Bezier handles make it stand still in time while it moves "
+                          f"at frame {', '.join(f'{f:.6g}' for f in vertical[:5])}: infinitely fast, not below the "
+                          "speed of light; shorten the handles")
+    linear = parent_matrix[:3, :3]
+
+    def velocity(at):  # in units of c
+        local = np.zeros((len(at), 3))
+        for (_, index), curve in keyed.items():
+            local[:, index] += curve.derivative(at)
+        return local @ linear.T * to_c
+
+    probes = np.concatenate([frames] + [curve.probe_frames() for curve in keyed.values()])
+    probes = np.unique(probes[(probes >= lo) & (probes <= hi)])
+    speed, frame = fastest(velocity, probes)
+    if speed < 1.0:
+        return
+    fast = np.linalg.norm(velocity(probes), axis=1) >= 1.0
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], fast.astype(np.int8), [0]])))
+    spans = [(probes[a], probes[b - 1]) for a, b in zip(edges[::2], edges[1::2])] or [(frame, frame)]
+    listed = ", ".join(f"{a:.6g}-{b:.6g}" for a, b in spans[:5]) + (
+        f" and {len(spans) - 5} more" if len(spans) > 5 else "")
+    raise ExportError(f"{name}: the animation moves at {speed:.6g} c (at frame {frame:.6g}), not below the speed "
+                      f"of light, between frames {listed}: slow it down or raise the scene's speed of light")

@@ -18,6 +18,7 @@ from ..core.scene import Light, Mesh, RenderSettings, Scene, Velocity
 from ..motion_query import assembly_root, has_animated_location, observation_time
 from .camera import export_camera
 from .errors import ExportCancelled, ExportError
+from .features import FeatureReport, object_features, uses_stereo
 from .lights import export_light, world_color
 from .materials import MaterialExporter
 from .meshes import MeshData, place, read_mesh
@@ -25,22 +26,48 @@ from .motion import body_radius, object_trajectory, object_velocity
 from .settings import render_settings
 
 
-def _instance_source(inst):
+_NO_LEVEL = 2**31 - 1  # how Blender pads an instance's persistent id beyond its nesting depth
+
+
+def _moves(obj) -> bool:
+    rf = obj.restframe
+    return rf.is_moving or rf.is_animated or any(rf.angular_velocity)
+
+
+def _instancer_key(inst, levels_up: int = 0):
+    """Identifies an instance among the instances of its top-level instancer: its persistent id
+    (innermost level first), or that of the instancer ``levels_up`` levels above it."""
+    pid = tuple(inst.persistent_id)[levels_up:]
+    return (inst.parent.original.as_pointer() if inst.parent is not None else 0,
+            pid + (_NO_LEVEL,) * levels_up)
+
+
+def _instance_source(inst, moving_instancers: dict):
     """The object whose velocity an instance takes, and where its assembly pivot is.
 
-    An instance moves with its instancer (collection instance empty, particle
-    emitter, the curve/text object of its own evaluated geometry) when that has
-    a velocity; otherwise with the instanced object's own velocity, pivoting at
-    the instance's origin.
+    The innermost motion counts, as for parents (docs/physics.md#rest-shapes: a child with its own velocity is
+    its own assembly, moving with that velocity in S): an instanced object's own velocity, else
+    that of the nearest instancer with one (a collection instance inside an instanced collection,
+    from ``moving_instancers``), else the top-level instancer's (collection instance empty,
+    particle emitter, the curve/text object of its own evaluated geometry).  Velocities do not
+    add up through the levels: each is measured in S.
     """
-    parent = inst.parent
-    if inst.is_instance and parent is not None and (parent.restframe.is_moving or parent.restframe.is_animated
-                                                    or any(parent.restframe.angular_velocity)):
-        return parent, tuple(assembly_root(parent).matrix_world.translation)
     obj = inst.object
-    if inst.is_instance:
+    if not inst.is_instance:
+        return obj, tuple(assembly_root(obj).matrix_world.translation)
+    if _moves(obj):
         return obj, tuple(inst.matrix_world.translation)
-    return obj, tuple(assembly_root(obj).matrix_world.translation)
+    pid = tuple(inst.persistent_id)
+    for level in range(1, len(pid)):
+        if pid[level] == _NO_LEVEL:
+            break
+        found = moving_instancers.get(_instancer_key(inst, level))
+        if found is not None:
+            return found
+    parent = inst.parent
+    if parent is not None and _moves(parent):
+        return parent, tuple(assembly_root(parent).matrix_world.translation)
+    return obj, tuple(inst.matrix_world.translation)
 
 
 def export_scene(depsgraph, camera_object=None, *, resolution=None,
@@ -77,14 +104,31 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
     radii: dict[int, float] = {}  # animated assembly key -> body_radius over all its meshes
     jumping: set[str] = set()
     camera_position = tuple(camera_object.matrix_world.translation)
+    unsupported = FeatureReport()
+    features_seen: set[int] = set()  # original objects already asked (instances share theirs)
+    # instanced instancers with a velocity -> (object, pivot); Blender lists them before their instances
+    moving_instancers: dict = {}
+    view_layer = depsgraph.view_layer
+    if uses_stereo(scene):
+        unsupported.add(f"View layer '{view_layer.name}'", ["stereo"])
 
     for inst in depsgraph.object_instances:
         if should_stop():
             raise ExportCancelled()
         obj = inst.object
+        if obj.type in {'MESH', 'CURVES', 'VOLUME'} and obj.original.as_pointer() not in features_seen:
+            features_seen.add(obj.original.as_pointer())
+            unsupported.add(obj.name, object_features(obj, view_layer))
+        if inst.is_instance and (obj.instance_type != 'NONE' or len(obj.particle_systems)) and _moves(obj):
+            if obj.restframe.is_animated:
+                warn_once(f"{obj.name}: Motion = Animation of an instancer inside an instanced collection is "
+                          "not supported: its instances move with the instancers around it")
+            else:
+                # the original: Blender reuses one temporary object for every instance it lists
+                moving_instancers[_instancer_key(inst)] = (obj.original, tuple(inst.matrix_world.translation))
         if obj.type not in {'MESH', 'LIGHT'} or not inst.show_self:
             continue
-        source, pivot = _instance_source(inst)
+        source, pivot = _instance_source(inst, moving_instancers)
         animated = source.restframe.is_animated
         # an animated body's velocity comes from its world line (lights keep theirs)
         velocity = Velocity() if animated and obj.type == 'MESH' else object_velocity(source)
@@ -97,7 +141,7 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
             if animated or any(spin):
                 warn_once(f"{source.name}: lights move only at a constant velocity "
                           "(Motion = Animation and Angular Velocity are ignored)")
-            lights.append(export_light(obj, matrix, velocity, pivot))
+            lights.append(export_light(obj, matrix, velocity, pivot, warn_once))
             continue
         body = None
         if animated:
@@ -142,6 +186,8 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
                                             should_stop=should_stop, warn=warn_once)
                     for body, root in roots.items()}
     meshes = [Mesh(**fields, trajectory=trajectories.get(body)) for body, fields in bodies]
+    for message in unsupported.warnings():
+        warn_once(message)
     for name in sorted(jumping):
         warn_once(f"{name}: has a velocity and a keyframed location, so it jumps between frames "
                   "(set its Motion to Animation to follow the keyframed path)")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..core.passes import PASSES
 from ..core.scene import RenderSettings
 from .errors import ExportError
@@ -13,14 +15,21 @@ def full_resolution(scene) -> tuple[int, int]:
             render.resolution_y * render.resolution_percentage // 100)
 
 
+def _border_pixels(edge: float, size: int) -> int:
+    """One border edge in pixels as Blender computes it: the single-precision edge times the
+    resolution, in single precision, truncated (``render_init_from_main``).  In double precision
+    an edge like 0.7 (stored as 0.69999999) lands one pixel short at 1920."""
+    return int(np.float32(edge) * np.float32(size))
+
+
 def border_region(scene, resolution) -> tuple[int, int, int, int] | None:
     """Blender's render border in pixels (x1/y1 exclusive), rounded as Blender does."""
     render = scene.render
     if not render.use_border:
         return None
     width, height = resolution
-    x0, x1 = int(render.border_min_x * width), int(render.border_max_x * width)
-    y0, y1 = int(render.border_min_y * height), int(render.border_max_y * height)
+    x0, x1 = _border_pixels(render.border_min_x, width), _border_pixels(render.border_max_x, width)
+    y0, y1 = _border_pixels(render.border_min_y, height), _border_pixels(render.border_max_y, height)
     if x1 <= x0 or y1 <= y0:
         raise ExportError("the render region (border) is empty: draw a larger one or turn it off")
     return (x0, y0, x1, y1)

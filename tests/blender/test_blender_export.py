@@ -359,6 +359,79 @@ def test_cancel_stops_the_export(scene):
     assert len(calls) == 2
 
 
+def nested_instances(scene, instanced=True):
+    """Two empties A0, A1 at 0.5c along x instancing 'Outer' = {Wall (no velocity), B (an empty at
+    0.3c along y instancing 'Inner' = {Box (no velocity), Probe (its own velocity)})}; with
+    ``instanced`` False, the same geometry and velocities as plain objects instead."""
+    def triangle(name, at, velocity=(0.0, 0.0, 0.0), collection=None):
+        mesh = bpy.data.meshes.new(name)
+        mesh.from_pydata([(-0.5, -0.5, 0), (0.5, -0.5, 0), (0.0, 0.5, 0)], [], [(0, 1, 2)])
+        obj = bpy.data.objects.new(name, mesh)
+        obj.location = at
+        obj.restframe.velocity = velocity
+        (collection or scene.collection).objects.link(obj)
+        return obj
+
+    if not instanced:
+        for i in range(2):
+            x = 4.0 * i
+            triangle(f"A{i}/Wall", (x, 0, 0), (0.5, 0, 0))
+            triangle(f"A{i}/Box", (x, 2, 0), (0.0, 0.3, 0))
+            triangle(f"A{i}/Probe", (x + 1, 2, 0), (0.0, 0.0, -0.2))
+        return
+
+    def collection(name):
+        c = bpy.data.collections.new(name)
+        scene.collection.children.link(c)
+        scene.view_layers[0].layer_collection.children[name].exclude = True
+        return c
+
+    inner, outer = collection("Inner"), collection("Outer")
+    triangle("Box", (0, 0, 0), collection=inner)
+    triangle("Probe", (1, 0, 0), (0.0, 0.0, -0.2), collection=inner)
+    triangle("Wall", (0, 0, 0), collection=outer)
+    b = bpy.data.objects.new("B", None)
+    b.instance_type, b.instance_collection = 'COLLECTION', inner
+    b.location = (0, 2, 0)
+    b.restframe.velocity = (0.0, 0.3, 0.0)
+    outer.objects.link(b)
+    for i in range(2):
+        a = bpy.data.objects.new(f"A{i}", None)
+        a.instance_type, a.instance_collection = 'COLLECTION', outer
+        a.location = (4.0 * i, 0, 0)
+        a.restframe.velocity = (0.5, 0.0, 0.0)
+        scene.collection.objects.link(a)
+
+
+def test_nested_instancers_give_the_innermost_velocity(scene):
+    """The innermost motion counts, as for parents: an instanced object's own velocity, else the
+    nearest instancer's (B inside the instanced collection), else the top-level one's (A)."""
+    add_camera(scene)
+    nested_instances(scene)
+    out, _, _ = export_now(scene)
+    for i in range(2):
+        x = 4.0 * i
+        wall, box, probe = (by_name(out.meshes, f"A{i}/{name}") for name in ("Wall", "Box", "Probe"))
+        assert wall.velocity.beta == pytest.approx((0.5, 0.0, 0.0)) and wall.pivot == pytest.approx((x, 0, 0))
+        assert box.velocity.beta == pytest.approx((0.0, 0.3, 0.0)) and box.pivot == pytest.approx((x, 2, 0))
+        assert probe.velocity.beta == pytest.approx((0.0, 0.0, -0.2)) and probe.pivot == pytest.approx((x + 1, 2, 0))
+
+
+def test_nested_instances_render_like_the_same_plain_objects(scene, tmp_path):
+    from blender_helpers import render_exr
+    scene.render.resolution_x, scene.render.resolution_y = 60, 36
+    add_camera(scene, location=(2.5, 1.0, 9.0))
+    nested_instances(scene)
+    nested = render_exr(scene, tmp_path / "nested.exr")["Doppler"]
+    for obj in list(bpy.data.objects):
+        if obj.type != 'CAMERA':
+            bpy.data.objects.remove(obj)
+    nested_instances(scene, instanced=False)
+    plain = render_exr(scene, tmp_path / "plain.exr")["Doppler"]
+    assert np.count_nonzero(plain) > 100 and len(np.unique(plain.round(4))) > 3
+    np.testing.assert_allclose(nested, plain, rtol=1e-9, atol=0)
+
+
 def test_the_ui_answers_motion_questions_without_the_exporter():
     """ui.py asks motion_query (and the core's checks), never the export package."""
     code = ("import sys, restframe_addon.ui; "

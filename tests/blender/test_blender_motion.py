@@ -234,3 +234,199 @@ def test_keyframed_emission_is_seen_on_the_emitters_own_clock(scene, tmp_path):
         assert float(passes["Combined"][2, 2, 1]) == pytest.approx(1000.0 + 24.0 * clock, rel=1e-5)
         seen.append(clock)
     assert (seen[1] - seen[0]) / (12 / FPS) == pytest.approx(2.0, rel=1e-5)
+
+
+def test_spin_speed_is_measured_from_the_axis(scene, tmp_path):
+    """A pole 10 long and 0.2 thick spinning about its own length: its points are at most
+    0.1 sqrt 2 from the axis, so at 50.2 rad/s (c = 10) they move at 0.71 c although its ends are
+    5 from the pivot (25 c if measured from there).  About a crosswise axis the same spin is refused
+    with the true rim speed."""
+    add_camera(scene, location=(0.0, -20.0, 0.0), rotation=(math.radians(90), 0.0, 0.0))
+    add_sun(scene, rotation=(math.radians(60), 0.0, 0.0))
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    pole = bpy.context.object
+    pole.name = "Pole"
+    pole.scale = (0.2, 0.2, 10.0)
+    omega = 0.71 * 10.0 / (0.1 * math.sqrt(2.0))
+    pole.restframe.angular_velocity = (0.0, 0.0, omega)
+    passes = render_exr(scene, tmp_path / "pole.exr")
+    assert (passes["Doppler"] > 0).sum() >= 5
+    pole.restframe.angular_velocity = (omega, 0.0, 0.0)
+    rim = omega * math.hypot(5.0, 0.1) / 10.0
+    with pytest.raises(RuntimeError, match=f"Pole: spinning this fast its rim would move at {rim:.5g}"):
+        bpy.ops.render.render()
+
+
+def location_fcurves(obj):
+    animation = obj.animation_data
+    return motion_query.fcurves(animation.action, getattr(animation, "action_slot", None))
+
+
+def key_x(obj, keys, interpolation='BEZIER'):
+    for frame, x in keys:
+        obj.location.x = x
+        obj.keyframe_insert("location", index=0, frame=frame)
+    for fc in location_fcurves(obj):
+        for point in fc.keyframe_points:
+            point.interpolation = interpolation
+        fc.update()
+    obj.restframe.motion = 'ANIMATION'
+
+
+def speed_in_message(error) -> float:
+    import re
+    return float(re.search(r"moves at ([0-9.e+]+) c", str(error.value)).group(1))
+
+
+@pytest.mark.parametrize("interpolation", ['BEZIER', 'LINEAR'])
+def test_a_spike_shorter_than_one_sample_is_refused_with_its_true_speed(scene, interpolation):
+    """x goes 0 -> 2 -> 0 within a tenth of a frame (samples are 1/8 frame apart, so both
+    neighbouring samples see x = 0).  The refusal quotes the curve's true top speed, checked
+    against finite differences of Blender's own F-curve evaluation on a 1e-4-frame grid (of
+    single-precision frames, as Blender takes them)."""
+    scene.render.fps, scene.render.fps_base = FPS, 1.0
+    add_camera(scene)
+    spike = add_plane(scene, "Spike")
+    key_x(spike, [(1, 0.0), (10.0, 0.0), (10.05, 2.0), (10.1, 0.0), (20, 0.0)], interpolation)
+    scene.frame_set(15)
+    with pytest.raises(export.ExportError, match=r"Spike: .*not below the speed of light.*between frames") as error:
+        export_now(scene)
+    (fc,) = location_fcurves(spike)
+    frames = np.linspace(9.99, 10.11, 1201).astype(np.float32).astype(np.float64)
+    x = np.array([fc.evaluate(f) for f in frames])
+    reference = np.max(np.abs(np.diff(x) / np.diff(frames))) * FPS / scene.restframe.light_speed
+    assert reference > 50.0
+    assert speed_in_message(error) == pytest.approx(reference, rel=2e-3)
+
+
+def test_a_fast_bezier_bump_is_measured_by_its_derivative(scene):
+    """A smooth bump (auto-clamped Bezier keys 4 frames apart) whose top speed is 1.2 c while its
+    1/8-frame sample differences stay below it: the figure is the derivative's maximum."""
+    scene.render.fps, scene.render.fps_base = FPS, 1.0
+    c = scene.restframe.light_speed
+    add_camera(scene)
+    bump = add_plane(scene, "Bump")
+    # auto-clamped handles: top slope 1.5 x (rise / span) in the middle of the rising segment
+    rise = 1.2 * c / FPS * 4 / 1.5
+    key_x(bump, [(1, 0.0), (5, 0.0), (9, rise), (13, rise)])
+    scene.frame_set(15)
+    with pytest.raises(export.ExportError, match=r"Bump: ") as error:
+        export_now(scene)
+    assert speed_in_message(error) == pytest.approx(1.2, rel=1e-4)
+    (fc,) = location_fcurves(bump)
+    for key in fc.keyframe_points:  # the same bump 1 % slower is accepted
+        key.co.y *= 0.99 / 1.2
+        key.handle_left.y *= 0.99 / 1.2
+        key.handle_right.y *= 0.99 / 1.2
+    out, _, _ = export_now(scene)
+    assert out.meshes[0].trajectory is not None
+
+
+def test_a_constant_interpolation_jump_is_refused_as_a_teleport(scene):
+    add_camera(scene)
+    hopper = add_plane(scene, "Hopper")
+    key_x(hopper, [(1, 0.0), (8, 0.5), (20, 0.5)], 'CONSTANT')
+    scene.frame_set(15)
+    with pytest.raises(export.ExportError, match=r"Hopper: the keyed location jumps .* at frame 8: infinitely fast"):
+        export_now(scene)
+
+
+@pytest.mark.parametrize("broken", ["value", "handle"])
+def test_non_finite_keys_name_the_object(scene, broken):
+    add_camera(scene)
+    probe = add_plane(scene, "Probe")
+    key_x(probe, [(1, 0.0), (10, 1.0)])
+    (fc,) = location_fcurves(probe)
+    if broken == "value":
+        fc.keyframe_points[1].co.y = math.nan
+    else:
+        fc.keyframe_points[1].handle_left.y = math.inf  # stored as 3.4e38
+    scene.frame_set(5)
+    with pytest.raises(export.ExportError, match=r"^Probe: the location\[0\] key at frame 10 is not a finite number"):
+        export_now(scene)
+
+
+def test_an_inf_vertex_of_an_animated_body_is_skipped_with_a_warning(scene, tmp_path, capfd):
+    """Blender stores an inf typed into a vertex as 3.4e38: its triangles are skipped, as NaN ones
+    are, with the warning naming the object; the body's radius and its world line stay finite."""
+    add_camera(scene)
+    add_sun(scene)
+    mesh = bpy.data.meshes.new("Probe")
+    mesh.from_pydata([(-2, -1, 0), (-1, -1, 0), (-1, 1, 0), (1, -1, 0), (2, -1, 0), (2, 1, 0)], [],
+                     [(0, 1, 2), (3, 4, 5)])
+    probe = bpy.data.objects.new("Probe", mesh)
+    scene.collection.objects.link(probe)
+    key_x(probe, [(1, 0.0), (10, 1.0)])
+    probe.data.vertices[0].co.x = math.inf
+    scene.frame_set(5)
+    out, _, _ = export_now(scene)
+    assert out.meshes[0].trajectory.body_radius == pytest.approx(math.sqrt(5.0))
+    capfd.readouterr()
+    passes = render_exr(scene, tmp_path / "probe.exr")
+    assert "Probe: skipped 1 triangles with invalid or non-finite vertices" in capfd.readouterr().out
+    assert np.all(np.isfinite(passes["Combined"])) and (passes["Doppler"] > 0).any()
+
+
+@pytest.mark.parametrize("interpolation, handles", [
+    ('BEZIER', "long"),  # outgoing handles reaching past the next key: Blender shortens them
+    ('BEZIER', "auto"),
+    ('SINE', "auto"),
+    ('BACK', "auto"),
+    ('ELASTIC', "auto"),
+])
+def test_keyed_curve_derivative_matches_blenders_own_evaluation(scene, interpolation, handles):
+    """The per-segment derivative's maximum equals that of finite differences of Blender's own
+    F-curve evaluation on a fine grid (1/2000 frame), for uneven keys and odd handles."""
+    from restframe_addon.export.keyed_speed import KeyedCurve, fastest
+
+    obj = add_plane(scene, "Curve")
+    key_x(obj, [(1, 0.0), (4, 3.0), (4.5, -1.0), (9, 2.0), (10, 2.0)], interpolation)
+    (fc,) = location_fcurves(obj)
+    if handles == "long":
+        for point in fc.keyframe_points:
+            point.handle_left_type = point.handle_right_type = 'FREE'
+            point.handle_left = (point.co.x - 0.1, point.co.y - 0.2)
+            point.handle_right = (point.co.x + 3.0, point.co.y + 2.0)
+        fc.update()
+    curve = KeyedCurve.from_fcurve(fc)
+    assert curve.vertical() == []
+    frames = np.linspace(1.0, 10.0, 18001).astype(np.float32).astype(np.float64)
+    values = np.array([fc.evaluate(f) for f in frames])
+    reference = np.max(np.abs(np.diff(values) / np.diff(frames)))
+    probes = np.unique(np.concatenate([frames[::100], curve.probe_frames()]))
+    top, _ = fastest(lambda at: curve.derivative(at)[:, None], probes[(probes >= 1.0) & (probes <= 10.0)])
+    assert top == pytest.approx(reference, rel=5e-3)
+
+
+def test_bezier_handles_that_stop_time_are_refused_as_infinitely_fast(scene):
+    """Both handles of a segment as long as the segment: Blender's curve stands still in time at
+    its middle while the value moves (a vertical tangent)."""
+    add_camera(scene)
+    obj = add_plane(scene, "Flick")
+    key_x(obj, [(1, 0.0), (5, 0.0), (6, 0.1), (12, 0.1)])
+    (fc,) = location_fcurves(obj)
+    middle, after = fc.keyframe_points[1], fc.keyframe_points[2]
+    middle.handle_right_type = after.handle_left_type = 'FREE'
+    middle.handle_right = (7.0, 0.0)
+    after.handle_left = (4.0, 0.1)
+    fc.update()
+    scene.frame_set(10)
+    with pytest.raises(export.ExportError, match=r"Flick: .*stand still in time while it moves at frame 5.5"):
+        export_now(scene)
+
+
+def test_keys_are_world_line_samples_without_slivers(scene):
+    """A key between the even samples is a sample itself, and no even sample is left within a
+    quarter step of it (the corner there keeps its room)."""
+    scene.render.fps, scene.render.fps_base = FPS, 1.0
+    add_camera(scene)
+    walker = add_plane(scene, "Walker", size=0.5)
+    key_x(walker, [(1, 0.0), (10.03, 1.0), (20, 0.0)], 'LINEAR')
+    scene.frame_set(15)
+    out, _, _ = export_now(scene)
+    frames = out.meshes[0].trajectory.frames
+    key = float(np.float32(10.03))
+    assert key in frames
+    assert np.diff(frames).min() >= 0.25 / SUBFRAMES * 0.999
+    i = int(np.flatnonzero(frames == key)[0])
+    np.testing.assert_allclose(out.meshes[0].trajectory.position[i], (1.0, 0.0, 0.0), atol=1e-6)

@@ -381,12 +381,19 @@ def spinning_scene(omega_z, res_fov=0.4, shape="box", light_speed=1.0, tau=0.0):
 
 def test_rim_at_or_beyond_c_is_refused():
     with pytest.raises(RenderError, match="top"):
-        render_image(spinning_scene(1.2), settings((8, 8)))  # corner at 0.87 from the axis: 1.04 c
+        render_image(spinning_scene(1.5), settings((8, 8)))  # edges 0.71 from the axis: 1.06 c
+
+
+def test_rim_speed_counts_the_distance_from_the_axis():
+    """At omega 1.2 the unit cube's corners are 0.87 from the pivot (1.04 c if measured from there)
+    but its vertical edges only 0.71 from the axis: 0.85 c, so it renders."""
+    passes = render_image(spinning_scene(1.2), settings((16, 16)))
+    assert (passes["Depth"][..., 0] < 1e9).sum() > 10
 
 
 @pytest.mark.parametrize("omega", [0.3, 1.0])
 def test_every_hit_lies_on_the_body_in_the_pose_of_its_own_time(omega):
-    """Spinning fast (corners up to 0.87 c), each hit point, turned back by the pose of its own
+    """Spinning fast (edges up to 0.71 c), each hit point, turned back by the pose of its own
     emission time, lies on the unit cube's surface (the fixed-point iteration converged)."""
     scene = spinning_scene(omega, tau=2.0)
     res = (41, 41)

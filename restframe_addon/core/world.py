@@ -1,0 +1,321 @@
+"""The world as a light source at rest in the world frame S, and its sampling from moving frames.
+
+A world is looked up, and sampled, by *backward* ray directions ``d`` of S: the direction
+a ray leaving a surface travels to reach the sky, so ``radiance(d)`` is the light that
+arrives from there.  Two kinds, with one interface (``radiance``, ``sample``, ``pdf``,
+``is_black``):
+
+* :class:`UniformWorld` -- the Background node's colour x strength.
+* :class:`EnvironmentWorld` -- an equirectangular image (Environment Texture) x strength,
+  rotated by a Mapping node, importance-sampled by a piecewise-constant density over
+  cells whose radiance it bounds (a bright sun gives no fireflies).
+
+Blender's equirectangular convention (Cycles' ``direction_to_equirectangular``), for a
+direction t in texture space: ``u = 1/2 - atan2(t_y, t_x) / (2 pi)``, ``v = 1/2 +
+asin(t_z) / pi``; +X is the image centre, +Z the top (v = 1).  Images are (H, W, C)
+float arrays with row 0 at v = 0 (the bottom, as Blender stores pixels).
+
+Moving receivers: a surface at rest in S' sees the world aberrated.  With ``D = nu_S' /
+nu_S`` the Doppler factor of the light between the frames, radiance is ``L D^4``
+(frequency-integrated) and solid angles map as ``dOmega_S / dOmega_S' = D^2``, so a
+direction drawn in S with density p_S has density ``p_S D^2`` in S'
+(``docs/physics-world.md`` derives both).  Frame maps are anything with ``rays(d) ->
+(d', w)`` (:class:`~.lorentz.Boost`, :class:`~.frames.FrameMap`): ``w = s'/s``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import mis, rows
+from .bsdf import sample_diffuse
+
+LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709, Blender's scene-linear default
+INTERPOLATIONS = ("Linear", "Closest")
+_IDENTITY = np.eye(3)
+_FOUR_PI = 4.0 * np.pi
+
+
+# ---------------------------------------------------------------------------- mapping
+def euler_rotation(euler) -> np.ndarray:
+    """Blender's XYZ Euler rotation (radians) as a 3x3 matrix: R = Rz Ry Rx."""
+    rx, ry, rz = (float(a) for a in euler)
+    cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
+    return np.array([
+        [cy * cz, sy * sx * cz - cx * sz, sy * cx * cz + sx * sz],
+        [cy * sz, sy * sx * sz + cx * cz, sy * cx * sz - sx * cz],
+        [-sy, cy * sx, cy * cx],
+    ])
+
+
+def mapping_rotation(euler, vector_type: str = "POINT") -> np.ndarray:
+    """The matrix M taking a world direction to the texture direction looked up, for a Mapping
+    node with this rotation (no location or scale): R for Point / Vector / Normal, R^T for Texture."""
+    rotation = euler_rotation(euler)
+    if vector_type == "TEXTURE":
+        return rotation.T
+    if vector_type in ("POINT", "VECTOR", "NORMAL"):
+        return rotation
+    raise ValueError(f"Mapping node: vector type {vector_type!r} is not one of POINT, TEXTURE, VECTOR, NORMAL")
+
+
+def direction_to_equirectangular(t):
+    """Image coordinates (u, v) in [0, 1) x [0, 1] of unit texture-space directions t (n, 3)."""
+    u = 0.5 - np.arctan2(t[:, 1], t[:, 0]) / (2.0 * np.pi)
+    v = 0.5 + np.arcsin(np.clip(t[:, 2], -1.0, 1.0)) / np.pi
+    return u % 1.0, v
+
+
+def equirectangular_to_direction(u, v):
+    """Unit texture-space directions (n, 3) of image coordinates (u, v)."""
+    phi = np.pi * (1.0 - 2.0 * u)
+    z = -np.cos(np.pi * v)
+    return _polar(z, phi)
+
+
+def _polar(z, phi):
+    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    out = np.empty((len(z), 3))
+    out[:, 0] = r * np.cos(phi)
+    out[:, 1] = r * np.sin(phi)
+    out[:, 2] = z
+    return out
+
+
+def image_lookup(image, u, v, interpolation: str = "Linear"):
+    """Colours (n, C) of an (H, W, C) image at (u, v), repeating in both directions as Cycles'
+    environment lookups: bilinear between pixel centres, or the nearest pixel (Closest).
+    Gathers and blends one channel at a time (flat indices; see :mod:`.rows`)."""
+    h, w, channels = image.shape
+    out = np.empty((len(u), channels), dtype=np.result_type(image, np.float64))
+    if interpolation == "Closest":
+        index = (np.floor(v * h).astype(np.int64) % h) * w + np.floor(u * w).astype(np.int64) % w
+        for c in range(channels):
+            out[:, c] = image[..., c].ravel()[index]
+        return out
+    x = u * w - 0.5
+    y = v * h - 0.5
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx, fy = x - x0, y - y0
+    x0 = x0.astype(np.int64) % w
+    y0 = y0.astype(np.int64) % h
+    x1 = (x0 + 1) % w
+    row0, row1 = y0 * w, ((y0 + 1) % h) * w
+    corners = (row0 + x0, row0 + x1, row1 + x0, row1 + x1)
+    weights = ((1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy)
+    for c in range(channels):
+        plane = image[..., c].ravel()
+        total = weights[0] * plane[corners[0]]
+        for corner, weight in zip(corners[1:], weights[1:]):
+            total += weight * plane[corner]
+        out[:, c] = total
+    return out
+
+
+# ---------------------------------------------------------------------------- worlds
+class UniformWorld:
+    """The same radiance ``color * strength`` (RGB) from every direction of S."""
+
+    def __init__(self, color, strength: float = 1.0):
+        self.radiance_rgb = np.asarray(color, dtype=np.float64)[:3] * float(strength)
+        self.is_black = not bool(np.any(self.radiance_rgb > 0.0))
+
+    def radiance(self, d):
+        return np.broadcast_to(self.radiance_rgb, (len(d), 3))
+
+    def sample(self, u1, u2):
+        """Uniform directions on the sphere: (d (n, 3), pdf 1 / (4 pi) per unit solid angle)."""
+        return _polar(1.0 - 2.0 * u1, 2.0 * np.pi * u2), np.full(len(u1), 1.0 / _FOUR_PI)
+
+    def pdf(self, d):
+        return np.full(len(d), 1.0 / _FOUR_PI)
+
+
+class EnvironmentWorld:
+    """An equirectangular environment image at rest in S, importance-sampled by luminance.
+
+    ``image`` (H, W, 3 or 4) linear float radiance (alpha ignored), ``strength`` the
+    Background strength, ``mapping`` the 3x3 rotation taking world directions to texture
+    directions (:func:`mapping_rotation`), ``interpolation`` Blender's Linear or Closest.
+
+    Sampling: the sphere is cut into cells uniform in (phi, cos theta) of texture space
+    whose corners are the pixel centres (Linear) or the pixel edges (Closest), so the
+    looked-up radiance inside a cell lies between its corner (pixel) values.  A cell is
+    chosen with probability proportional to its solid angle x the mean luminance of its
+    corners, then a point uniformly in its solid angle: the density is constant per cell,
+    and radiance / pdf stays within a factor 4 of the mean, however bright a pixel.
+    """
+
+    def __init__(self, image, strength: float = 1.0, mapping=None, interpolation: str = "Linear",
+                 name: str = "World"):
+        image = np.asarray(image, dtype=np.float64)
+        if image.ndim != 3 or image.shape[2] < 3 or image.shape[0] < 1 or image.shape[1] < 1:
+            raise ValueError(f"{name}: the environment image must be (height, width, 3 or 4), got {image.shape}")
+        if not np.all(np.isfinite(image[..., :3])):
+            raise ValueError(f"{name}: the environment image has NaN or infinite pixels")
+        if interpolation not in INTERPOLATIONS:
+            raise ValueError(f"{name}: environment interpolation {interpolation!r} is not supported "
+                             f"(use one of {', '.join(INTERPOLATIONS)})")
+        mapping = _IDENTITY if mapping is None else np.asarray(mapping, dtype=np.float64)
+        if mapping.shape != (3, 3) or not np.allclose(mapping @ mapping.T, np.eye(3), atol=1e-9) \
+                or np.linalg.det(mapping) < 0.0:
+            raise ValueError(f"{name}: the environment mapping must be a rotation (no scale, shear or mirror)")
+        self.image = np.maximum(image[..., :3], 0.0) * float(strength)
+        self.mapping = mapping
+        self._unmapping = mapping if mapping is _IDENTITY else mapping.T  # texture -> world directions
+        self.interpolation = interpolation
+        h, w = self.image.shape[:2]
+        luminance = self.image @ LUMINANCE_RGB
+        if interpolation == "Linear":
+            # cell rows between pixel-centre rows, the two caps wrapping as Cycles' lookup does
+            v_edges = np.concatenate([[0.0], (np.arange(h) + 0.5) / h, [1.0]])
+            below, above = np.roll(luminance, 1, axis=0), luminance  # pixel rows r - 1 and r
+            corner_rows = np.concatenate([below, below[:1]], axis=0) + np.concatenate([above, above[:1]], axis=0)
+            cell_luminance = 0.25 * (corner_rows + np.roll(corner_rows, -1, axis=1))
+            self._u_offset = 0.5 / w
+        else:
+            v_edges = np.arange(h + 1) / h
+            cell_luminance = luminance
+            self._u_offset = 0.0
+        self._z_edges = -np.cos(np.pi * v_edges)
+        self._v_edges = v_edges
+        cell_omega = (2.0 * np.pi / w) * np.diff(self._z_edges)[:, None]
+        weight = cell_luminance * cell_omega
+        total = float(weight.sum())
+        self.is_black = not total > 0.0
+        if self.is_black:
+            weight = cell_omega * np.ones(w)  # keeps the tables well formed; the pdf is 0
+            total = float(weight.sum())
+        row_weight = weight.sum(axis=1)
+        self._row_cdf = np.cumsum(row_weight) / total
+        self._row_cdf[-1] = 1.0
+        self._row_probability = row_weight / total
+        with np.errstate(invalid="ignore", divide="ignore"):
+            column_cdf = np.cumsum(weight, axis=1) / row_weight[:, None]
+        column_cdf = np.where(row_weight[:, None] > 0.0, column_cdf, np.arange(1, w + 1) / w)
+        column_cdf[:, -1] = 1.0
+        # each row's cdf offset by its row number: one sorted table for every row's search
+        self._column_cdf = (column_cdf + np.arange(len(row_weight))[:, None]).ravel()
+        self._column_start = np.concatenate([np.zeros((len(row_weight), 1)), column_cdf[:, :-1]], axis=1)
+        self._column_probability = np.diff(np.concatenate([np.zeros((len(row_weight), 1)), column_cdf], axis=1),
+                                           axis=1)
+        self._cell_pdf = np.zeros_like(weight) if self.is_black else weight / total / cell_omega  # per unit solid angle
+
+    def radiance(self, d):
+        """Radiance (n, 3) arriving from backward world directions d."""
+        u, v = direction_to_equirectangular(_rotate(self.mapping, d))
+        return image_lookup(self.image, u, v, self.interpolation)
+
+    def _cell(self, t):
+        h, w = self.image.shape[:2]
+        u, v = direction_to_equirectangular(t)
+        column = np.floor((u - self._u_offset) * w).astype(np.int64) % w
+        row = np.clip(np.searchsorted(self._v_edges, v, side="right") - 1, 0, len(self._v_edges) - 2)
+        return row, column
+
+    def pdf(self, d):
+        """Density per unit solid angle of world directions d under :meth:`sample`."""
+        row, column = self._cell(_rotate(self.mapping, d))
+        return self._cell_pdf[row, column]
+
+    def sample(self, u1, u2):
+        """Directions of S drawn by the image's luminance: (d (n, 3), pdf (n,) per unit solid angle).
+
+        u1 picks the cell row and, rescaled, cos(theta) inside it; u2 likewise the column
+        and phi: strata of (u1, u2) stay compact on the sphere.
+        """
+        w = self.image.shape[1]
+        rows_count = len(self._row_probability)
+        row = np.minimum(np.searchsorted(self._row_cdf, u1, side="right"), rows_count - 1)
+        row_start = np.where(row > 0, self._row_cdf[np.maximum(row - 1, 0)], 0.0)
+        along_z = np.clip((u1 - row_start) / self._row_probability[row], 0.0, 1.0)
+        column = np.minimum(_search_within_rows(self._column_cdf, row, w, row + u2), w - 1)
+        along_phi = np.clip((u2 - self._column_start[row, column]) / self._column_probability[row, column], 0.0, 1.0)
+        z = self._z_edges[row] + along_z * (self._z_edges[row + 1] - self._z_edges[row])
+        u = self._u_offset + (column + along_phi) / w
+        t = _polar(z, np.pi * (1.0 - 2.0 * u))
+        return _rotate(self._unmapping, t), self._cell_pdf[row, column]
+
+
+def _rotate(matrix, d):
+    """Rows ``matrix @ d_i``, column by column (an (n, 3) @ (3, 3) product is slow in numpy)."""
+    if matrix is _IDENTITY:
+        return d
+    out = np.empty((len(d), 3))
+    for i in range(3):
+        out[:, i] = d[:, 0] * matrix[i, 0] + d[:, 1] * matrix[i, 1] + d[:, 2] * matrix[i, 2]
+    return out
+
+
+def _search_within_rows(table, row, width, key):
+    """Per key, the first column of its row of ``table`` (rows of ``width`` sorted entries, flat)
+    whose entry exceeds the key: a binary search vectorised over keys.  numpy's searchsorted
+    over the whole flat table costs a cache miss per step on large images (10x slower)."""
+    lo = row * width
+    hi = lo + width
+    for _ in range(int(np.ceil(np.log2(width + 1)))):
+        active = lo < hi
+        mid = (lo + hi) >> 1
+        right = table[np.minimum(mid, len(table) - 1)] <= key
+        lo = np.where(active & right, mid + 1, lo)
+        hi = np.where(active & ~right, mid, hi)
+    return lo - row * width
+
+
+# ---------------------------------------------------------------------------- moving receivers
+def frame_pdf(pdf_world, doppler):
+    """Density per unit solid angle in the receiving frame S' of a direction drawn in S with
+    density ``pdf_world``: ``p_S' = p_S D^2`` (dOmega_S / dOmega_S' = D^2), D = nu_S' / nu_S."""
+    return pdf_world * doppler * doppler
+
+
+def sample_in_frame(world, to_frame, u1, u2):
+    """World directions drawn in S, seen from a frame S' (``to_frame`` maps S to S').
+
+    Returns (d', pdf', radiance, doppler): backward directions in S', their density per
+    unit solid angle of S', the world's radiance there in S (RGB) and D = nu_S' / nu_S
+    (radiance received in S' is ``radiance * D^4``).
+    """
+    d, pdf = world.sample(u1, u2)
+    d_frame, doppler = to_frame.rays(d)  # w = s_S' / s_S = nu_S' / nu_S = D
+    return d_frame, frame_pdf(pdf, doppler), world.radiance(d), doppler
+
+
+def look_up_from_frame(world, to_world, d_frame):
+    """The world seen along backward directions d' of a frame S' (``to_world`` maps S' to S).
+
+    Returns (radiance, pdf', doppler): radiance in S (RGB) and D = nu_S' / nu_S as in
+    :func:`sample_in_frame`, and the density with which :func:`sample_in_frame` draws d'
+    (for multiple importance sampling against a BSDF's own sampling).
+    """
+    d, w = to_world.rays(d_frame)  # w = s_S / s_S' = 1 / D
+    doppler = 1.0 / w
+    return world.radiance(d), frame_pdf(world.pdf(d), doppler), doppler
+
+
+def sphere_integral_estimate(world, to_frame, u1, u2):
+    """One-sample estimates (n, 3) of the radiance received in S' integrated over all of its
+    directions, ``integral of L D^4 dOmega'`` (4 pi gamma^2 (1 + b^2/3) L for a uniform world),
+    by world sampling carried into S'."""
+    _, pdf, radiance, doppler = sample_in_frame(world, to_frame, u1, u2)
+    return rows.scale(radiance, doppler**4 / pdf)
+
+
+def lambertian_radiance_estimate(world, to_world, to_frame, normal, u):
+    """One-sample estimates (n, 3) of the radiance leaving a white Lambertian surface at rest
+    in S', lit by the world only (no occluders): ``(1/pi) integral of L D^4 cos dOmega'`` over
+    its hemisphere about ``normal`` (n, 3), frame S'.
+
+    Combines a cosine-weighted BSDF sample (u[0], u[1]) and a world sample (u[2], u[3]) by
+    the power heuristic, the way a path tracer's next-event estimation does.
+    """
+    d_bsdf, pdf_bsdf = sample_diffuse(normal, u[0], u[1])
+    radiance, pdf_world, doppler = look_up_from_frame(world, to_world, d_bsdf)
+    cos_bsdf = np.maximum(rows.dot(normal, d_bsdf), 0.0)
+    weight = mis.power_heuristic(pdf_bsdf, pdf_world) * cos_bsdf / np.pi * doppler**4
+    estimate = rows.scale(radiance, np.where(pdf_bsdf > 0.0, weight / np.maximum(pdf_bsdf, 1e-300), 0.0))
+    d_world, pdf_world, radiance, doppler = sample_in_frame(world, to_frame, u[2], u[3])
+    cos_world = np.maximum(rows.dot(normal, d_world), 0.0)
+    weight = mis.power_heuristic(pdf_world, cos_world / np.pi) * cos_world / np.pi * doppler**4
+    return estimate + rows.scale(radiance, np.where(pdf_world > 0.0, weight / np.maximum(pdf_world, 1e-300), 0.0))
