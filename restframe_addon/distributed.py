@@ -11,11 +11,16 @@ client and assembles regions into the image a single process would have written.
 
 Workers render through a child process (``python -m restframe_addon.distributed --serve``,
 one per worker, started once): Blender as a Python module must run on its process's main
-thread (bpy crashes when it renders from a Dask worker thread).  The child runs the same
-code as ``python -m restframe_addon render`` for each task (it opens the .blend afresh),
-with the worker's own interpreter and ``sys.path``, so a worker must be able to
-``import bpy`` and ``import restframe_addon``; the client checks that on every worker
-before sending work and reports the ones that cannot.
+thread (bpy crashes when it renders from a Dask worker thread).  The child receives one
+:class:`headless.RenderSpec` per task (as JSON) and renders it with the same code as
+``python -m restframe_addon render`` (it opens the .blend afresh), with the worker's own
+interpreter and ``sys.path``, so a worker must be able to ``import bpy`` and
+``import restframe_addon``; the client checks that on every worker before sending work and
+reports the ones that cannot.
+
+A result carries the engine's proof that every tile was rendered; the client writes nothing
+else.  A child stopped by SIGINT or SIGTERM (Ctrl-C on the worker's terminal) writes
+nothing and exits, and its task is retried like a crash.
 
 Dask is imported lazily: the extension itself never needs it.
 """
@@ -33,6 +38,9 @@ import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
+
+from . import headless
+
 
 class DistributedError(Exception):
     """A problem with the cluster, the workers or a task, reported without a traceback."""
@@ -55,9 +63,46 @@ class Job:
     percentage: int | None = None
     resolution: tuple[int, int] = (0, 0)  # full image size in pixels (after the percentage)
     regions: int = 1
+    border: tuple[int, int, int, int] | None = None  # the file's render border in pixels (None: off)
+    crop: bool = False  # the border is cropped: the output is the border's pixels alone
     assets: list[str] = field(default_factory=list)  # files the .blend uses, relative to its folder
     missing_assets: list[str] = field(default_factory=list)  # absolute paths the workers must see
     scene_format: bool = False  # the output had no extension: workers use the scene's own format settings
+
+
+@dataclass(frozen=True)
+class Task:
+    """One Dask task: a frame, or one region of it, of the job's .blend."""
+
+    blend: str  # the client's path
+    copy: str  # the name of a worker's shipped copy (the .blend's SHA-256 and the job's token)
+    scene: str
+    frame: int
+    ext: str  # what the task's file is (".exr", ...; "" = the scene's own format)
+    samples: int | None = None
+    percentage: int | None = None
+    region: tuple[int, int, int, int] | None = None
+
+    def render_spec(self, blend: str, output: str) -> headless.RenderSpec:
+        return headless.RenderSpec(blend=blend, output=output, frame=self.frame, scene=self.scene,
+                                   samples=self.samples, percentage=self.percentage, region=self.region)
+
+
+def job_regions(job: Job) -> list[tuple[int, int, int, int] | None]:
+    """The regions of each frame's tasks (None: the frame whole), tiling the file's render
+    border if it has one, as a single render would fill it."""
+    if job.regions == 1:
+        return [None]
+    x0, y0, x1, y1 = job.border or (0, 0, *job.resolution)
+    return [(rx0 + x0, ry0 + y0, rx1 + x0, ry1 + y0) for rx0, ry0, rx1, ry1 in split_regions(x1 - x0, y1 - y0, job.regions)]
+
+
+def job_canvas(job: Job) -> tuple[tuple[int, int], tuple[int, int]]:
+    """(origin, size) in pixels of the image a single render writes: the border when cropped."""
+    if job.border is not None and job.crop:
+        x0, y0, x1, y1 = job.border
+        return (x0, y0), (x1 - x0, y1 - y0)
+    return (0, 0), job.resolution
 
 
 def split_regions(width: int, height: int, count: int) -> list[tuple[int, int, int, int]]:
@@ -94,21 +139,31 @@ def file_digest(path: str) -> str:
     return sha.hexdigest()
 
 
-def write_atomically(path: str, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and os.replace."""
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    stem, ext = os.path.splitext(os.path.basename(path))
-    fd, partial = tempfile.mkstemp(prefix=f".{stem}.partial-", suffix=ext, dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(partial, path)
-    finally:
-        if os.path.exists(partial):
-            os.remove(partial)
+def blend_assets(blend: str) -> tuple[list[str], list[str]]:
+    """Files the open .blend reads besides itself (unpacked images, linked libraries and what
+    those link, recursively): (paths relative to the .blend's folder, absolute paths elsewhere)."""
+    import bpy
+
+    folder = os.path.dirname(os.path.abspath(blend))
+    relative, absolute = [], []
+
+    def add(filepath: str, library) -> None:
+        path = os.path.normpath(bpy.path.abspath(filepath, library=library))
+        if not os.path.exists(path):
+            return  # missing here too: the render warns about it wherever it runs
+        inside = os.path.relpath(path, folder)
+        if filepath.startswith("//") and not inside.startswith(os.pardir) and os.path.isfile(path):
+            relative.append(inside)
+        else:
+            absolute.append(path)
+
+    for image in bpy.data.images:
+        if image.packed_file is None and image.source in {'FILE', 'SEQUENCE', 'MOVIE', 'TILED'} and image.filepath:
+            add(image.filepath, image.library)
+    for library in bpy.data.libraries:  # indirect ones too, each relative to the library that links it
+        if library.packed_file is None and library.filepath:
+            add(library.filepath, library.parent)
+    return sorted(set(relative)), sorted(set(absolute))
 
 
 # --------------------------------------------------------------------------- on the workers
@@ -154,13 +209,16 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child before e
         pass
 
 
-def _local_blend(spec: dict, bundle: dict | None) -> str:
+def _local_blend(task: Task, bundle: dict | None) -> str:
     """The .blend this worker opens: the client's path when shared, else the shipped copy."""
     if bundle is None:
-        return spec["blend"]
-    root = bundle_dir(spec["digest"])
-    blend = os.path.join(root, "files", os.path.basename(spec["blend"]))
-    if not os.path.isfile(os.path.join(root, ".complete")):
+        return task.blend
+    root = bundle_dir(task.copy)
+    blend = os.path.join(root, "files", os.path.basename(task.blend))
+    marker = os.path.join(root, ".complete")
+    if os.path.isfile(marker):
+        os.utime(marker)  # in use: not stale (_remove_stale_copies)
+    else:
         staging = tempfile.mkdtemp(prefix=".staging-", dir=_makedirs(os.path.dirname(root)))
         for relative, data in bundle.items():
             target = os.path.join(staging, "files", relative)
@@ -193,6 +251,7 @@ class _Server:
         import collections
 
         _remove_stale_task_dirs()
+        _remove_stale_copies()
         kwargs = {"preexec_fn": _die_with_parent} if sys.platform.startswith("linux") else {}
         self.process = subprocess.Popen(
             [sys.executable, "-m", "restframe_addon.distributed", "--serve"], stdin=subprocess.PIPE,
@@ -218,9 +277,9 @@ class _Server:
         time.sleep(0.2)  # let the reader thread catch the last words
         return " | ".join(list(self.log)[-lines:]) or "no output"
 
-    def request(self, argv: list[str]) -> dict:
+    def request(self, spec: headless.RenderSpec) -> dict:
         try:
-            self.process.stdin.write(json.dumps({"argv": argv}) + "\n")
+            self.process.stdin.write(json.dumps({"render": spec.to_json()}) + "\n")
             self.process.stdin.flush()
         except OSError:  # it died since the last task
             self.process.wait()
@@ -236,6 +295,24 @@ def _task_dir_root() -> str:
     return os.path.join(tempfile.gettempdir(), f"restframe-dask-{os.getuid() if hasattr(os, 'getuid') else 0}")
 
 
+# A shipped copy not used for this long belongs to a job whose client never said it ended
+# (interrupted, or its connection lost): a worker's render server removes it when it starts.
+STALE_COPY_SECONDS = 24 * 3600.0
+
+
+def _remove_stale_copies(max_age: float = STALE_COPY_SECONDS) -> None:
+    root = os.path.join(_task_dir_root(), "blends")
+    for name in os.listdir(root) if os.path.isdir(root) else []:
+        path = os.path.join(root, name)
+        marker = os.path.join(path, ".complete")
+        try:
+            used = os.path.getmtime(marker if os.path.exists(marker) else path)
+        except OSError:
+            continue  # removed meanwhile by another worker
+        if time.time() - used > max_age:
+            shutil.rmtree(path, ignore_errors=True)
+
+
 def _remove_stale_task_dirs() -> None:
     """Task folders of worker processes that died mid-frame (a killed worker cleans nothing)."""
     root = os.path.join(_task_dir_root(), "tasks")
@@ -245,9 +322,15 @@ def _remove_stale_task_dirs() -> None:
             shutil.rmtree(os.path.join(root, name), ignore_errors=True)
 
 
-def bundle_dir(digest: str) -> str:
-    """Where a worker keeps the .blend (and files) shipped to it, by content digest."""
-    return os.path.join(_task_dir_root(), "blends", digest)
+def bundle_dir(copy: str) -> str:
+    """Where a worker keeps the .blend (and files) shipped to it for one job."""
+    return os.path.join(_task_dir_root(), "blends", copy)
+
+
+def remove_bundle(copy: str) -> None:
+    """On a worker at the end of a job: its shipped copy goes (one job never reuses another's,
+    so removing it cannot pull a file from under a running render)."""
+    shutil.rmtree(bundle_dir(copy), ignore_errors=True)
 
 
 def _ensure_server() -> _Server:
@@ -282,63 +365,66 @@ def _serve() -> int:
     reply = os.fdopen(os.dup(1), "w")
     os.dup2(2, 1)  # whatever Blender or the CLI prints goes to the log, not the protocol
     sys.stdout = sys.stderr
+
+    def answer(message: dict) -> None:
+        reply.write(json.dumps(message) + "\n")
+        reply.flush()
+
     try:
         import bpy
 
         import restframe_addon
         import restframe_addon.engine  # noqa: F401  (the core and embreex)
-        from restframe_addon import __main__ as cli
     except BaseException as error:
-        reply.write(json.dumps({"error": f"{type(error).__name__}: {error}"}) + "\n")
-        reply.flush()
+        answer({"error": f"{type(error).__name__}: {error}"})
         return 1
-    reply.write(json.dumps({"ready": bpy.app.version_string, "addon": os.path.dirname(restframe_addon.__file__)})
-                + "\n")
-    reply.flush()
-    for line in sys.stdin:
-        request = json.loads(line)
-        try:
-            cli.render_command(cli.build_parser().parse_args(request["argv"]))
-            answer = {"ok": True}
-        except cli.CommandError as error:
-            answer = {"error": str(error)}
-        except SystemExit:
-            answer = {"error": f"bad render arguments {request['argv']}"}
-        reply.write(json.dumps(answer) + "\n")
-        reply.flush()
+    answer({"ready": bpy.app.version_string, "addon": os.path.dirname(restframe_addon.__file__)})
+    try:
+        with headless.interruptible():
+            for line in sys.stdin:
+                spec = headless.RenderSpec.from_json(json.loads(line)["render"])
+                try:
+                    outcome = headless.render(spec)
+                    answer({"tiles": outcome.tiles, "total": outcome.total, "complete": outcome.complete})
+                except headless.CommandError as error:
+                    answer({"error": str(error)})
+    except headless.Interrupted as interrupt:
+        # stopped by a signal: nothing was written; say so (if the worker still listens) and leave
+        answer({"interrupted": str(interrupt)})
+        return interrupt.status
     return 0
 
 
-def render_task(spec: dict, bundle: dict | None = None) -> dict:
-    """Render one frame (or one region of it) in this worker's render server; return the file's bytes.
+def render_task(task: Task, bundle: dict | None = None) -> dict:
+    """Render one frame (or one region of it) in this worker's render server; return the file's
+    bytes with the engine's tile count as proof that it is complete.
 
     Returns ``{"error": message}`` for RESTframe's own errors (bad scene: no use retrying) and
-    raises :class:`TaskCrashed` when the render child died, so Dask retries the task."""
+    raises :class:`TaskCrashed` when the render child died or was interrupted, so Dask retries
+    the task."""
     import socket
 
     started = time.monotonic()
     where = f"{socket.gethostname()} (pid {os.getpid()})"
-    blend = _local_blend(spec, bundle)
+    blend = _local_blend(task, bundle)
     workdir = tempfile.mkdtemp(prefix=f"{os.getpid()}-", dir=_makedirs(os.path.join(_task_dir_root(), "tasks")))
     try:
-        out = os.path.join(workdir, "result" + spec["ext"])
-        argv = ["render", blend, "-o", out, "--frame", str(spec["frame"]), "--scene", spec["scene"]]
-        if spec.get("samples") is not None:
-            argv += ["--samples", str(spec["samples"])]
-        if spec.get("percentage") is not None:
-            argv += ["--percentage", str(spec["percentage"])]
-        if spec.get("region") is not None:
-            argv += ["--region", ",".join(map(str, spec["region"]))]
+        out = os.path.join(workdir, "result" + task.ext)
         with _server_lock:  # bpy is one per process: one render at a time per worker
             server = _ensure_server()
             if "ready" not in server.hello:
                 raise TaskCrashed(f"the render child on {where} cannot start: "
                                   f"{server.hello.get('error') or server.hello.get('dead')}")
-            answer = server.request(argv)
-        if "dead" in answer:
-            raise TaskCrashed(f"on {where}: {answer['dead']}")
+            answer = server.request(task.render_spec(blend, out))
+            if "interrupted" in answer:  # the child is on its way out: the next task starts a new one
+                _forget_server()
+        if "dead" in answer or "interrupted" in answer:
+            raise TaskCrashed(f"on {where}: {answer.get('dead') or answer.get('interrupted')}")
         if "error" in answer:
             return {"error": answer["error"], "host": where}
+        if not answer.get("complete"):
+            raise TaskCrashed(f"on {where}: the render child returned an incomplete frame "
+                              f"({answer.get('tiles')} of {answer.get('total')} tiles)")
         written = [name for name in os.listdir(workdir) if name.startswith("result")]
         if len(written) != 1:
             raise TaskCrashed(f"on {where}: the render child wrote {written or 'nothing'}")
@@ -346,7 +432,13 @@ def render_task(spec: dict, bundle: dict | None = None) -> dict:
             data = fh.read()
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
-    return {"data": data, "host": where, "seconds": time.monotonic() - started}
+    return {"data": data, "host": where, "seconds": time.monotonic() - started,
+            "tiles": answer["tiles"], "total": answer["total"], "complete": True}
+
+
+def is_complete(result: dict) -> bool:
+    """Whether a task's result proves that every tile of its frame or region was rendered."""
+    return result.get("complete") is True and (result.get("total") or 0) > 0 and result.get("tiles") == result.get("total")
 
 
 def _make_probe(blend: str, digest: str, size: int, absolute_assets: list[str]):
@@ -429,6 +521,9 @@ def connect(scheduler: str | None, workers: int | None):
             client = Client(scheduler, timeout="20s")
         except (OSError, TimeoutError) as error:
             raise DistributedError(f"cannot reach the Dask scheduler at {scheduler}: {error}") from None
+        except ValueError as error:  # not an address at all
+            raise DistributedError(f"--scheduler {scheduler!r} is not a Dask scheduler address "
+                                   f"(e.g. tcp://HOST:8786): {error}") from None
         return client, None
     import logging
 
@@ -521,17 +616,12 @@ def write_exr(parts, resolution: tuple[int, int], path: str) -> None:
     for name, header, channels in parts:
         header = dict(header, dataWindow=window, displayWindow=window)
         exr_parts.append(OpenEXR.Part(header, {k: OpenEXR.Channel(k, v) for k, v in channels.items()}, name))
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    fd, partial = tempfile.mkstemp(prefix=".assembled.partial-", suffix=".exr", dir=directory)
-    os.close(fd)
-    try:
+
+    def write(partial):
         with OpenEXR.File(exr_parts) as exr:
             exr.write(partial)
-        os.replace(partial, path)
-    finally:
-        if os.path.exists(partial):
-            os.remove(partial)
+
+    headless.write_atomically(path, write)
 
 
 def combined_rgba(parts, resolution) -> "np.ndarray":
@@ -562,13 +652,16 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
     if not todo:
         print("restframe: nothing to render", file=stream, flush=True)
         return 0
-    regions = split_regions(*job.resolution, job.regions) if job.regions > 1 else [None]
+    regions = job_regions(job)
+    (origin_x, origin_y), canvas = job_canvas(job)
 
     client, cluster = connect(scheduler, workers)
+    ship = False
     try:
         from dask.distributed import as_completed
 
         digest = file_digest(job.blend)
+        copy = f"{digest}-{os.getpid()}-{os.urandom(4).hex()}"
         ship = check_workers(client, job, digest)
         bundle = client.scatter(make_bundle(job), broadcast=False, hash=False) if ship else None
         print(f"restframe: {len(todo)} frame(s) x {len(regions)} region(s) on "
@@ -579,9 +672,9 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
         futures = {}
         for frame in sorted(todo):
             for index, region in enumerate(regions):
-                spec = {"blend": job.blend, "digest": digest, "scene": job.scene, "frame": frame,
-                        "ext": task_ext, "samples": job.samples, "percentage": job.percentage, "region": region}
-                future = client.submit(render_task, spec, bundle, retries=retries, pure=False,
+                task = Task(blend=job.blend, copy=copy, scene=job.scene, frame=frame, ext=task_ext,
+                            samples=job.samples, percentage=job.percentage, region=region)
+                future = client.submit(render_task, task, bundle, retries=retries, pure=False,
                                        key=f"restframe-frame{frame}-region{index}-{digest[:8]}-{os.urandom(4).hex()}")
                 futures[future] = (frame, index)
         progress = Progress(len(futures), len(todo), stream)
@@ -596,6 +689,9 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
                 result = future.result()
             except Exception as error:
                 result = {"error": f"{type(error).__name__}: {error}"}
+            if "error" not in result and not is_complete(result):
+                result = {"error": f"the result from {result.get('host')} does not prove it is complete "
+                                   f"({result.get('tiles')} of {result.get('total')} tiles): not written"}
             if "error" in result:
                 message = result["error"]
                 message = message[len(f"frame {frame}: "):] if message.startswith(f"frame {frame}: ") else message
@@ -605,18 +701,19 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
                 continue
             done_frame = False
             if len(regions) == 1:
-                write_atomically(todo[frame], result["data"])
+                headless.write_bytes(todo[frame], result["data"])
                 done_frame = True
             else:
                 pieces.setdefault(frame, {})[index] = result["data"]
                 if len(pieces[frame]) == len(regions):
-                    parts = assemble_exr([(regions[i], pieces[frame][i]) for i in range(len(regions))],
-                                         job.resolution)
+                    on_canvas = [((x0 - origin_x, y0 - origin_y, x1 - origin_x, y1 - origin_y), pieces[frame][i])
+                                 for i, (x0, y0, x1, y1) in enumerate(regions)]
+                    parts = assemble_exr(on_canvas, canvas)
                     del pieces[frame]
                     if job.output_ext == ".exr":
-                        write_exr(parts, job.resolution, todo[frame])
+                        write_exr(parts, canvas, todo[frame])
                     elif write_image is not None:
-                        write_image(combined_rgba(parts, job.resolution), todo[frame])
+                        write_image(combined_rgba(parts, canvas), todo[frame])
                     else:
                         raise DistributedError(f"no writer for {job.output_ext} images")
                     done_frame = True
@@ -626,6 +723,11 @@ def run_job(job: Job, scheduler: str | None = None, workers: int | None = None, 
                       file=stream, flush=True)
         return len(failed)
     finally:
+        if ship and client.status == "running":  # also when interrupted: best effort, never blocks the exit
+            try:
+                client.run(remove_bundle, copy)
+            except Exception:
+                pass  # a worker that cannot be reached cleans up at its next start (_remove_stale_copies)
         client.close()
         if cluster is not None:
             cluster.close()

@@ -4,25 +4,45 @@
 Blender's render result so the image fills in chunk by chunk.  Every failure is
 reported with ``self.report({'ERROR'}, ...)``: Blender swallows exceptions raised
 inside ``render()`` and would show a silent black image instead.
+
+A render that stops early (Esc, :data:`STOP`, an error) still hands Blender a result
+(Blender 5.0 crashes writing an EXR of a render that delivered none), and every render
+leaves a :class:`RenderOutcome` (:func:`take_outcome`): the proof a headless caller needs
+before it saves the image as a finished frame.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import threading
 import time
 import traceback
+from dataclasses import dataclass
 
 import bpy
 
 from . import export
+from .core.observer import proper_time
 from .core.passes import BY_NAME
-from .core.prepared import prepare
+from .core.prepared import prepare, prepare_view
 from .core.render import render_tiles
 from .core.validation import RenderError
 
 # Blender 5.0 renamed its object index pass ("IndexOB" before).
 OBJECT_INDEX_PASS = "Object Index" if bpy.app.version >= (5, 0, 0) else "IndexOB"
+
+# the render's metadata (Blender's stamp data: written into EXR headers and PNG text chunks)
+STAMP_PROPER_TIME = "RESTframe Observer Proper Time"
+
+
+def observer_stamp(scene) -> dict[str, str]:
+    """Stamp fields of a rendered core scene: the camera's own clock at the observation event, in
+    seconds from the reference time (its proper time on its world line)."""
+    camera = scene.camera
+    seconds = proper_time(scene.tau_obs, camera.velocity, camera.trajectory) / scene.light_speed
+    return {STAMP_PROPER_TIME: f"{seconds:.12g} s"}
+
 
 # Blender pass name -> the core's pass name
 _CORE_PASS = {OBJECT_INDEX_PASS: "IndexOB"}
@@ -35,6 +55,34 @@ def list_render_passes(scene, view_layer):
     yield ("Combined", "RGBA", 'COLOR')
     for name in export.core_passes(view_layer):
         yield (_BLENDER_PASS.get(name, name), BY_NAME[name].channels, BY_NAME[name].kind)
+
+
+# Set by the headless layer when SIGINT or SIGTERM arrives during a render (headless.py):
+# the render stops at its next check, as on Esc.
+STOP = threading.Event()
+
+
+@dataclass(frozen=True)
+class RenderOutcome:
+    """What a render delivered to Blender's result."""
+
+    tiles: int  # tiles written into the result
+    total: int  # tiles the image has (0: the render stopped before it knew)
+    stopped: bool  # ended early: Esc, STOP, an interrupt or an error
+
+    @property
+    def complete(self) -> bool:
+        return not self.stopped and self.total > 0 and self.tiles == self.total
+
+
+_last_outcome: RenderOutcome | None = None
+
+
+def take_outcome() -> RenderOutcome | None:
+    """The outcome of the last render in this process (None if none ran since the last call)."""
+    global _last_outcome
+    outcome, _last_outcome = _last_outcome, None
+    return outcome
 
 
 class RestframeRenderEngine(bpy.types.RenderEngine):
@@ -50,15 +98,16 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         super().__init__(*args, **kwargs)
 
     def should_stop(self) -> bool:
-        """Esc pressed: checked between exported objects and between tiles."""
-        return self.test_break()
+        """Esc pressed (or STOP set): checked between exported objects, tiles and sample batches."""
+        return STOP.is_set() or self.test_break()
 
     def update_render_passes(self, scene=None, renderlayer=None):
         for name, channel_ids, channel_type in list_render_passes(scene, renderlayer):
             self.register_pass(scene, renderlayer, name, len(channel_ids), channel_ids, channel_type)
 
-    def _prepare(self, scene, settings):
-        """``prepare(...)`` in a worker thread, polled for Esc every 50 ms.
+    def _prepare(self, scene, settings, first_view=None):
+        """``prepare(...)`` (or, given the first view's prepared scene, ``prepare_view``) in a
+        worker thread, polled for Esc every 50 ms.
 
         The build checks Esc between pieces of 2**14 triangles, but polling needs the GIL,
         which each frame's embree BVH build holds throughout (about 0.4 s for a million
@@ -70,7 +119,8 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
 
         def work():
             try:
-                box["prepared"] = prepare(scene, settings, cancelled.is_set)
+                box["prepared"] = (prepare(scene, settings, cancelled.is_set) if first_view is None
+                                   else prepare_view(first_view, scene.camera, cancelled.is_set))
             except BaseException as error:  # handed to the main thread
                 box["error"] = error
 
@@ -86,11 +136,26 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         return None if self.should_stop() else box["prepared"]
 
     def render(self, depsgraph):
+        global _last_outcome
+        self._tiles_done = self._tiles_total = 0
+        failed = False
         try:
             self._render(depsgraph)
+        except KeyboardInterrupt:
+            # Ctrl-C with Python's default handler (a script calling bpy.ops.render.render):
+            # Blender would swallow it and return the partial image as finished; an error makes
+            # the operator raise instead
+            failed = True
+            self.report({'ERROR'}, "RESTframe: render interrupted (KeyboardInterrupt): the image is incomplete")
         except Exception as error:  # anything unexpected must still reach the user
+            failed = True
             traceback.print_exc(file=sys.stderr)
             self.report({'ERROR'}, f"RESTframe: {type(error).__name__}: {error}")
+        finally:
+            if self._tiles_done == 0:  # an empty result: with none, Blender 5.0 crashes saving an EXR
+                self.end_result(self.begin_result(0, 0, self.resolution_x, self.resolution_y,
+                                                  layer=depsgraph.view_layer.name))
+            _last_outcome = RenderOutcome(self._tiles_done, self._tiles_total, failed or self.should_stop())
 
     def _render(self, depsgraph):
         started = time.monotonic()
@@ -106,32 +171,58 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
             )
             if self.should_stop():
                 return
-            self.update_stats("", "RESTframe | Building rest frames")
-            prepared = self._prepare(scene, settings)
-            if prepared is None:
+            views = export.render_views(depsgraph.scene_eval)
+            if not views:
+                self._render_view(scene, settings, view_layer, None, started)
                 return
+            camera_object = (self.camera_override or depsgraph.scene_eval.camera).evaluated_get(depsgraph)
+            first = None
+            for view in views:  # each eye is its own camera and observation event; the rest frames are shared
+                self.active_view_set(view)
+                camera = export.view_camera(scene.camera, camera_object,
+                                            self.camera_model_matrix(camera_object, use_spherical_stereo=False),
+                                            self.camera_shift_x(camera_object, use_spherical_stereo=False))
+                first = self._render_view(dataclasses.replace(scene, camera=camera), settings, view_layer, view,
+                                          started, first)
+                if first is None:
+                    return
         except export.ExportCancelled:
             return
         except (export.ExportError, RenderError) as error:
             self.report({'ERROR'}, f"RESTframe: {error}")
             return
-        for message in prepared.warnings:
-            self.report({'WARNING'}, f"RESTframe: {message}")
+
+    def _render_view(self, scene, settings, view_layer, view, started, first_view=None):
+        """Prepare (from ``first_view``'s prepared scene if given) and render one view (None: the
+        only one) into Blender's result; its prepared scene, or None once stopped."""
+        self.update_stats("", "RESTframe | Building rest frames")
+        prepared = self._prepare(scene, settings, first_view)
+        if prepared is None:
+            return None
+        if first_view is None:  # the views share the rest frames and their warnings: said once
+            for message in prepared.warnings:
+                self.report({'WARNING'}, f"RESTframe: {message}")
 
         x_offset, y_offset = prepared.region[:2]
-        total = len(prepared.tiles())
+        total = self._tiles_total = len(prepared.tiles())
         triangles = sum(len(mesh.triangles) for mesh in scene.meshes)
         for done, tile in enumerate(render_tiles(prepared, self.should_stop), start=1):
             result = self.begin_result(tile.x0 - x_offset, tile.y0 - y_offset,
-                                       tile.x1 - tile.x0, tile.y1 - tile.y0, layer=view_layer.name)
+                                       tile.x1 - tile.x0, tile.y1 - tile.y0, layer=view_layer.name, view=view or "")
             for render_pass in result.layers[0].passes:
                 data = tile.passes.get(_CORE_PASS.get(render_pass.name, render_pass.name))
                 if data is not None and data.shape[2] == render_pass.channels:
                     render_pass.rect.foreach_set(data.ravel())
             self.end_result(result)
+            self._tiles_done = done
             self.update_progress(done / total)
             self.update_stats("", f"RESTframe | {len(scene.meshes)} objects, {triangles} triangles | "
+                              f"{'' if view is None else f'View {view} | '}"
                               f"Tile {done}/{total} | {time.monotonic() - started:.1f} s")
+        result = self.get_result()
+        for field, value in observer_stamp(scene).items():
+            result.stamp_data_add_field(field, value)
+        return None if self.should_stop() else prepared
 
 
 classes = (RestframeRenderEngine,)

@@ -7,6 +7,16 @@ UI does not import the exporter to answer them.
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
+
+from .core.motion import Trajectory
+from .core.observer import proper_time as _proper_time
+from .core.scene import Velocity
+
+SUBFRAMES = 8  # world-line samples per frame of animation
+
 
 def observation_time(scene) -> float:
     """Seconds from the reference time to the rendered frame (``docs/physics.md#units-and-clocks``)."""
@@ -69,3 +79,96 @@ def has_animated_location(obj) -> bool:
         node = node.parent if node.parent is not None and _same_velocity(node.parent, node) else None
     return False
 
+
+
+def location_curves(obj) -> tuple[dict, list[str]]:
+    """{(data_path, index): F-curve} of the object's own location keys, and what is ignored.
+
+    Motion = Animation reads the active action's ``location`` and ``delta_location``
+    curves; NLA strips, drivers and constraints on the location are not evaluated.
+    """
+    anim = obj.original.animation_data
+    curves: dict = {}
+    ignored: list[str] = []
+    if anim is None:
+        return curves, ignored
+    for fc in fcurves(anim.action, getattr(anim, "action_slot", None)):
+        if fc.data_path in {"location", "delta_location"} and not fc.mute:
+            curves[(fc.data_path, fc.array_index)] = fc
+    if any(d.data_path in {"location", "delta_location"} for d in anim.drivers):
+        ignored.append("drivers")
+    if any(not track.mute and track.strips for track in anim.nla_tracks):
+        ignored.append("NLA strips")
+    return curves, ignored
+
+
+def _local_locations(obj, curves: dict, frames: np.ndarray) -> np.ndarray:
+    """location + delta_location (the local matrix's translation) at each frame, (N, 3)."""
+    out = np.empty((len(frames), 3))
+    base = obj.original
+    for i in range(3):
+        total = np.zeros(len(frames))
+        for path in ("location", "delta_location"):
+            fc = curves.get((path, i))
+            if fc is None:
+                total += float(getattr(base, path)[i])
+            else:
+                evaluate = fc.evaluate
+                total += np.fromiter((evaluate(f) for f in frames), dtype=np.float64, count=len(frames))
+        out[:, i] = total
+    return out
+
+
+def parent_matrix(obj) -> np.ndarray:
+    """The world matrix of the object's parent space (the parent taken static, at its pose of the
+    rendered frame), identity without a parent."""
+    if obj.parent is None:
+        return np.eye(4)
+    return np.array(obj.parent.matrix_world, dtype=np.float64) @ np.array(obj.matrix_parent_inverse, dtype=np.float64)
+
+
+def keyed_positions(obj, curves: dict, frames: np.ndarray) -> np.ndarray:
+    """World positions (N, 3) of the object's keyed location at Blender frames (parent static)."""
+    matrix = parent_matrix(obj)
+    return _local_locations(obj, curves, frames) @ matrix[:3, :3].T + matrix[:3, 3]
+
+
+def world_time(scene, frames) -> np.ndarray:
+    """World time c*t of Blender frames (0 at the reference frame)."""
+    render = scene.render
+    return scene.restframe.light_speed * (np.asarray(frames, dtype=np.float64)
+                                          - scene.restframe.reference_frame) * render.fps_base / render.fps
+
+
+def clock(obj, scene) -> tuple[float, tuple[float, float, float]]:
+    """The object's own clock at the rendered frame (seconds, 0 at the reference time: its
+    proper time since then) and its velocity (units of c) there; NaNs where its motion is not
+    below c.  Motion = Animation: along the world line of its keyed location sampled
+    ``SUBFRAMES`` per frame, as the renderer samples it."""
+    rf = obj.restframe
+    c = scene.restframe.light_speed
+    tau = c * observation_time(scene)
+    nan = (math.nan, (math.nan,) * 3)
+    trajectory = None
+    if rf.is_animated:
+        root = assembly_root(obj)
+        curves, _ = location_curves(root)
+        if curves:
+            current = scene.frame_current + scene.frame_subframe
+            lo = math.floor(min(current, scene.restframe.reference_frame)) - 1.0
+            hi = math.ceil(max(current, scene.restframe.reference_frame)) + 1.0
+            frames = np.linspace(lo, hi, int(round((hi - lo) * SUBFRAMES)) + 1)
+            try:
+                trajectory = Trajectory(world_time(scene, frames), keyed_positions(root, curves, frames),
+                                        name=obj.name, smooth=True)
+            except ValueError:
+                return nan
+        velocity = Velocity()
+    else:
+        velocity = Velocity(tuple(rf.velocity), rf.lorentz_factor)
+    try:
+        seconds = _proper_time(tau, velocity, trajectory) / c
+    except ValueError:
+        return nan
+    beta = velocity.beta if trajectory is None else trajectory.state(np.array([tau]))[1][0]
+    return seconds, tuple(float(b) for b in beta)

@@ -18,6 +18,7 @@ from bpy.props import (
 )
 from bpy.types import PropertyGroup
 
+from . import motion_query
 from .core.lorentz import Boost
 
 # Explicit numbers keep saved files stable as modes are added.
@@ -34,7 +35,8 @@ MOTION_MODES = (
     ('CONSTANT', "Constant Velocity", "Move at the constant Velocity (or Lorentz Factor) below; "
      "the location is where the object is at the reference frame", 0),
     ('ANIMATION', "Animation", "Follow the object's keyframed location as its world line (accelerated "
-     "motion): the object's own location keys, evaluated over the light-travel time; parents stay static", 1),
+     "motion): the object's own location keys, evaluated over the light-travel time; parents stay static. "
+     "A camera observes in its momentary rest frame, a lamp shines from its retarded positions", 1),
 )
 
 
@@ -114,6 +116,14 @@ class RestframeObjectSettings(PropertyGroup):
         name="Rapidity",
         description="Rapidity atanh(beta): adds up along a line, unlike speeds (computed)",
         get=lambda self: self._speed()[2],
+        precision=6,
+    )
+
+    proper_time: FloatProperty(
+        name="Proper Time",
+        description="The object's own clock at the rendered frame, in seconds from the reference time "
+        "(its proper time along its world line; computed)",
+        get=lambda self: motion_query.clock(self.id_data, bpy.context.scene)[0],
         precision=6,
     )
 

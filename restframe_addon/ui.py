@@ -7,6 +7,8 @@ material slots and node surfaces) get ``'RESTFRAME'`` added to theirs.
 
 from __future__ import annotations
 
+import math
+
 import bpy
 from bpy.types import Panel
 
@@ -201,6 +203,17 @@ class RESTFRAME_VIEWLAYER_PT_passes(RestframeButtonsPanel, Panel):
 
 
 # --------------------------------------------------------------------------- object
+def _draw_clock(col, obj, scene, speed: bool = True):
+    """The object's own clock at the rendered frame (and its speed there, on a world line)."""
+    seconds, beta = motion_query.clock(obj, scene)
+    if seconds != seconds:  # NaN: the motion reaches c
+        col.label(text="The keyed motion reaches the speed of light", icon='ERROR')
+        return
+    if speed:
+        col.label(text=f"Speed \u03b2 = {math.sqrt(sum(b * b for b in beta)):.9g} c at this frame")
+    col.label(text=f"Proper time {seconds:.9g} s (own clock at this frame)", icon='TIME')
+
+
 class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
     bl_label = "Relativistic Motion"
     bl_context = "object"
@@ -215,16 +228,26 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
         obj = context.object
         rf = obj.restframe
         col = layout.column()
-        if obj.type not in {'LIGHT', 'CAMERA'}:  # lights and cameras move at constant velocity only
-            col.prop(rf, "motion")
-            if rf.is_animated:
-                box = layout.box()
-                box.label(text="World line: the keyframed location (own keys, parents static)", icon='ANIM')
-                if not motion_query.has_animated_location(obj):
-                    box.label(text="The location has no keyframes: the object stays at rest", icon='INFO')
-                if any(rf.angular_velocity):
-                    box.label(text="Angular Velocity is ignored with Motion = Animation", icon='ERROR')
-                return
+        observer_or_lamp = obj.type in {'LIGHT', 'CAMERA'}
+        col.prop(rf, "motion")
+        if rf.is_animated:
+            box = layout.box()
+            box.label(text="World line: the keyframed location (own keys, parents static)", icon='ANIM')
+            if not motion_query.has_animated_location(obj):
+                box.label(text="The location has no keyframes: the object stays at rest", icon='INFO')
+            if obj.type == 'LIGHT' and obj.data.type == 'SUN':
+                box.label(text="A sun has no world line: it stays at rest", icon='ERROR')
+            elif obj.type == 'CAMERA':
+                box.label(text="Accelerating observer: the image forms in its momentary rest frame",
+                          icon='CAMERA_DATA')
+            elif obj.type == 'LIGHT':
+                box.label(text="Light leaves it at its retarded positions", icon='LIGHT')
+            if any(rf.angular_velocity):
+                box.label(text="Angular Velocity is ignored with Motion = Animation", icon='ERROR')
+            if observer_or_lamp:
+                _draw_clock(box.column(align=True), obj, context.scene)
+            return
+        if not observer_or_lamp:  # lamps and cameras do not spin
             col.prop(rf, "angular_velocity")
         col.prop(rf, "velocity", text="Velocity (c)")
         col.prop(rf, "lorentz_factor")
@@ -243,6 +266,8 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
                 col.label(text=f"Speed \u03b2 = {beta:.9g} c")
             col.label(text=f"Lorentz factor \u03b3 = {gamma:.9g}")
             col.label(text=f"Rapidity = {rapidity:.6g}")
+            if observer_or_lamp:
+                _draw_clock(col, obj, context.scene, speed=False)
         if not rf.is_moving:
             return
         if obj.type == 'CAMERA':

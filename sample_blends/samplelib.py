@@ -22,7 +22,7 @@ ROOT = os.path.dirname(HERE)
 if ROOT not in sys.path:
     sys.path.insert(0, ROOT)
 
-from restframe_addon.__main__ import configure_output  # noqa: E402 (after the path set-up)
+from restframe_addon.headless import configure_output  # noqa: E402 (after the path set-up)
 from restframe_addon.exr import read_passes  # noqa: E402
 
 FPS = 24

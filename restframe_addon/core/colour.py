@@ -30,6 +30,9 @@ class RGBColour:
     def __init__(self, materials, lights, world_color):
         self.materials = materials
         self.light_rgb = [pl.radiant for pl in lights]
+        # keyed lamps: (lamp-clock times, radiant (N, 3)) sampled as their curves
+        self.light_keyed = [None if pl.keyed is None else
+                            (pl.keyed[0], pl.keyed[1] * pl.keyed[2][:, None] * _tint(pl.light)) for pl in lights]
         self.world_rgb = np.asarray(world_color, dtype=np.float64)
 
     def camera_wavelengths(self, pixel, sample):
@@ -44,14 +47,24 @@ class RGBColour:
     def emission(self, mat, lam):
         return self.materials.emission[mat]
 
-    def light(self, index, lam, n):
-        return np.broadcast_to(self.light_rgb[index], (n, 3))
+    def light(self, index, lam, n, clock=None):
+        """A lamp's colour * power; a keyed lamp's at its clock readings ``clock`` (n,) of emission."""
+        keyed = self.light_keyed[index]
+        if keyed is None:
+            return np.broadcast_to(self.light_rgb[index], (n, 3))
+        times, radiant = keyed
+        return np.column_stack([np.interp(clock, times, radiant[:, i]) for i in range(3)])
 
     def world(self, lam, n):
         return np.broadcast_to(self.world_rgb, (n, 3))
 
     def to_rgb(self, values, lam):
         return values
+
+
+def _tint(light):
+    """The RGB of a lamp's black body (1 without a temperature), as prepare_lights applies it."""
+    return spectral.blackbody_rgb(light.temperature) if light.temperature > 0.0 else 1.0
 
 
 class SpectralColour:
@@ -71,9 +84,16 @@ class SpectralColour:
         self.base_coeffs = q.fit_reflectance(materials.base)
         self.emission_coeffs, self.emission_scale = q.fit_emission(materials.emission)
         self.lights = []
+        self.light_keyed = []  # keyed lamps: (lamp-clock times, spectrum coefficients (N, 3), scales (N,))
         for pl in lights:
             coeffs, scale = q.fit_emission(pl.light.color)
             self.lights.append((coeffs, scale * float(pl.light.power), float(pl.light.temperature)))
+            if pl.keyed is None:
+                self.light_keyed.append(None)
+            else:
+                times, color, power = pl.keyed
+                coeffs, scale = q.fit_emission(color)
+                self.light_keyed.append((times, coeffs, scale * power))
         self.world_coeffs, self.world_scale = q.fit_emission(world_color)
 
     def camera_wavelengths(self, pixel, sample):
@@ -98,12 +118,25 @@ class SpectralColour:
     def emission(self, mat, lam):
         return self._emitter(self.emission_coeffs[mat], self.emission_scale[mat], lam)
 
-    def light(self, index, lam, n):
+    def light(self, index, lam, n, clock=None):
+        """A lamp's spectrum at the wavelengths ``lam``; a keyed lamp's at its clock readings
+        ``clock`` (n,) of emission: the spectra of the neighbouring samples blended linearly (so
+        its colour is the samples' colours blended, as in RGB)."""
         coeffs, scale, temperature = self.lights[index]
-        shape = spectral.sigmoid_spectrum(np.broadcast_to(coeffs, (n, 3)), lam)
+        keyed = self.light_keyed[index]
+        if keyed is None:
+            shape = scale * spectral.sigmoid_spectrum(np.broadcast_to(coeffs, (n, 3)), lam)
+        else:
+            times, coeffs, scales = keyed
+            i = np.clip(np.searchsorted(times, clock, side="right") - 1, 0, len(times) - 1)
+            j = np.minimum(i + 1, len(times) - 1)
+            span = times[j] - times[i]
+            f = np.clip(np.where(span > 0, (clock - times[i]) / np.where(span > 0, span, 1.0), 0.0), 0.0, 1.0)
+            shape = (((1.0 - f) * scales[i])[:, None] * spectral.sigmoid_spectrum(coeffs[i], lam)
+                     + (f * scales[j])[:, None] * spectral.sigmoid_spectrum(coeffs[j], lam))
         if temperature > 0.0:
-            return scale * shape * spectral.blackbody_spectrum(lam, temperature)
-        return scale * shape * spectral.white_spectrum(lam)
+            return shape * spectral.blackbody_spectrum(lam, temperature)
+        return shape * spectral.white_spectrum(lam)
 
     def world(self, lam, n):
         return self._emitter(np.broadcast_to(self.world_coeffs, (n, 3)), np.broadcast_to(self.world_scale, (n,)), lam)

@@ -24,9 +24,9 @@ import numpy as np
 from embreex import rtcore, rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
-from . import motion, rows, validation
+from . import motion, observer, rows, validation
 from .lorentz import Boost
-from .scene import REST, Scene, Velocity
+from .scene import RAY_ALL, REST, Scene, Velocity
 
 
 class FrameMap:
@@ -91,6 +91,8 @@ class Geometry:
     embree: object
     piece_start: np.ndarray  # first triangle of each embree geometry: triangle = piece_start[geomID] + primID
     clusters: np.ndarray = None  # (k, 4): centre and radius of spheres that together hold every triangle
+    tri_visibility: np.ndarray | None = None  # (M,) uint8 RAY_* bits of the rays that see each triangle; None: all
+    tri_holdout: np.ndarray | None = None  # (M,) bool: holdout triangles; None: none
     radius: float = 0.0  # distance from the local origin (a moving body's pivot) to its farthest used vertex
     extent: float = field(init=False)  # the longest side of the bounds
     face_normals: np.ndarray = field(init=False)  # unit geometric normal of every triangle (0 for degenerate ones)
@@ -101,7 +103,7 @@ class Geometry:
         self.face_normals = rows.normalized(rows.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]))
         for array in (self.vertices, self.triangles, self.tri_material, self.tri_object_index, self.tri_clock,
                       self.corner_normals, self.corner_uvs, self.lo, self.hi, self.anchor, self.piece_start,
-                      self.clusters, self.face_normals):
+                      self.clusters, self.face_normals, self.tri_visibility, self.tri_holdout):
             if array is not None:
                 array.flags.writeable = False  # shared by every render thread
 
@@ -178,6 +180,16 @@ class RestFrame:
     @property
     def has_geometry(self) -> bool:
         return self.geometry is not None
+
+    @property
+    def surface_offset(self) -> float:
+        """How far secondary and shadow rays start off a surface of this frame: above the float32
+        geometry's rounding (relative to its extent), the float64 rounding of far positions (a
+        hundred ulps), and, for the inertial segments of an accelerated body, twice the motion
+        tolerance by which neighbouring segments of the same body may disagree."""
+        reach = float(np.max(np.abs(self.geometry.anchor))) + float(np.max(np.abs(self.offset)))
+        segment = 2.0 * self.tolerance if self.window is not None else 0.0
+        return 1e-5 * self.geometry.extent + 1e-14 * reach + segment
 
     def object_clock(self, tau, prim):
         """The body's own clock (c*t units, 0 at its origin event) at frame times tau of hits."""
@@ -256,6 +268,16 @@ class FrameSet:
         self.geometry_slot = MappingProxyType({k: i for i, k in enumerate(self.geometry)})  # frame -> place in geometry
         grouped = {int(i) for g in self.groups for i in g.frames}
         self.ungrouped = tuple(k for k in self.geometry if k not in grouped)
+        # the ray types (RAY_* bits) some triangle is hidden from, and whether any is a holdout
+        self.hidden_rays = 0
+        for k in self.geometry:
+            visibility = frames[k].geometry.tri_visibility
+            if visibility is not None:
+                self.hidden_rays |= RAY_ALL & ~int(np.bitwise_and.reduce(visibility))
+        self.has_holdout = any(frames[k].geometry.tri_holdout is not None for k in self.geometry)
+        self.surface_offsets = np.zeros(len(frames))  # RestFrame.surface_offset per frame (0 without geometry)
+        self.surface_offsets[list(self.geometry)] = [frames[k].surface_offset for k in self.geometry]
+        self.surface_offsets.flags.writeable = False
         self._inverse = tuple(f.boost.inverse() for f in frames)  # into S from each frame
         self._world_lines, self._rest_half = self._body_world_lines()
 
@@ -346,8 +368,10 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
         return frame
 
     world = shared_frame(REST, "world").index
-    camera = shared_frame(scene.camera.velocity, scene.camera.name).index
-    light_frames = [shared_frame(light.velocity, light.name).index for light in scene.lights]
+    camera = shared_frame(observer.camera_velocity(scene.camera, scene.tau_obs), scene.camera.name).index
+    # an animated lamp is in no one frame: it is lit from its momentary rest frame at each retarded event
+    light_frames = [shared_frame(REST if light.trajectory is not None else light.velocity, light.name).index
+                    for light in scene.lights]
 
     inertial: dict[int, list] = {}
     groups: list[SegmentGroup] = []
@@ -412,6 +436,8 @@ def _mesh_part(mesh, boost: Boost, warnings: list[str], relative_to=None):
         "clock": np.full(len(keep), clock),
         "normals": None if mesh.corner_normals is None else np.asarray(mesh.corner_normals, np.float64)[keep],
         "uvs": None if mesh.corner_uvs is None else np.asarray(mesh.corner_uvs, np.float64)[keep],
+        "visibility": int(mesh.visibility) & RAY_ALL,
+        "holdout": bool(mesh.holdout),
     }
 
 
@@ -443,6 +469,11 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
         normals = np.concatenate([p["normals"] if p["normals"] is not None else _flat_normals(p) for p in parts])
     if any(p["uvs"] is not None for p in parts):
         uvs = np.concatenate([p["uvs"] if p["uvs"] is not None else np.zeros((len(p["triangles"]), 3, 2)) for p in parts])
+    visibility = holdout = None
+    if any(p["visibility"] != RAY_ALL for p in parts):
+        visibility = np.concatenate([np.full(len(p["triangles"]), p["visibility"], dtype=np.uint8) for p in parts])
+    if any(p["holdout"] for p in parts):
+        holdout = np.concatenate([np.full(len(p["triangles"]), p["holdout"]) for p in parts])
     is_used = np.zeros(len(vertices), dtype=bool)
     is_used[triangles] = True  # a mask, not np.unique: no sort (0.14 s -> 0.02 s for 1M triangles)
     used = vertices[is_used]
@@ -467,7 +498,7 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
         tri_object_index=np.concatenate([p["object_index"] for p in parts]),
         tri_clock=np.concatenate([p["clock"] for p in parts]),
         corner_normals=normals, corner_uvs=uvs, lo=lo, hi=hi, anchor=anchor, embree=scene,
-        piece_start=piece_start,
+        piece_start=piece_start, tri_visibility=visibility, tri_holdout=holdout,
     )
 
 

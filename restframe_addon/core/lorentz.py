@@ -187,3 +187,37 @@ def compose_velocities(u, v):
     if norm > 0.5:  # near c the speed is better known from gamma, which has no cancellation
         velocity *= (math.sqrt((gamma - 1.0) * (gamma + 1.0)) / gamma) / norm
     return velocity, gamma
+
+
+class RowBoosts:
+    """One boost per row: row i maps coordinates of A to those of the frame moving with
+    ``beta[i]`` relative to A (the momentary rest frames of an accelerating camera's samples
+    or of a lamp at each of its retarded events).
+
+    The formulas of :class:`Boost` with ``k = gamma^2 / (gamma + 1)`` (no 0/0 at rest); the
+    velocities come from world lines (animated cameras and lamps, well below ``1 - 1e-9``), so
+    the literal ``1 + beta.d`` is accurate enough here.
+    """
+
+    def __init__(self, beta):
+        self.beta = np.atleast_2d(np.asarray(beta, dtype=np.float64))
+        b2 = np.einsum("ij,ij->i", self.beta, self.beta)
+        if not np.all(b2 < 1.0):
+            raise ValueError("a velocity of a world line reaches the speed of light")
+        self.gamma = 1.0 / np.sqrt(1.0 - b2)
+        self.k = self.gamma**2 / (self.gamma + 1.0)
+
+    def inverse(self) -> "RowBoosts":
+        return RowBoosts(-self.beta)
+
+    def events(self, tau, x):
+        """Boost events (n,), (n, 3) -> (tau', x')."""
+        tau = np.asarray(tau, dtype=np.float64)
+        bx = np.einsum("ij,ij->i", self.beta, x)
+        return self.gamma * (tau - bx), x + (self.k * bx - self.gamma * tau)[:, None] * self.beta
+
+    def rays(self, d):
+        """Backward directions d (n, 3) -> (d', w), s' = w s, w = gamma (1 + beta.d) = 1/D."""
+        bd = np.einsum("ij,ij->i", self.beta, d)
+        w = self.gamma * (1.0 + bd)
+        return (d + (self.k * bd + self.gamma)[:, None] * self.beta) / w[:, None], w

@@ -42,7 +42,10 @@ class Trajectory:
     """A pivot's world line from animation samples: ``tau`` (increasing, c*t) and ``position`` (N, 3) in S.
 
     ``frames`` are the Blender frame numbers of the samples (for messages);
-    ``body_radius`` the largest distance of a body point from the pivot.
+    ``body_radius`` the largest distance of a body point from the pivot.  ``smooth`` (a point:
+    an observer or a lamp) rounds every corner as widely as the samples allow, so the world
+    line is a chain of constant accelerations whose velocity at a sample is the mean of its
+    neighbouring chords' (second-order accurate for a smooth keyed path).
     Raises ValueError naming ``name`` and the frames where the speed reaches c.
     """
 
@@ -52,6 +55,7 @@ class Trajectory:
     frames: np.ndarray | None = None
     body_radius: float = 0.0
     warnings: list = field(default_factory=list)
+    smooth: bool = False
 
     def __post_init__(self):
         self.tau = np.asarray(self.tau, dtype=np.float64)
@@ -90,6 +94,9 @@ class Trajectory:
         jump = np.linalg.norm(np.diff(u, axis=0), axis=1)
         wanted = 0.5 * np.maximum(gamma[:-1], gamma[1:]) * self.body_radius * jump
         room = 0.5 * np.minimum(lengths[:-1], lengths[1:])
+        if self.smooth:
+            self.half = np.where(jump > 0.0, room, 0.0)
+            return
         self.half = np.minimum(wanted, room)
         short = np.flatnonzero(wanted > room * (1 + 1e-9))
         if len(short):
@@ -148,6 +155,18 @@ class Trajectory:
     def proper_time(self, tau):
         """The pivot's own clock (c*tau units) at world times tau: 0 at tau = 0."""
         return self._proper_from(self._proper, tau)
+
+    def world_time(self, proper):
+        """World times (c*tau units) at which the pivot's clock reads ``proper``: the inverse of
+        :meth:`proper_time` (it rises strictly), by Newton steps from the interpolated knots."""
+        proper = np.atleast_1d(np.asarray(proper, dtype=np.float64))
+        i = np.clip(np.searchsorted(self._proper, proper, side="right") - 1, 0, len(self.tau) - 2)
+        rate = np.sqrt(1.0 - np.einsum("ij,ij->i", self.beta, self.beta))  # d(proper)/d(tau) between corners
+        tau = self.tau[i] + (proper - self._proper[i]) / rate[i]
+        for _ in range(4):
+            _, beta = self.state(tau)
+            tau = tau - (self.proper_time(tau) - proper) / np.sqrt(1.0 - np.einsum("ij,ij->i", beta, beta))
+        return tau
 
     # ------------------------------------------------------------------ light cone
     def light_cone_crossing(self, event_tau, event_x, iterations: int = 200):

@@ -93,9 +93,12 @@ def ray_doppler(frames: FrameSet, hits: Hits) -> np.ndarray:
     return doppler
 
 
-def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits) -> dict[str, np.ndarray]:
+def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
+                 shading_normals=None) -> dict[str, np.ndarray]:
     """The passes ``wanted`` (names besides Combined) of camera rays ``rays`` = (tau, x, d, ...)
-    in the camera frame and their ``hits``, as (n, channels) float64 arrays."""
+    in the camera frame and their ``hits``, as (n, channels) float64 arrays.  ``shading_normals(k,
+    prim, u, v, d_k, tau_hit)``: the Normal pass's normals at hits of frame k (normal maps applied,
+    as Cycles shows them; None: :func:`facing_normals`')."""
     tau, x, d = rays[:3]
     wanted = set(wanted)
     n = len(d)
@@ -122,7 +125,8 @@ def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits)
         if "Doppler" in wanted:
             passes["Doppler"][sel, 0] = hit_doppler(frame, prim, u, v, tau_hit, d_k, hits.w[sel])
         if "Normal" in wanted:
-            passes["Normal"][sel] = facing_normals(frame, prim, u, v, d_k, tau_hit)[2]
+            passes["Normal"][sel] = (facing_normals(frame, prim, u, v, d_k, tau_hit)[2] if shading_normals is None
+                                     else shading_normals(int(k), prim, u, v, d_k, tau_hit))
         if "IndexOB" in wanted:
             passes["IndexOB"][sel, 0] = frame.geometry.tri_object_index[prim]
         if "Object Time" in wanted:

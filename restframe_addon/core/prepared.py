@@ -18,14 +18,14 @@ from typing import Callable
 
 import numpy as np
 
-from . import lens
+from . import lens, observer
 from .camera import CameraRays
 from .colour import RGBColour, SpectralColour
 from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
 from .passes import EXTRA_PASSES, ray_doppler
-from .scene import RenderSettings, Scene
+from .scene import RAY_CAMERA, Camera, RenderSettings, Scene
 from .shading import MaterialTable, PreparedLight, Shader, prepare_lights
-from .tracer import TraceCache, trace_nearest
+from .tracer import TraceCache
 from .validation import RenderError, check_render
 
 _EXPOSURE_PREVIEW = 48  # pixels on the longer side of the exposure-normalisation preview
@@ -96,14 +96,28 @@ class PreparedScene:
         every px with every py); rays outside a panorama get s_hi = -inf (they hit nothing).
         With ``keys`` = (pixel ids, sample numbers, samples per pixel) they are camera samples:
         through the lens, and with motion blur each at its own time of the camera's clock."""
+        return self.sample_rays(px, py, grid, keys)[0]
+
+    def sample_rays(self, px, py, grid: bool = False, keys=None):
+        """:meth:`rays` and the Doppler factor (n,) of the camera frame as each ray's observer
+        sees it, None where that is the camera frame itself (all but the shutter samples of an
+        accelerating camera, each observing in its momentary rest frame: core.observer)."""
         origins, d, s_lo, s_hi, valid = self.camera_rays(px, py, grid, keys)
         camera = self.scene.camera
+        doppler = None
         if keys is not None and camera.has_motion_blur:
-            # an inertial camera's rest-frame time runs with its own clock (tau = c t)
-            tau = self.camera_tau + self.scene.light_speed * lens.shutter_times(camera, *keys, self.settings.resolution)
+            proper = self.scene.light_speed * lens.shutter_times(camera, *keys, self.settings.resolution)
+            if camera.trajectory is None:
+                # an inertial camera's rest-frame time runs with its own clock (tau = c t)
+                tau = self.camera_tau + proper
+            else:
+                tau, origins, d, w = observer.shutter_samples(
+                    camera, self.frames.frames[self.frames.camera].boost, self.scene.tau_obs,
+                    self.camera_rays.position, proper, origins, d)
+                s_lo, s_hi, doppler = s_lo * w, s_hi * w, 1.0 / w
         else:
             tau = np.broadcast_to(self.camera_tau, (len(d),))  # read-only views: every ray starts at this time
-        return tau, origins, d, s_lo, s_hi if valid.all() else np.where(valid, s_hi, -np.inf)
+        return (tau, origins, d, s_lo, s_hi if valid.all() else np.where(valid, s_hi, -np.inf)), doppler
 
     def centre_rays(self, rect):
         """The pixel-centre camera rays of a rectangle of pixels, in row-major order."""
@@ -119,7 +133,27 @@ def prepare(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bo
     and must not be rendered.
     """
     settings = dataclasses.replace(settings)  # its own copy: a caller changing theirs later changes no render
-    prepared = _build(scene, settings, should_stop)
+    return _measured(_build(scene, settings, should_stop), should_stop)
+
+
+def prepare_view(prepared: PreparedScene, camera: Camera, should_stop: Callable[[], bool] = lambda: False
+                 ) -> PreparedScene:
+    """The prepared scene seen by another camera (a stereo eye, another view): with the same
+    velocity its rest frames, lights and shader are shared (built once), and only the camera's
+    observation event, rays and the pre-passes are its own; else prepared afresh."""
+    scene = dataclasses.replace(prepared.scene, camera=camera)
+    if camera.velocity != prepared.scene.camera.velocity:
+        return prepare(scene, prepared.settings, should_stop)
+    check_render(scene, prepared.settings, EXTRA_PASSES)
+    camera_tau, camera_rays = _camera(scene, prepared.settings, prepared.frames)
+    view = dataclasses.replace(prepared, scene=scene, camera_tau=camera_tau, camera_rays=camera_rays,
+                               doppler_range=prepared.settings.doppler_range, exposure=1.0)
+    return _measured(view, should_stop)
+
+
+def _measured(prepared: PreparedScene, should_stop) -> PreparedScene:
+    """The prepared scene with its pre-passes' values (Doppler range, exposure) measured."""
+    settings = prepared.settings
     doppler_range = settings.doppler_range
     if settings.doppler_mode == "FACTOR" and doppler_range is None:
         doppler_range = _measure_doppler_range(prepared, should_stop)
@@ -147,17 +181,28 @@ def _build(scene: Scene, settings: RenderSettings, should_stop: Callable[[], boo
         colour = SpectralColour(materials, lights, scene.world_color, settings.spectral_samples)
     else:
         colour = RGBColour(materials, lights, scene.world_color)
-    camera_boost = frames.frames[frames.camera].boost
-    position = np.asarray(scene.camera.matrix, dtype=np.float64)[:3, 3]
-    world_event = position + camera_boost.b * camera_boost.n * scene.tau_obs
-    tau, _ = camera_boost.events(np.array(scene.tau_obs), world_event)
+    camera_tau, camera_rays = _camera(scene, settings, frames)
     return PreparedScene(
         scene=scene, settings=settings, frames=frames, lights=lights, materials=materials, colour=colour,
         shader=Shader(frames, materials, lights, colour, settings.max_bounces, settings.searchlight),
-        camera_tau=float(tau),
-        camera_rays=CameraRays(scene.camera, settings.resolution, shift_into_frame(camera_boost, position)),
+        camera_tau=camera_tau, camera_rays=camera_rays,
         passes=tuple(EXTRA_PASSES) if settings.passes is None else tuple(settings.passes),
         doppler_range=settings.doppler_range, exposure=1.0)
+
+
+def _camera(scene: Scene, settings: RenderSettings, frames: FrameSet) -> tuple[float, CameraRays]:
+    """The camera-frame time of the observation event (the camera's position at world time
+    tau_obs) and the camera's rays."""
+    camera_boost = frames.frames[frames.camera].boost
+    position = np.asarray(scene.camera.matrix, dtype=np.float64)[:3, 3]
+    if scene.camera.trajectory is None:
+        world_event = position + camera_boost.b * camera_boost.n * scene.tau_obs
+        tau, _ = camera_boost.events(np.array(scene.tau_obs), world_event)
+        offset = shift_into_frame(camera_boost, position)
+    else:  # on its world line, in its momentary rest frame
+        tau, place = observer.observation_event(scene.camera, camera_boost, scene.tau_obs)
+        offset = place - position
+    return float(tau), CameraRays(scene.camera, settings.resolution, offset)
 
 
 def _measure_doppler_range(prepared: PreparedScene, should_stop) -> tuple[float, float]:
@@ -170,7 +215,9 @@ def _measure_doppler_range(prepared: PreparedScene, should_stop) -> tuple[float,
         if should_stop():
             break
         rays = prepared.centre_rays(rect)
-        hits = trace_nearest(frames, frames.camera, *rays, cache=cache)
+        _, _, pixel = prepared.pixel_grid(rect)
+        hits = prepared.shader.trace(frames.camera, *rays, RAY_CAMERA, pixel, np.zeros_like(pixel), 0, cache,
+                                     for_passes=True)
         doppler = ray_doppler(frames, hits)[hits.frame >= 0]
         if len(doppler):
             lo, hi = min(lo, doppler.min()), max(hi, doppler.max())

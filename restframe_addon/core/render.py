@@ -26,8 +26,8 @@ import numpy as np
 from . import blas, sampling
 from .passes import ALL_PASSES, EXTRA_PASSES, PASSES, pixel_passes, ray_doppler  # noqa: F401 (PASSES: public name)
 from .prepared import PreparedScene, prepare
-from .scene import RenderSettings, Scene
-from .tracer import TraceCache, trace_nearest
+from .scene import RAY_CAMERA, RenderSettings, Scene
+from .tracer import TraceCache
 from .validation import DOPPLER_MODES, RenderError  # noqa: F401 (public names of this module)
 
 _MAX_VALUES = 3 << 16  # ray colour values per batch: bounds memory whatever the tile size, samples and wavelengths
@@ -59,12 +59,16 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     h, w = y1 - y0, x1 - x0
     xs, ys, pixel = prepared.pixel_grid(rect)
     n = len(pixel)
+    shader = prepared.shader
     centre = prepared.centre_rays(rect)
-    centre_hits = trace_nearest(frames, frames.camera, *centre, cache=cache)
-    passes = pixel_passes(frames, prepared.scene.light_speed, prepared.passes, centre, centre_hits)
+    centre_hits = shader.trace(frames.camera, *centre, RAY_CAMERA, pixel, np.zeros_like(pixel), 0, cache,
+                               for_passes=True)
+    passes = pixel_passes(frames, prepared.scene.light_speed, prepared.passes, centre, centre_hits,
+                          shader.shading_normals if prepared.materials.normal_mapped else None)
     samples = max(int(settings.samples), 1)
     rgb = np.zeros((n, 3))
-    coverage = np.zeros(n)
+    coverage = np.zeros(n)  # the share of samples that hit a surface (holdouts included)
+    held = np.zeros(n)  # the share of samples that hit a holdout
     complete = True
     for index, (part, first, count) in enumerate(_batches(n, samples, prepared.colour.channels)):
         if index and should_stop():  # Esc between sample batches of a long tile
@@ -73,40 +77,61 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
         m = part.stop - part.start
         pix = np.repeat(pixel[part], count)
         smp = np.tile(np.arange(first, first + count), m)
-        if samples == 1 and not prepared.samples_vary:  # the one sample is the pixel-centre ray, already traced
-            rays, hits = tuple(a[part] for a in centre), centre_hits.take(part)
+        observed = None  # the Doppler factor of the camera frame seen by each sample's observer (None: 1)
+        if samples == 1 and not prepared.samples_vary:  # the one sample is the pixel-centre ray
+            rays = tuple(a[part] for a in centre)
+            # already traced, unless cut-outs pass it by chance (the passes' trace used a threshold)
+            hits = (shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache)
+                    if prepared.materials.cuts_out else centre_hits.take(part))
         else:
             ox, oy = sampling.stratified_offsets(pix, smp, samples)
-            rays = prepared.rays(np.repeat(xs[part], count) + ox, np.repeat(ys[part], count) + oy,
-                                 keys=(pix, smp, samples))
-            hits = trace_nearest(frames, frames.camera, *rays, cache=cache)
-        color, hit = _sample(prepared, rays, hits, pix, smp, cache)
+            rays, observed = prepared.sample_rays(np.repeat(xs[part], count) + ox, np.repeat(ys[part], count) + oy,
+                                                  keys=(pix, smp, samples))
+            hits = shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache)
+        color, hit, hole = _sample(prepared, rays, hits, pix, smp, cache, observed)
         rgb[part] += color.reshape(m, count, 3).sum(axis=1)
         coverage[part] += hit.reshape(m, count).sum(axis=1)
+        if hole is not None:
+            held[part] += hole.reshape(m, count).sum(axis=1)
     rgb *= prepared.exposure / samples
     coverage /= samples
-    alpha = coverage if settings.film_transparent else np.ones(n)
+    held /= samples
+    # holdouts are holes in the image whether or not the film is transparent (as in Cycles)
+    alpha = coverage - held if settings.film_transparent else 1.0 - held
     passes["Combined"] = np.concatenate([rgb, alpha[:, None]], axis=1)
     return Tile(x0, y0, x1, y1, {k: v.reshape(h, w, -1).astype(np.float32) for k, v in passes.items()}, complete)
 
 
-def _sample(prepared: PreparedScene, rays, hits, pixel, sample, cache: TraceCache):
-    """Colour of camera samples (already traced: ``hits``) and whether they hit anything."""
+def _sample(prepared: PreparedScene, rays, hits, pixel, sample, cache: TraceCache, observed=None):
+    """Colour of camera samples (already traced: ``hits``), whether they hit anything and whether
+    a holdout (None: the scene has none; a holdout's colour is 0); ``observed``: the Doppler factor
+    of the camera frame as each sample's observer sees it (an accelerating camera's shutter
+    samples), None for 1."""
     settings = prepared.settings
     if settings.doppler_mode == "FACTOR":
         hit = hits.frame >= 0
-        rgb = np.repeat(_doppler_grey(prepared, ray_doppler(prepared.frames, hits))[:, None], 3, axis=1)
+        doppler = ray_doppler(prepared.frames, hits)
+        if observed is not None:
+            doppler = doppler * observed
+        rgb = np.repeat(_doppler_grey(prepared, doppler)[:, None], 3, axis=1)
     else:
         colour = prepared.colour
         lam = colour.camera_wavelengths(pixel, sample)
-        values, hits = prepared.shader.radiance(prepared.frames.camera, *rays, 0, pixel, sample, lam, hits, cache)
+        traced = lam if observed is None else colour.shift(lam, observed)  # the wavelengths in the camera frame
+        values, hits = prepared.shader.radiance(prepared.frames.camera, *rays, 0, pixel, sample, traced, hits, cache)
+        if observed is not None:
+            values = values * prepared.shader._power(observed, 4)[:, None]
         rgb = colour.to_rgb(values, lam)
         hit = hits.frame >= 0
     if settings.film_transparent:
         rgb[~hit] = 0.0
     elif settings.doppler_mode == "FACTOR":
         rgb[~hit] = prepared.scene.world_color
-    return rgb, hit
+    if not prepared.shader.has_holdouts:
+        return rgb, hit, None
+    hole = prepared.shader.held_out(hits)
+    rgb[hole] = 0.0
+    return rgb, hit, hole
 
 
 def _doppler_grey(prepared: PreparedScene, doppler):

@@ -40,6 +40,15 @@ class Velocity:
 
 REST = Velocity()
 
+# Ray types: the bits of ``Mesh.visibility`` (Blender's Object > Visibility > Ray Visibility).  A
+# surface a ray type does not see is passed through by those rays, as if absent for them.
+RAY_CAMERA = 1  # camera rays (and their continuations through cut-outs)
+RAY_DIFFUSE = 2  # diffuse bounces (the path tracer's)
+RAY_GLOSSY = 4  # mirror and glossy reflections
+RAY_TRANSMISSION = 8  # refraction through glass
+RAY_SHADOW = 16  # shadow rays toward lights
+RAY_ALL = RAY_CAMERA | RAY_DIFFUSE | RAY_GLOSSY | RAY_TRANSMISSION | RAY_SHADOW
+
 
 @dataclass
 class Material:
@@ -58,6 +67,13 @@ class Material:
     emission_curve: tuple[np.ndarray, np.ndarray] | None = None
     base_color_texture: np.ndarray | None = None  # (H, W, 3) scene-linear, row 0 = bottom (Blender order)
     base_color_interpolation: str = "Linear"  # "Linear" (bilinear) or "Closest" (nearest pixel), as Blender's
+    # Principled Alpha (cut-outs): the chance a ray stops at the surface; 1 = opaque
+    alpha: float = 1.0
+    alpha_texture: np.ndarray | None = None  # (H, W, 1) alpha from an image (times ``alpha``), row 0 = bottom
+    # a tangent-space normal map (Normal Map node): the image's colour (H, W, 3), Non-Color, row 0 = bottom
+    normal_texture: np.ndarray | None = None
+    normal_strength: float = 1.0
+    holdout: bool = False  # a Holdout shader: a hole in the image, as a holdout object
 
 
 @dataclass
@@ -80,6 +96,8 @@ class Mesh:
     object_index: int = 0  # Blender's pass_index, for the IndexOB pass
     trajectory: "Trajectory | None" = None  # animated pivot world line (replaces velocity); see core.motion
     angular_velocity: tuple[float, float, float] | None = None  # rad/s about the pivot, world axes, in the velocity frame
+    visibility: int = RAY_ALL  # the ray types that see it (RAY_* bits)
+    holdout: bool = False  # seen by the camera as a hole in the image (colour and alpha 0), still occluding
 
 
 @dataclass
@@ -106,6 +124,16 @@ class Light:
     temperature: float = 0.0  # K; > 0: a black body at this temperature, tinted by ``color``
     velocity: Velocity = REST
     pivot: tuple[float, float, float] | None = None  # None = its own position
+    trajectory: "Trajectory | None" = None  # an animated lamp's world line (replaces velocity and position)
+    # keyed output, read on the lamp's own clock at emission: (seconds, watts) and (seconds, (N, 3) colours);
+    # linear between samples, constant beyond; None = ``power`` / ``color`` at every time
+    power_curve: tuple[np.ndarray, np.ndarray] | None = None
+    color_curve: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def is_keyed(self) -> bool:
+        """Whether its strength or colour changes with its clock."""
+        return self.power_curve is not None or self.color_curve is not None
 
     @property
     def pivot_or_position(self):
@@ -138,6 +166,9 @@ class Camera:
     sensor_size: tuple[float, float] = (36.0, 24.0)  # mm (width, height) as fitted to the image
     velocity: Velocity = REST
     name: str = "Camera"
+    # an animated (accelerating) observer's world line: replaces velocity; the image forms in its momentary
+    # rest frame at the observation event, shutter samples at their own proper times on it (core.observer)
+    trajectory: "Trajectory | None" = None
     # depth of field (Cycles' thin lens, in the camera's rest frame; core.lens): radius 0 = a pinhole
     aperture_radius: float = 0.0  # scene units (the polygon's corners lie on this circle)
     focus_distance: float = 10.0  # scene units along the view axis (the plane of focus)

@@ -26,10 +26,11 @@ import numpy as np
 
 from . import rows, sampling, spectral
 from .bsdf import dielectric_f0, fresnel_dielectric, ggx_reflection
-from .frames import FrameSet, shift_into_frame
+from .frames import FrameSet, clock_shift, shift_into_frame
+from .lorentz import RowBoosts
 from .passes import facing_normals, hit_doppler, hit_times
-from .scene import Light, Material, Scene
-from .tracer import TraceCache, frames_hit, occluded, trace_nearest
+from .scene import RAY_CAMERA, RAY_GLOSSY, RAY_TRANSMISSION, Light, Material, Scene
+from .tracer import Hits, TraceCache, frames_hit, occluded, trace_nearest
 from .world import image_lookup
 
 MIRROR_ROUGHNESS = 0.05  # smoother surfaces reflect by traced mirror rays, rougher ones by GGX highlights
@@ -39,6 +40,13 @@ _MIN_ALPHA = 1e-3
 # (irradiance P / (4 pi r^2) head-on); an area light of power P emits radiance P / (pi A);
 # a sun of strength S gives irradiance S on a surface facing it.
 _POINT_INTENSITY_PER_WATT = 1.0 / (4.0 * np.pi)
+
+# Cycles' default view-layer Alpha Threshold: the passes (depth, normal, index) see surfaces
+# at least this opaque, the colour sees every surface with the chance of its alpha
+PASS_ALPHA_THRESHOLD = 0.5
+# sampler dimensions of the cut-out decisions: from here, 1000 per (bounce depth, ray type) and
+# (bounce depth, light), one more per surface passed (at most tracer._MAX_PASS_THROUGH < 1000)
+_CUTOUT_DIMENSION = 1_000_000
 
 
 class MaterialTable:
@@ -63,6 +71,14 @@ class MaterialTable:
         self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
         self.textures = [m.base_color_texture for m in materials]
         self.closest = [m.base_color_interpolation == "Closest" for m in materials]
+        self.principled_alpha = np.clip([m.alpha for m in materials], 0.0, 1.0)  # cut-outs (not the GGX alpha)
+        self.alpha_textures = [m.alpha_texture for m in materials]
+        self.cuts_out = bool(np.any(self.principled_alpha < 1.0)) or any(t is not None for t in self.alpha_textures)
+        self.normal_textures = [m.normal_texture for m in materials]
+        self.normal_strength = np.maximum([m.normal_strength for m in materials], 0.0)
+        self.normal_mapped = any(t is not None for t in self.normal_textures)
+        self.holdout = np.array([m.holdout for m in materials], dtype=bool)
+        self.holdouts = bool(self.holdout.any())
         self.mirror = self.roughness < MIRROR_ROUGHNESS
         self.glass = self.transmission > 0.0
         self.traces_secondary = bool(np.any(self.mirror | self.glass))
@@ -101,6 +117,29 @@ class MaterialTable:
                                           "Closest" if self.closest[m] else "Linear")
         return color
 
+    def opacity(self, index, uv):
+        """Principled Alpha per hit (the alpha image looked up where there is one, UVs or not)."""
+        alpha = self.principled_alpha[index]
+        for m, texture in enumerate(self.alpha_textures):
+            if texture is None:
+                continue
+            sel = np.flatnonzero(index == m)
+            if len(sel):
+                alpha[sel] = alpha[sel] * (image_lookup(texture, uv[sel, 0], uv[sel, 1])[:, 0] if uv is not None else 1.0)
+        return alpha
+
+    def tangent_normals(self, index, uv):
+        """The normal map's tangent-space normal per hit (Blender's colour * 2 - 1), NaN where the
+        material has none."""
+        normal = np.full((len(index), 3), np.nan)
+        for m, texture in enumerate(self.normal_textures):
+            if texture is None:
+                continue
+            sel = np.flatnonzero(index == m)
+            if len(sel):
+                normal[sel] = 2.0 * image_lookup(texture, uv[sel, 0], uv[sel, 1]) - 1.0
+        return normal
+
 
 @dataclass
 class PreparedLight:
@@ -111,6 +150,8 @@ class PreparedLight:
     position: np.ndarray  # in its frame
     axes: np.ndarray  # 3x3, columns = local X, Y, Z (emits along -Z)
     radiant: np.ndarray  # colour * power in Blender units
+    clock_offset: float = 0.0  # the lamp's own clock = its frame's time + this (constant velocity)
+    keyed: tuple | None = None  # keyed output: (lamp-clock times c*t (N,), colours (N, 3), powers (N,)); None: radiant
 
     @property
     def sampled(self) -> bool:
@@ -133,9 +174,33 @@ def prepare_lights(scene: Scene, frames: FrameSet) -> list[PreparedLight]:
             radiant = radiant * spectral.blackbody_rgb(light.temperature)
         if light.kind not in ("POINT", "SPOT", "SUN", "AREA"):
             raise ValueError(f"{light.name}: light type {light.kind} is not supported by RESTframe")
-        if np.any(radiant > 0):
-            prepared.append(PreparedLight(light, frame, position, axes, radiant))
+        if light.kind == "SUN" and light.trajectory is not None:
+            raise ValueError(f"{light.name}: a sun lamp is infinitely far and has no world line: "
+                             "give it a constant velocity (Motion = Constant Velocity)")
+        keyed = _keyed_output(light, scene.light_speed) if light.is_keyed else None
+        if np.any(radiant > 0) if keyed is None else np.any(keyed[1] * keyed[2][:, None] > 0):
+            prepared.append(PreparedLight(light, frame, position, axes, radiant,
+                                          clock_offset=-clock_shift(boost, light.pivot_or_position), keyed=keyed))
     return prepared
+
+
+def _keyed_output(light: Light, light_speed: float):
+    """A keyed lamp's (lamp-clock times c*t, colours, powers) on the union of its curves' samples
+    (linear between them, as each curve)."""
+    curves = [c for c in (light.power_curve, light.color_curve) if c is not None]
+    seconds = np.unique(np.concatenate([np.asarray(c[0], dtype=np.float64) for c in curves]))
+    if light.power_curve is None:
+        power = np.full(len(seconds), float(light.power))
+    else:
+        power = np.interp(seconds, *(np.asarray(a, dtype=np.float64) for a in light.power_curve))
+    if light.color_curve is None:
+        color = np.broadcast_to(np.asarray(light.color, dtype=np.float64), (len(seconds), 3)).copy()
+    else:
+        times, values = (np.asarray(a, dtype=np.float64) for a in light.color_curve)
+        color = np.column_stack([np.interp(seconds, times, values.reshape(-1, 3)[:, i]) for i in range(3)])
+    if not (np.all(np.isfinite(power)) and np.all(np.isfinite(color))):
+        raise ValueError(f"{light.name}: its keyed strength or colour is not a finite number")
+    return seconds * light_speed, color, power
 
 
 class Shader:
@@ -149,17 +214,8 @@ class Shader:
         self.colour = colour
         self.max_bounces = max_bounces
         self.searchlight = searchlight
-        # how far secondary and shadow rays start off a surface: above the float32 geometry's
-        # rounding (relative to its extent), the float64 rounding of far positions (a hundred
-        # ulps), and, for the inertial segments of an accelerated body, twice the motion
-        # tolerance by which neighbouring segments of the same body may disagree
-        epsilon = {}
-        for k in frames.geometry:
-            frame = frames.frames[k]
-            reach = float(np.max(np.abs(frame.geometry.anchor))) + float(np.max(np.abs(frame.offset)))
-            segment = 2.0 * frame.tolerance if frame.window is not None else 0.0
-            epsilon[k] = 1e-5 * frame.geometry.extent + 1e-14 * reach + segment
-        self.epsilon = MappingProxyType(epsilon)
+        # how far secondary and shadow rays start off a surface (RestFrame.surface_offset)
+        self.epsilon = MappingProxyType({k: float(frames.surface_offsets[k]) for k in frames.geometry})
 
     # ------------------------------------------------------------------ helpers
     def _power(self, doppler, exponent: int):
@@ -170,16 +226,17 @@ class Shader:
 
     # ------------------------------------------------------------------ rays
     def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, depth: int, pixel, sample, lam, hits=None,
-                 cache: TraceCache | None = None):
+                 cache: TraceCache | None = None, ray: int = RAY_CAMERA):
         """Radiance arriving at events (tau0, x0) of frame src from backward directions d,
         at the wavelengths ``lam`` of frame src (None in RGB mode); ``hits`` if already traced;
-        ``cache``: the calling thread's :class:`~.tracer.TraceCache` (None: keep nothing).
+        ``cache``: the calling thread's :class:`~.tracer.TraceCache` (None: keep nothing);
+        ``ray``: the rays' type (``RAY_*``).  Holdout surfaces give 0 (they end the path).
 
         Returns (values (n, C), hits) -- the hits of this ray bundle, for the passes.
         """
         n = len(d)
         if hits is None:
-            hits = trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi, cache)
+            hits = self.trace(src, tau0, x0, d, s_lo, s_hi, ray, pixel, sample, depth, cache)
         values = np.empty((n, self.colour.channels))
         miss = np.flatnonzero(hits.frame < 0)
         if len(miss):
@@ -190,8 +247,13 @@ class Shader:
                 doppler = 1.0 / to_world.rays(d[miss])[1]
                 world = self.colour.world(self.colour.shift(_rows(lam, miss), doppler), len(miss))
                 values[miss] = rows.scale(world, self._power(doppler, 4))
+        held = self.held_out(hits) if self.has_holdouts else None
+        if held is not None:
+            values[held] = 0.0
         for k in frames_hit(hits):
-            sel = np.flatnonzero(hits.frame == k)
+            sel = np.flatnonzero(hits.frame == k if held is None else (hits.frame == k) & ~held)
+            if len(sel) == 0:
+                continue
             fmap = self.frames.map(src, int(k))
             d_k, w = hits.d_frame[sel], hits.w[sel]
             tau_hit = hit_times(hits, sel)
@@ -207,21 +269,76 @@ class Shader:
             values[sel] = rows.scale(local, self._power(doppler, 4))
         return values, hits
 
+    # ------------------------------------------------------------------ tracing
+    def trace(self, src: int, tau0, x0, d, s_lo, s_hi, ray: int, pixel, sample, depth: int,
+              cache: TraceCache | None = None, for_passes: bool = False) -> Hits:
+        """The surfaces rays of type ``ray`` stop at: hidden ones passed, cut-outs passed with the
+        chance 1 - alpha (keyed by pixel, sample and depth), or, ``for_passes``, where alpha is
+        below :data:`PASS_ALPHA_THRESHOLD`."""
+        if not self.materials.cuts_out:
+            see_through = None
+        elif for_passes:
+            see_through = lambda hits, rays, layer: self.hit_opacity(hits) < PASS_ALPHA_THRESHOLD
+        else:
+            see_through = self.cutouts(pixel, sample, _cutout_dimension(depth, ray.bit_length()))
+        return trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi, cache, ray, see_through)
+
+    def cutouts(self, pixel, sample, dimension: int):
+        """A ``see_through`` test for the tracer: the rays of these pixels and samples pass a
+        surface where its alpha is at most a uniform number (sampler ``dimension`` + the
+        surfaces passed so far); None without cut-outs."""
+        if not self.materials.cuts_out:
+            return None
+
+        def see_through(hits, rays, layer):
+            return self.hit_opacity(hits) <= sampling.uniform(pixel[rays], sample[rays], dimension + layer)
+        return see_through
+
+    def hit_opacity(self, hits: Hits) -> np.ndarray:
+        """Principled Alpha at hits (every ray hit something)."""
+        alpha = np.ones(len(hits.frame))
+        for k in frames_hit(hits):
+            sel = np.flatnonzero(hits.frame == k)
+            frame = self.frames.frames[k]
+            prim = hits.prim[sel]
+            material = self.materials.clamp(frame.geometry.tri_material[prim])
+            alpha[sel] = self.materials.opacity(material, hit_uv(frame, prim, hits.u[sel], hits.v[sel]))
+        return alpha
+
+    @property
+    def has_holdouts(self) -> bool:
+        """Whether any surface is a holdout (an object's or a Holdout shader)."""
+        return self.frames.has_holdout or self.materials.holdouts
+
+    def held_out(self, hits: Hits) -> np.ndarray:
+        """Whether each hit is on a holdout surface (a hole in the image)."""
+        held = np.zeros(len(hits.frame), dtype=bool)
+        if not self.has_holdouts:
+            return held
+        for k in frames_hit(hits):
+            geometry = self.frames.frames[k].geometry
+            sel = np.flatnonzero(hits.frame == k)
+            prim = hits.prim[sel]
+            held[sel] = self.materials.holdout[self.materials.clamp(geometry.tri_material[prim])]
+            if geometry.tri_holdout is not None:
+                held[sel] |= geometry.tri_holdout[prim]
+        return held
+
     def surface_info(self, k: int, prim, u, v, d_k, tau_hit=None):
-        """Position, facing geometric and shading normals, and material index at hits of frame k."""
+        """Position, facing geometric and shading normals (normal maps applied), and material
+        index at hits of frame k."""
         frame = self.frames.frames[k]
         position, ng, ns, back = facing_normals(frame, prim, u, v, d_k, tau_hit)
         material = self.materials.clamp(frame.geometry.tri_material[prim])
+        if self.materials.normal_mapped and frame.geometry.corner_uvs is not None:
+            ns = self._normal_mapped(frame, prim, material, hit_uv(frame, prim, u, v), ng, ns, back, d_k,
+                                     np.zeros(len(prim)) if tau_hit is None else tau_hit)
         return position, ng, ns, material, back
 
     def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample, lam, cache):
         frame = self.frames.frames[k]
         position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau)
-        uv = None
-        if frame.geometry.corner_uvs is not None:
-            cuv = frame.geometry.corner_uvs[prim]
-            uu, vv = u[:, None], v[:, None]
-            uv = (1.0 - uu - vv) * cuv[:, 0] + uu * cuv[:, 1] + vv * cuv[:, 2]
+        uv = hit_uv(frame, prim, u, v)
         base = self.colour.base_color(mat, uv, lam)
         values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
         if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
@@ -232,6 +349,35 @@ class Shader:
             values += self._secondary(k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam,
                                       cache)
         return values
+
+    def shading_normals(self, k: int, prim, u, v, d_k, tau_hit=None):
+        """The facing shading normals at hits of frame k, normal maps applied (the Normal pass's)."""
+        return self.surface_info(k, prim, u, v, d_k, tau_hit)[2]
+
+    def _normal_mapped(self, frame, prim, mat, uv, ng, ns, back, d_k, tau):
+        """Shading normals perturbed by tangent-space normal maps, as Cycles' Normal Map node does:
+        N = x T + y B + z n with the UV tangent T (per triangle, made orthogonal to the shading
+        normal n, which faces the triangle's front), B = sign n x T, then
+        n + strength (N - n), turned toward the viewer's side again."""
+        local = self.materials.tangent_normals(mat, uv)
+        mapped = np.flatnonzero(~np.isnan(local[:, 0]))
+        if len(mapped) == 0:
+            return ns
+        tangent, sign = uv_tangents(frame, prim[mapped], tau[mapped])
+        facing = np.where(back[mapped], -1.0, 1.0)
+        n = rows.scale(ns[mapped], facing)  # the front side's normal
+        tangent = rows.normalized(tangent - rows.scale(n, rows.dot(n, tangent)))
+        bitangent = rows.scale(rows.cross(n, tangent), sign)
+        c = local[mapped]
+        perturbed = rows.normalized(rows.scale(tangent, c[:, 0]) + rows.scale(bitangent, c[:, 1]) + rows.scale(n, c[:, 2]))
+        strength = self.materials.normal_strength[mat[mapped]]
+        perturbed = rows.normalized(n + rows.scale(perturbed - n, strength))
+        perturbed = rows.scale(perturbed, facing)
+        away = rows.dot(perturbed, d_k[mapped]) >= 0.0  # turned away from the viewer: the geometric normal
+        perturbed[away] = ng[mapped][away]
+        ns = ns.copy()
+        ns[mapped] = perturbed
+        return ns
 
     # ------------------------------------------------------------------ direct light
     def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache):
@@ -249,13 +395,14 @@ class Shader:
             xi1 = xi2 = None  # a point light or sharp sun needs no random numbers
             if light.sampled:
                 xi1, xi2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
-            e_k, strength, doppler, s_max = self._incident(light, k, tau, position, xi1, xi2)
+            e_k, strength, doppler, s_max, clock = self._incident(light, k, tau, position, xi1, xi2)
             cos_n = rows.dot(ns, e_k)
             lit = (cos_n > 0.0) & (rows.dot(ng, e_k) > 0.0) & (strength > 0.0)
             sel = np.flatnonzero(lit)
             if len(sel) == 0:
                 continue
-            blocked = occluded(self.frames, k, tau[sel], origin[sel], e_k[sel], eps, s_max[sel] - 2.0 * eps, cache)
+            blocked = occluded(self.frames, k, tau[sel], origin[sel], e_k[sel], eps, s_max[sel] - 2.0 * eps, cache,
+                               see_through=self.cutouts(pixel[sel], sample[sel], _cutout_dimension(depth, 8 + index)))
             sel = sel[~blocked]
             if len(sel) == 0:
                 continue
@@ -263,7 +410,8 @@ class Shader:
             r = sel[rough[sel]]
             if len(r):
                 brdf[rough[sel]] += ggx_reflection(ns[r], view[r], e_k[r], alpha[r], f0[r], f90[r])
-            emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel))
+            emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel),
+                                        None if clock is None else clock[sel])
             total[sel] += rows.scale(brdf * emitted, strength[sel] * cos_n[sel])
         return total
 
@@ -273,22 +421,33 @@ class Shader:
         Returns the direction toward the light's retarded position (frame k), the
         geometric and Doppler factor of its irradiance on a surface facing it (to
         multiply the light's colour at the shifted wavelengths), the Doppler
-        factor D = r / r' of the light seen from the surface, and the path length
-        to the light (inf for the sun).
+        factor D = r / r' of the light seen from the surface, the path length
+        to the light (inf for the sun), and the lamp's own clock (c*t) when it
+        sent that light (None unless its output is keyed).
+
+        The lamp is static in its frame j; an animated lamp in its momentary rest frame
+        at the retarded event, different for every hit (:meth:`_momentary`).
         """
         light = pl.light
-        to_light = self.frames.map(k, pl.frame)
-        back = self.frames.map(pl.frame, k)
         n = len(tau)
         x_axis, y_axis, z_axis = pl.axes[:, 0], pl.axes[:, 1], pl.axes[:, 2]
         if light.kind == "SUN":
             e_j = np.broadcast_to(z_axis, (n, 3))
             if light.sun_angle > 0.0:
                 e_j = _cone_sample(z_axis, 0.5 * light.sun_angle, xi1, xi2)
-            e_k, doppler = back.rays(e_j)
-            return e_k, self._power(doppler, 2), doppler, np.full(n, np.inf)
-        _, x_j = to_light.events(tau, position)
-        sample = np.broadcast_to(pl.position, (n, 3))
+            e_k, doppler = self.frames.map(pl.frame, k).rays(e_j)
+            clock = None
+            if pl.keyed is not None:  # the plane wave passed the lamp's place (P - x).e before reaching x
+                tau_j, x_j = self.frames.map(k, pl.frame).events(tau, position)
+                clock = tau_j - (pl.position - x_j) @ z_axis + pl.clock_offset
+            return e_k, self._power(doppler, 2), doppler, np.full(n, np.inf), clock
+        if light.trajectory is None:
+            tau_j, x_j = self.frames.map(k, pl.frame).events(tau, position)
+            sample = np.broadcast_to(pl.position, (n, 3))
+            back = self.frames.map(pl.frame, k).rays
+            clock_zero = pl.clock_offset
+        else:
+            tau_j, x_j, sample, back, clock_zero = self._momentary(pl, k, tau, position)
         if light.kind == "AREA":
             sx, sy = light.area_size
             if light.area_shape in ("DISK", "ELLIPSE"):
@@ -312,9 +471,35 @@ class Shader:
             intensity = np.full(n, _POINT_INTENSITY_PER_WATT)
             if light.kind == "SPOT":
                 intensity = intensity * _spot_falloff(e_j @ z_axis, light.spot_size, light.spot_blend)
-        e_k, doppler = back.rays(e_j)  # s_surface / s_light: the Doppler factor seen by the surface
+        e_k, doppler = back(e_j)  # s_surface / s_light: the Doppler factor seen by the surface
         r = doppler * r_rest  # distance to the retarded position in the surface frame
-        return e_k, intensity * self._power(doppler, 4) / np.maximum(r, 1e-300) ** 2, doppler, r
+        # the light left the lamp (its point ``sample``) r_rest before the hit, in the lamp's frame
+        clock = None if pl.keyed is None else tau_j - r_rest + clock_zero
+        return e_k, intensity * self._power(doppler, 4) / np.maximum(r, 1e-300) ** 2, doppler, r, clock
+
+    def _momentary(self, pl: PreparedLight, k, tau, position):
+        """An animated lamp seen from hit events of frame k, in its momentary rest frame at the
+        retarded event of each (where its world line crosses the hit's past light cone, solved
+        as for animated bodies): the hit events there (tau_j, x_j), the lamp's place, the map of
+        backward directions from there to frame k (d, s_k / s_lamp), and its clock minus that
+        frame's time (None unless keyed).  Static in that frame near the event: exact for a
+        point lamp, an area lamp's other points as if moving inertially."""
+        trajectory = pl.light.trajectory
+        tau_w, x_w = self.frames.map(k, self.frames.world).events(tau, position)
+        emitted = trajectory.light_cone_crossing(tau_w, x_w)
+        lamp_w, beta = trajectory.state(emitted)
+        into_lamp = RowBoosts(beta)
+        tau_j, x_j = into_lamp.events(tau_w, x_w)
+        tau_lamp, lamp = into_lamp.events(emitted, lamp_w)
+        out_of_lamp, to_frame = into_lamp.inverse(), self.frames.map(self.frames.world, k)
+
+        def back(e_j):
+            e_w, w_world = out_of_lamp.rays(e_j)
+            e_k, w_frame = to_frame.rays(e_w)
+            return e_k, w_world * w_frame
+
+        clock_zero = None if pl.keyed is None else trajectory.proper_time(emitted) - tau_lamp
+        return tau_j, x_j, lamp, back, clock_zero
 
     # ------------------------------------------------------------------ mirror and glass
     def _secondary(self, k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam, cache):
@@ -336,7 +521,7 @@ class Shader:
         reflected = d_a + 2.0 * cos_i[:, None] * n_a
         values[active] += reflect_weight * self._bounce(k, tau[active], position[active] + eps * ng_a, reflected,
                                                         eps, depth, pixel[active], sample[active], _rows(lam, active),
-                                                        cache)
+                                                        cache, RAY_GLOSSY)
         refr = np.flatnonzero(np.any(transmit_weight > 0.0, axis=1))
         if len(refr):
             k2 = 1.0 - eta[refr] ** 2 * (1.0 - cos_i[refr] ** 2)
@@ -347,14 +532,50 @@ class Shader:
             idx = active[refr]
             values[idx] += transmit_weight[refr] * self._bounce(k, tau[idx], position[idx] - eps * ng_a[refr],
                                                                 transmitted, eps, depth, pixel[idx], sample[idx],
-                                                                _rows(lam, idx), cache)
+                                                                _rows(lam, idx), cache, RAY_TRANSMISSION)
         return values
 
-    def _bounce(self, k, tau, origin, d, eps, depth, pixel, sample, lam, cache):
+    def _bounce(self, k, tau, origin, d, eps, depth, pixel, sample, lam, cache, ray: int):
         if len(d) == 0:
             return np.zeros((0, self.colour.channels))
-        values, _ = self.radiance(k, tau, origin, d, eps, np.inf, depth + 1, pixel, sample, lam, cache=cache)
+        values, _ = self.radiance(k, tau, origin, d, eps, np.inf, depth + 1, pixel, sample, lam, cache=cache, ray=ray)
         return values
+
+
+def _cutout_dimension(depth: int, stream: int) -> int:
+    """The first sampler dimension of the cut-out decisions of one stream of rays at one bounce
+    depth (streams 1-5: the ray types, 8 + i: shadow rays toward light i)."""
+    return _CUTOUT_DIMENSION + 1000 * (stream + 1_000_000 * depth)
+
+
+def hit_uv(frame, prim, u, v):
+    """Interpolated UVs at hits of one frame (None when its geometry has none)."""
+    corner_uvs = frame.geometry.corner_uvs
+    if corner_uvs is None:
+        return None
+    cuv = corner_uvs[prim]
+    uu, vv = u[:, None], v[:, None]
+    return (1.0 - uu - vv) * cuv[:, 0] + uu * cuv[:, 1] + vv * cuv[:, 2]
+
+
+def uv_tangents(frame, prim, tau=None):
+    """The direction of increasing U on each triangle (frame coordinates, unnormalised) and the
+    sign that makes n x T point along increasing V (the UV map's handedness)."""
+    geometry = frame.geometry
+    corners = geometry.vertices[geometry.triangles[prim]]
+    cuv = geometry.corner_uvs[prim]
+    e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    du1, dv1 = cuv[:, 1, 0] - cuv[:, 0, 0], cuv[:, 1, 1] - cuv[:, 0, 1]
+    du2, dv2 = cuv[:, 2, 0] - cuv[:, 0, 0], cuv[:, 2, 1] - cuv[:, 0, 1]
+    tangent = rows.scale(e1, dv2) - rows.scale(e2, dv1)
+    bitangent = rows.scale(e2, du1) - rows.scale(e1, du2)
+    determinant = du1 * dv2 - du2 * dv1
+    tangent = rows.scale(tangent, np.where(determinant < 0.0, -1.0, 1.0))
+    bitangent = rows.scale(bitangent, np.where(determinant < 0.0, -1.0, 1.0))
+    sign = np.where(rows.dot(rows.cross(geometry.face_normals[prim], tangent), bitangent) < 0.0, -1.0, 1.0)
+    if frame.spin is not None:
+        _, tangent = frame.to_frame(corners[:, 0], tangent, tau)
+    return tangent, sign
 
 
 def _rows(lam, index):

@@ -11,6 +11,11 @@ Embree works in float32, so each query first clips the ray to the frame's
 bounds in float64 and moves the origin there (relative to the frame's anchor
 point); the skipped length is added back in float64.  Rays that miss a frame's
 bounds never reach embree.
+
+Surfaces some rays pass through -- hidden from their ray type (``Mesh.visibility``) or
+transparent where a caller's ``see_through`` test says so (cut-outs) -- are skipped by
+tracing those rays again from just past the hit: the same backward ray with a larger
+``s_lo``, so nothing is re-derived.  Scenes without them trace exactly as before.
 """
 
 from __future__ import annotations
@@ -22,9 +27,11 @@ import numpy as np
 
 from . import rows
 from .frames import FrameSet, RestFrame
+from .scene import RAY_SHADOW
 
 _PAD = 1e-4  # bounds padding, relative to the frame's extent: float32 geometry may sit just outside
 _SPIN_ITERATIONS = 24  # the hit-time iteration of spinning bodies (secant-accelerated; rim speed < c)
+_MAX_PASS_THROUGH = 128  # surfaces one ray may pass through (hidden or cut out); past that the last one stops it
 
 
 @dataclass
@@ -269,12 +276,64 @@ class TraceCache:
         return self._body_boxes[src]
 
 
-def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None = None) -> Hits:
+def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None = None,
+                  ray: int | None = None, see_through=None) -> Hits:
     """The visible (most recent) hit of each backward ray, over all geometry frames.
 
     ``tau0`` (N,), ``x0`` (N, 3), ``d`` (N, 3) unit, in frame ``src``;
     only hits with ``s_lo <= s <= s_hi`` count.  ``cache``: the calling thread's (None: keep nothing).
+    ``ray``: the rays' type (a ``RAY_*`` bit; None: every surface counts): surfaces hidden from it
+    are passed through.  ``see_through(hits, rays, layer)``: True where the hits (of the rays with
+    indices ``rays``; ``layer`` = how many surfaces they passed already) let the ray pass (None: none do).
     """
+    hits = _nearest(frames, src, tau0, x0, d, s_lo, s_hi, cache)
+    hidden = ray is not None and bool(frames.hidden_rays & ray)
+    if not hidden and see_through is None:
+        return hits
+    return _pass_through(frames, src, tau0, x0, d, s_hi, cache, ray if hidden else None, see_through, hits)
+
+
+def _pass_through(frames: FrameSet, src: int, tau0, x0, d, s_hi, cache, ray, see_through, hits: Hits) -> Hits:
+    """Trace the rays whose hits they pass through again from just past those hits, until
+    every ray stops at a surface or misses (at most ``_MAX_PASS_THROUGH`` times)."""
+    n = len(d)
+    s_hi = _per_ray(s_hi, n)
+    hits = Hits(*(np.array(getattr(hits, f.name)) for f in fields(hits)))  # our own, to write into
+    rays = np.flatnonzero(hits.frame >= 0)
+    for layer in range(_MAX_PASS_THROUGH):
+        if len(rays) == 0:
+            break
+        found = hits.take(rays)
+        through = np.zeros(len(rays), dtype=bool)
+        if ray is not None:
+            through |= ~_visible(frames, found, ray)
+        if see_through is not None:
+            through |= see_through(found, rays, layer)
+        rays, found = rays[through], found.take(through)
+        if len(rays) == 0:
+            break
+        # just past the hit: the frame's surface offset, in path length of the source frame
+        past = found.s + frames.surface_offsets[found.frame] / found.w
+        again = _nearest(frames, src, tau0[rays], x0[rays], d[rays], past, s_hi[rays], cache)
+        for f in fields(hits):
+            getattr(hits, f.name)[rays] = getattr(again, f.name)
+        rays = rays[again.frame >= 0]
+    return hits
+
+
+def _visible(frames: FrameSet, hits: Hits, ray: int) -> np.ndarray:
+    """Whether each hit's triangle is seen by rays of type ``ray``."""
+    seen = np.ones(len(hits.frame), dtype=bool)
+    for k in frames_hit(hits):
+        visibility = frames.frames[k].geometry.tri_visibility
+        if visibility is not None:
+            sel = np.flatnonzero(hits.frame == k)
+            seen[sel] = (visibility[hits.prim[sel]] & ray) != 0
+    return seen
+
+
+def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None) -> Hits:
+    """The nearest hit of each ray, whatever surface it is (see :func:`trace_nearest`)."""
     n = len(d)
     s_lo = _per_ray(s_lo, n)
     best = _per_ray(s_hi, n)
@@ -452,9 +511,13 @@ def _cones(frames: FrameSet, src: int, k: int, origin_event):
     return cones
 
 
-def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None = None) -> np.ndarray:
+def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None = None,
+             see_through=None) -> np.ndarray:
     """True where anything in any frame lies on the backward ray with s_lo <= s <= s_hi
-    (``cache``: the calling thread's, None: keep nothing)."""
+    (``cache``: the calling thread's, None: keep nothing).  Surfaces hidden from shadow rays,
+    and hits ``see_through`` lets pass (as for :func:`trace_nearest`), do not block."""
+    if see_through is not None or frames.hidden_rays & RAY_SHADOW:
+        return trace_nearest(frames, src, tau0, x0, d, s_lo, s_hi, cache, RAY_SHADOW, see_through).frame >= 0
     n = len(d)
     s_lo, s_hi = _per_ray(s_lo, n), _per_ray(s_hi, n)
     blocked = np.zeros(n, dtype=bool)

@@ -6,8 +6,10 @@
 named here.
 """
 
+from .camera import render_views, view_camera
 from .errors import ExportCancelled, ExportError
 from .scene import export_scene
 from .settings import core_passes, full_resolution
 
-__all__ = ("ExportCancelled", "ExportError", "core_passes", "export_scene", "full_resolution")
+__all__ = ("ExportCancelled", "ExportError", "core_passes", "export_scene", "full_resolution", "render_views",
+           "view_camera")

@@ -3,12 +3,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from ..core import lens, validation
-from ..core.scene import Camera
+from ..core.scene import Camera, Velocity
 from .errors import ExportError
-from .motion import object_velocity, shutter_frames
+from .motion import object_trajectory, object_velocity, shutter_frames
 
 
 _PANORAMAS = {"EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID"}
@@ -77,8 +79,9 @@ def motion_blur(scene) -> dict:
     )
 
 
-def export_camera(camera_object, scene) -> Camera:
-    """Blender's camera as the core sees it; ``view_frame`` gives the exact image plane."""
+def export_camera(camera_object, scene, warn=print) -> Camera:
+    """Blender's camera as the core sees it; ``view_frame`` gives the exact image plane.  With
+    Motion = Animation its keyframed location is its world line (an accelerating observer)."""
     if camera_object is None:
         raise ExportError("the scene has no camera: add one and set it as the scene camera")
     if camera_object.type != 'CAMERA':
@@ -88,6 +91,7 @@ def export_camera(camera_object, scene) -> Camera:
     matrix[:3, :3] /= np.linalg.norm(matrix[:3, :3], axis=0)
     render = scene.render
     aspect = (render.resolution_x * render.pixel_aspect_x) / (render.resolution_y * render.pixel_aspect_y)
+    animated = camera_object.restframe.is_animated
     out = Camera(
         matrix=matrix,
         kind=cam.type,
@@ -95,7 +99,9 @@ def export_camera(camera_object, scene) -> Camera:
         clip_start=float(cam.clip_start),
         clip_end=float(cam.clip_end),
         sensor_size=_fitted_sensor(cam, aspect),
-        velocity=object_velocity(camera_object),
+        velocity=Velocity() if animated else object_velocity(camera_object),
+        trajectory=object_trajectory(camera_object, scene, matrix[:3, 3], 0.0, warn=warn, smooth=True)
+        if animated else None,
         name=camera_object.name,
         **depth_of_field(camera_object),
         **motion_blur(scene),
@@ -112,3 +118,29 @@ def export_camera(camera_object, scene) -> Camera:
         out.fisheye_lens = float(cam.fisheye_lens)
     return out
 
+
+
+def render_views(scene) -> list[str]:
+    """The views a render produces: none without Stereoscopy, else Blender's stereo pair or
+    the enabled multi-views."""
+    render = scene.render
+    if not render.use_multiview:
+        return []
+    if render.views_format == 'STEREO_3D':
+        return [name for name in ('left', 'right') if name in render.views]
+    return [view.name for view in render.views if view.use]
+
+
+def view_camera(camera: Camera, camera_object, model_matrix, shift_x: float) -> Camera:
+    """The camera of one view (an eye): Blender's own model matrix and lens shift for it
+    (``RenderEngine.camera_model_matrix`` / ``camera_shift_x`` after ``active_view_set``, the
+    stereo convention of Cycles).  Its position is its own observation event."""
+    matrix = np.array(model_matrix, dtype=np.float64)
+    matrix[:3, :3] /= np.linalg.norm(matrix[:3, :3], axis=0)
+    frame = np.array(camera.frame)
+    width, height = np.ptp(frame[:, 0]), np.ptp(frame[:, 1])
+    fit = camera_object.data.sensor_fit
+    horizontal = fit == 'HORIZONTAL' or (fit == 'AUTO' and width >= height)
+    # the lens shift is measured in the fitted sensor side; view_frame already holds the camera's own
+    frame[:, 0] += (shift_x - camera_object.data.shift_x) * (width if horizontal else height)
+    return dataclasses.replace(camera, matrix=matrix, frame=frame)

@@ -7,7 +7,9 @@ from typing import Callable
 import numpy as np
 
 from ..core.scene import Light, Velocity
+from ..motion_query import fcurves
 from .materials import output_node, upstream
+from .motion import MAX_SAMPLES, SUBFRAMES
 
 
 def node_emission(data, name: str, warn: Callable[[str], None]) -> tuple[np.ndarray, float]:
@@ -32,7 +34,10 @@ def node_emission(data, name: str, warn: Callable[[str], None]) -> tuple[np.ndar
     return np.asarray(color.default_value[:3], dtype=np.float64), float(strength.default_value)
 
 
-def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Callable[[str], None] = print) -> Light:
+def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Callable[[str], None] = print,
+                 scene=None, trajectory=None) -> Light:
+    """The lamp as the core sees it; with ``scene``, its keyed strength and colour as curves on
+    its own clock, and ``trajectory`` its world line (Motion = Animation)."""
     data = obj.data
     rotation = matrix[:3, :3] / np.linalg.norm(matrix[:3, :3], axis=0)
     tint, strength = node_emission(data, obj.name, warn)
@@ -47,7 +52,10 @@ def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Calla
         power=float(data.energy) * 2.0 ** float(getattr(data, "exposure", 0.0)) * strength,
         velocity=velocity,
         pivot=pivot,
+        trajectory=trajectory,
     )
+    if scene is not None:
+        light.power_curve, light.color_curve = keyed_output(data, scene, tint, strength)
     if data.type in {'POINT', 'SPOT'}:
         light.radius = float(data.shadow_soft_size)
     if data.type == 'SPOT':
@@ -61,6 +69,84 @@ def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Calla
         light.area_size = (float(data.size * scale[0]), float(size_y * scale[1]))
     return light
 
+def _emission_strength(data):
+    """The Strength socket of the Emission node that feeds a light's node tree output (which
+    Cycles multiplies into the lamp's power), or None."""
+    tree = getattr(data, "node_tree", None)
+    if tree is None or not getattr(data, "use_nodes", False):
+        return None
+    output = tree.get_output_node('CYCLES')
+    node = upstream(output.inputs["Surface"]) if output is not None else None
+    return node.inputs["Strength"] if node is not None and node.type == 'EMISSION' else None
+
+
+def _curve(animation, path: str, index: int = 0):
+    if animation is None:
+        return None
+    return next((fc for fc in fcurves(animation.action, getattr(animation, "action_slot", None))
+                 if fc.data_path == path and fc.array_index == index and not fc.mute), None)
+
+
+_BEFORE_KEY = 1e-6  # frames: where a step at a key (after a Constant key) is sampled from below
+
+
+def _sample_frames(curves, scene) -> np.ndarray:
+    """Blender frames at which to sample keyed curves: ``SUBFRAMES`` per frame over the keys and the
+    scene's frame range, twice widened, plus every key and the instant before it (a Constant key
+    steps there)."""
+    keys = np.array([k.co[0] for fc in curves for k in fc.keyframe_points], dtype=np.float64)
+    lo, hi = min(keys.min(), scene.frame_start), max(keys.max(), scene.frame_end)
+    span = hi - lo + 1.0
+    grid = np.linspace(lo - 2 * span, hi + 2 * span, int(min(5 * span * SUBFRAMES, MAX_SAMPLES)) + 1)
+    return np.unique(np.concatenate([grid, keys, keys - _BEFORE_KEY]))
+
+
+def _evaluate(fc, frames: np.ndarray) -> np.ndarray:
+    """An F-curve at frames; just before a key that ends a Constant segment, the held value
+    (Blender's evaluation snaps to a key within 0.01 frames of it)."""
+    values = np.fromiter((fc.evaluate(float(f)) for f in frames), dtype=np.float64, count=len(frames))
+    points = fc.keyframe_points
+    for before, key in zip(points[:-1], points[1:]):
+        if before.interpolation == 'CONSTANT':
+            values[np.abs(frames - (key.co[0] - _BEFORE_KEY)) < 0.5 * _BEFORE_KEY] = before.co[1]
+    return values
+
+
+def keyed_output(data, scene, tint=(1.0, 1.0, 1.0), strength: float = 1.0):
+    """(power curve, colour curve) of a lamp whose energy, colour or node Emission strength is
+    keyed: (seconds of the lamp's own clock, watts) and (seconds, (N, 3) colours), each None when
+    not keyed.  Blender frame f is clock time (f - reference_frame) * fps_base / fps
+    (docs/physics.md#lamps-and-shadow-rays); the power includes the exposure of the rendered frame
+    and the node Emission ``strength`` (where not keyed), the colours its ``tint``
+    (:func:`node_emission`)."""
+    animation = data.animation_data
+    energy = _curve(animation, "energy")
+    colors = [_curve(animation, "color", i) for i in range(3)]
+    socket = _emission_strength(data)
+    keyed_strength = None
+    if socket is not None:
+        keyed_strength = _curve(data.node_tree.animation_data, socket.path_from_id("default_value"))
+        if keyed_strength is not None and not len(keyed_strength.keyframe_points):
+            keyed_strength = None
+    keyed = [fc for fc in (energy, keyed_strength, *colors) if fc is not None and len(fc.keyframe_points)]
+    if not keyed:
+        return None, None
+    frames = _sample_frames(keyed, scene)
+    seconds = (frames - scene.restframe.reference_frame) * scene.render.fps_base / scene.render.fps
+
+    def values(fc, constant):
+        if fc is None or not len(fc.keyframe_points):
+            return np.full(len(frames), float(constant))
+        return _evaluate(fc, frames)
+
+    power_curve = color_curve = None
+    if any(fc in keyed for fc in (energy, keyed_strength)):
+        watts = values(energy, data.energy) * 2.0 ** float(getattr(data, "exposure", 0.0))
+        power_curve = (seconds, watts * (strength if keyed_strength is None else values(keyed_strength, 0.0)))
+    if any(fc in keyed for fc in colors):
+        color_curve = (seconds, np.column_stack([values(fc, data.color[i]) for i, fc in enumerate(colors)])
+                       * np.asarray(tint, dtype=np.float64))
+    return power_curve, color_curve
 
 
 def world_color(scene, warn: Callable[[str], None]) -> tuple[float, float, float]:

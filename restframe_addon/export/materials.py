@@ -11,26 +11,10 @@ from ..core.scene import Material
 from ..motion_query import fcurves
 from .images import ImageMissing, image_texture
 from .motion import MAX_SAMPLES, SUBFRAMES
+from .nodes import upstream, upstream_link
+from .surface_maps import principled_alpha, principled_normal_map
 
 IDENTITY_UV = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # (2, 3) affine map of (u, v, 1)
-
-
-def upstream_link(socket):
-    """The link feeding a socket, through reroutes; None if unlinked (or muted)."""
-    while socket is not None and socket.is_linked:
-        link = socket.links[0]
-        if not link.is_valid or link.is_muted:
-            return None
-        if link.from_node.type != 'REROUTE':
-            return link
-        socket = link.from_node.inputs[0]
-    return None
-
-
-def upstream(socket):
-    """The node feeding a socket, through reroutes; None if unlinked."""
-    link = upstream_link(socket)
-    return link.from_node if link is not None else None
 
 
 def _euler_matrix(angles) -> np.ndarray:
@@ -110,6 +94,8 @@ class MaterialExporter:
         elif node.type == 'EMISSION':  # emits, reflects nothing
             out.base_color, out.specular_ior_level = (0.0, 0.0, 0.0), 0.0
             out.emission = self._emission(mat, node.inputs["Color"], node.inputs["Strength"], out)
+        elif node.type == 'HOLDOUT':  # a hole in the image (reflects and emits nothing)
+            out.base_color, out.specular_ior_level, out.holdout = (0.0, 0.0, 0.0), 0.0, True
         elif node.type == 'BSDF_DIFFUSE':  # Lambert, without the Principled BSDF's specular layer
             out.base_color, out.specular_ior_level = self._color(mat, node.inputs["Color"]), 0.0
             out.roughness = 1.0
@@ -143,6 +129,9 @@ class MaterialExporter:
         out.specular_ior_level = self._value(mat, inputs["Specular IOR Level"])
         out.transmission = self._value(mat, inputs["Transmission Weight"])
         out.emission = self._emission(mat, inputs["Emission Color"], inputs["Emission Strength"], out)
+        out.alpha, out.alpha_texture = principled_alpha(mat, node, self.warn)
+        out.normal_texture, out.normal_strength = principled_normal_map(
+            mat, node, self.scene.frame_current if self.scene is not None else 1, self.warn)
         return uv_transform
 
     def _emission(self, mat, color, strength, out: Material):

@@ -61,7 +61,7 @@ def read_mesh(obj, mesh, materials: MaterialExporter, should_stop=lambda: False)
 
     uvs = None
     layer = next((uv for uv in mesh.uv_layers if uv.active_render), None)
-    if layer is not None and any(materials.materials[i].base_color_texture is not None for i in np.unique(lookup)):
+    if layer is not None and any(_reads_uvs(materials.materials[i]) for i in np.unique(lookup)):
         if corners is None:
             corners = np.empty(n_tri * 3, dtype=np.int32)
             tris.foreach_get("loops", corners)
@@ -78,6 +78,11 @@ def read_mesh(obj, mesh, materials: MaterialExporter, should_stop=lambda: False)
     vertices[~is_finite(vertices)] = np.inf  # Blender keeps an inf as 3.4e38: the core skips such triangles
     return MeshData(vertices, triangles.reshape(-1, 3),
                      global_materials, normals, uvs)
+
+
+def _reads_uvs(material) -> bool:
+    """Whether a material looks an image up through the UVs."""
+    return any(t is not None for t in (material.base_color_texture, material.alpha_texture, material.normal_texture))
 
 
 def place(data: MeshData, matrix: np.ndarray):

@@ -9,7 +9,8 @@ import numpy as np
 from ..core import validation
 from ..core.motion import Trajectory
 from ..core.scene import Velocity
-from ..motion_query import fcurves, has_animated_location
+from ..motion_query import (SUBFRAMES, has_animated_location, keyed_positions, location_curves,  # noqa: F401 (SUBFRAMES: public here too)
+                            parent_matrix)
 from .errors import ExportCancelled, ExportError
 from .keyed_speed import KeyedCurve, fastest, is_finite, non_finite_key
 
@@ -36,46 +37,7 @@ def object_velocity(obj) -> Velocity:
         raise ExportError(str(error)) from None
 
 
-SUBFRAMES = 8  # world-line samples per frame of animation
 MAX_SAMPLES = 20000  # per object: beyond this the samples thin out (long light-travel times)
-
-
-def _location_curves(obj) -> tuple[dict, list[str]]:
-    """{(data_path, index): F-curve} of the object's own location keys, and what is ignored.
-
-    Motion = Animation reads the active action's ``location`` and ``delta_location``
-    curves; NLA strips, drivers and constraints on the location are not evaluated.
-    """
-    anim = obj.original.animation_data
-    curves: dict = {}
-    ignored: list[str] = []
-    if anim is None:
-        return curves, ignored
-    for fc in fcurves(anim.action, getattr(anim, "action_slot", None)):
-        if fc.data_path in {"location", "delta_location"} and not fc.mute:
-            curves[(fc.data_path, fc.array_index)] = fc
-    if any(d.data_path in {"location", "delta_location"} for d in anim.drivers):
-        ignored.append("drivers")
-    if any(not track.mute and track.strips for track in anim.nla_tracks):
-        ignored.append("NLA strips")
-    return curves, ignored
-
-
-def _local_locations(obj, curves: dict, frames: np.ndarray) -> np.ndarray:
-    """location + delta_location (the local matrix's translation) at each frame, (N, 3)."""
-    out = np.empty((len(frames), 3))
-    base = obj.original
-    for i in range(3):
-        total = np.zeros(len(frames))
-        for path in ("location", "delta_location"):
-            fc = curves.get((path, i))
-            if fc is None:
-                total += float(getattr(base, path)[i])
-            else:
-                evaluate = fc.evaluate
-                total += np.fromiter((evaluate(f) for f in frames), dtype=np.float64, count=len(frames))
-        out[:, i] = total
-    return out
 
 
 def body_radius(vertices: np.ndarray, triangles: np.ndarray, pivot) -> float:
@@ -88,11 +50,12 @@ def body_radius(vertices: np.ndarray, triangles: np.ndarray, pivot) -> float:
 
 
 def object_trajectory(root, scene, camera_position, radius: float, *, should_stop=lambda: False,
-                      warn=print) -> Trajectory:
+                      warn=print, smooth: bool = False) -> Trajectory:
     """The assembly pivot's world line from its location keys (Motion = Animation).
 
     ``radius`` is the assembly's ``body_radius`` about the pivot (every mesh moving with it),
-    so the world line is built with its corners rounded for that body.
+    so the world line is built with its corners rounded for that body; ``smooth`` (a camera or
+    a lamp: a point) rounds them as widely as the samples allow (``Trajectory.smooth``).
 
     Samples ``SUBFRAMES`` per frame, and every key, from before the scene's start frame
     (early enough for light from any sampled position to reach the camera) up to just past
@@ -105,18 +68,14 @@ def object_trajectory(root, scene, camera_position, radius: float, *, should_sto
     rf = scene.restframe
     c = rf.light_speed
     fps = scene.render.fps / scene.render.fps_base
-    curves, ignored = _location_curves(root)
+    curves, ignored = location_curves(root)
     if not curves:
         warn(f"{root.name}: Motion is Animation but its location has no keyframes: it stays at rest")
     if ignored:
         warn(f"{root.name}: Motion = Animation uses the location keys only ({' and '.join(ignored)} ignored)")
-    parent_matrix = np.eye(4)
-    if root.parent is not None:
-        parent_matrix = (np.array(root.parent.matrix_world, dtype=np.float64)
-                         @ np.array(root.matrix_parent_inverse, dtype=np.float64))
-        if has_animated_location(root.parent):
-            warn(f"{root.name}: its parent '{root.parent.name}' is animated; Motion = Animation takes "
-                 "the parent as static (pose of the rendered frame)")
+    if root.parent is not None and has_animated_location(root.parent):
+        warn(f"{root.name}: its parent '{root.parent.name}' is animated; Motion = Animation takes "
+             "the parent as static (pose of the rendered frame)")
 
     keyed = {key: KeyedCurve.from_fcurve(fc) for key, fc in curves.items()}
     for (path, index), curve in keyed.items():
@@ -126,8 +85,7 @@ def object_trajectory(root, scene, camera_position, radius: float, *, should_sto
                               "(NaN or inf): Motion = Animation cannot follow it")
 
     def world(frames):
-        local = _local_locations(root, curves, frames)
-        return local @ parent_matrix[:3, :3].T + parent_matrix[:3, 3]
+        return keyed_positions(root, curves, frames)
 
     current = scene.frame_current + scene.frame_subframe
     first = min(float(scene.frame_start), current)
@@ -145,7 +103,7 @@ def object_trajectory(root, scene, camera_position, radius: float, *, should_sto
     keys = np.concatenate([curve.key_frame for curve in keyed.values()] + [np.empty(0)])
     # the keys themselves are samples too: a short burst between two keys is not averaged away
     frames = _samples_with_keys(start, end, count, keys)
-    _refuse_light_speed(root.name, keyed, parent_matrix, frames, fps / c)
+    _refuse_light_speed(root.name, keyed, parent_matrix(root), frames, fps / c)
     if should_stop():
         raise ExportCancelled()
     position = world(frames)
@@ -159,7 +117,8 @@ def object_trajectory(root, scene, camera_position, radius: float, *, should_sto
              f"{np.linalg.norm(here - evaluated):.3g} (constraints, drivers or parents?); "
              "Motion = Animation follows the keys")
     try:
-        return Trajectory(tau=tau, position=position, name=root.name, frames=frames, body_radius=radius)
+        return Trajectory(tau=tau, position=position, name=root.name, frames=frames, body_radius=radius,
+                          smooth=smooth)
     except ValueError as error:
         raise ExportError(str(error)) from error
 
@@ -218,3 +177,15 @@ def _refuse_light_speed(name: str, keyed: dict, parent_matrix: np.ndarray, frame
         f" and {len(spans) - 5} more" if len(spans) > 5 else "")
     raise ExportError(f"{name}: the animation moves at {speed:.6g} c (at frame {frame:.6g}), not below the speed "
                       f"of light, between frames {listed}: slow it down or raise the scene's speed of light")
+
+
+def lamp_trajectory(root, scene, camera_position, position, *, should_stop=lambda: False, warn=print) -> Trajectory:
+    """A lamp's world line (Motion = Animation): its assembly root's keyed world line, carried
+    along by the lamp's offset from the root at the rendered frame (a point: ``smooth``)."""
+    trajectory = object_trajectory(root, scene, camera_position, 0.0, should_stop=should_stop, warn=warn,
+                                   smooth=True)
+    offset = np.asarray(position, dtype=np.float64) - np.asarray(root.matrix_world.translation)
+    if not np.any(offset):
+        return trajectory
+    return Trajectory(tau=trajectory.tau, position=trajectory.position + offset, name=trajectory.name,
+                      frames=trajectory.frames, smooth=True)

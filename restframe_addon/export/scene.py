@@ -14,15 +14,16 @@ from typing import Callable
 import numpy as np
 
 from ..core import validation
-from ..core.scene import Light, Mesh, RenderSettings, Scene, Velocity
+from ..core.scene import (RAY_ALL, RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_SHADOW, RAY_TRANSMISSION, Light, Mesh,
+                          RenderSettings, Scene, Velocity)
 from ..motion_query import assembly_root, has_animated_location, observation_time
-from .camera import export_camera
+from .camera import export_camera, render_views
 from .errors import ExportCancelled, ExportError
-from .features import FeatureReport, object_features, uses_stereo
+from .features import FeatureReport, object_features
 from .lights import export_light, world_color
 from .materials import MaterialExporter
 from .meshes import MeshData, place, read_mesh
-from .motion import body_radius, object_trajectory, object_velocity
+from .motion import body_radius, lamp_trajectory, object_trajectory, object_velocity
 from .settings import render_settings
 
 
@@ -70,6 +71,33 @@ def _instance_source(inst, moving_instancers: dict):
     return obj, tuple(inst.matrix_world.translation)
 
 
+_RAY_VISIBILITY = (("visible_camera", RAY_CAMERA), ("visible_diffuse", RAY_DIFFUSE), ("visible_glossy", RAY_GLOSSY),
+                   ("visible_transmission", RAY_TRANSMISSION), ("visible_shadow", RAY_SHADOW))
+
+
+def ray_visibility(inst, view_layer) -> int:
+    """The ray types (RAY_* bits) that see an instance, as Cycles decides: the object's Ray
+    Visibility, and its instancer's; Indirect Only collections hide it from the camera."""
+    visibility = RAY_ALL
+    for obj in (inst.object, inst.parent if inst.is_instance else None):
+        if obj is not None:
+            for name, bit in _RAY_VISIBILITY:
+                if not getattr(obj, name):
+                    visibility &= ~bit
+    source = inst.parent if inst.is_instance and inst.parent is not None else inst.object
+    if view_layer is not None and source.original.indirect_only_get(view_layer=view_layer):
+        visibility &= ~RAY_CAMERA
+    return visibility
+
+
+def is_holdout(inst, view_layer) -> bool:
+    """Object Holdout (of the object or its instancer) or a Holdout collection (Cycles: the instancer's)."""
+    source = inst.parent if inst.is_instance and inst.parent is not None else inst.object
+    if inst.object.original.is_holdout or source.original.is_holdout:
+        return True
+    return view_layer is not None and source.original.holdout_get(view_layer=view_layer)
+
+
 def export_scene(depsgraph, camera_object=None, *, resolution=None,
                  should_stop: Callable[[], bool] = lambda: False,
                  warn: Callable[[str], None] = print) -> tuple[Scene, RenderSettings]:
@@ -95,7 +123,10 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
         camera_object = scene.camera
     if camera_object is not None:
         camera_object = camera_object.evaluated_get(depsgraph)
-    camera = export_camera(camera_object, scene)
+    camera = export_camera(camera_object, scene, warn_once)
+    if render_views(scene) and camera.kind == 'PANO':
+        warn_once(f"{camera_object.name}: a panoramic camera's stereo views are rendered as two panoramas from the "
+                  "eyes' positions (spherical stereo, the eyes turning with the view direction, is not supported)")
     materials = MaterialExporter(warn_once, scene)
     bodies: list[tuple[int | None, dict]] = []  # (assembly key of an animated body, Mesh fields) per mesh
     lights: list[Light] = []
@@ -109,8 +140,6 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
     # instanced instancers with a velocity -> (object, pivot); Blender lists them before their instances
     moving_instancers: dict = {}
     view_layer = depsgraph.view_layer
-    if uses_stereo(scene):
-        unsupported.add(f"View layer '{view_layer.name}'", ["stereo"])
 
     for inst in depsgraph.object_instances:
         if should_stop():
@@ -118,7 +147,7 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
         obj = inst.object
         if obj.type in {'MESH', 'CURVES', 'VOLUME'} and obj.original.as_pointer() not in features_seen:
             features_seen.add(obj.original.as_pointer())
-            unsupported.add(obj.name, object_features(obj, view_layer))
+            unsupported.add(obj.name, object_features(obj))
         if inst.is_instance and (obj.instance_type != 'NONE' or len(obj.particle_systems)) and _moves(obj):
             if obj.restframe.is_animated:
                 warn_once(f"{obj.name}: Motion = Animation of an instancer inside an instanced collection is "
@@ -130,18 +159,24 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
             continue
         source, pivot = _instance_source(inst, moving_instancers)
         animated = source.restframe.is_animated
-        # an animated body's velocity comes from its world line (lights keep theirs)
-        velocity = Velocity() if animated and obj.type == 'MESH' else object_velocity(source)
+        # an animated body's or lamp's velocity comes from its world line
+        velocity = Velocity() if animated else object_velocity(source)
         spin = tuple(float(w) for w in source.restframe.angular_velocity)
         if not animated and not velocity.is_zero and has_animated_location(source):
             jumping.add(source.name)
         matrix = np.array(inst.matrix_world, dtype=np.float64)
         name = f"{inst.parent.name}/{obj.name}" if inst.is_instance and inst.parent is not None else obj.name
         if obj.type == 'LIGHT':
-            if animated or any(spin):
-                warn_once(f"{source.name}: lights move only at a constant velocity "
-                          "(Motion = Animation and Angular Velocity are ignored)")
-            lights.append(export_light(obj, matrix, velocity, pivot, warn_once))
+            if any(spin):
+                warn_once(f"{source.name}: lamps do not spin (Angular Velocity is ignored)")
+            trajectory = None
+            if animated and obj.data.type == 'SUN':
+                warn_once(f"{source.name}: a sun lamp is infinitely far and has no world line "
+                          "(Motion = Animation is ignored: it stays at rest)")
+            elif animated:  # the lamp rides on its assembly's keyed world line
+                trajectory = lamp_trajectory(assembly_root(source), scene, camera_position, matrix[:3, 3],
+                                             should_stop=should_stop, warn=warn_once)
+            lights.append(export_light(obj, matrix, velocity, pivot, warn_once, scene=scene, trajectory=trajectory))
             continue
         body = None
         if animated:
@@ -179,6 +214,8 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
             corner_uvs=data.uvs,
             object_index=int(obj.pass_index),
             angular_velocity=spin if any(spin) and body is None else None,
+            visibility=ray_visibility(inst, view_layer),
+            holdout=is_holdout(inst, view_layer),
         )))
 
     # each world line is built once its whole body is known, so its corners are rounded for that body

@@ -197,8 +197,8 @@ def against_analytic_ball(scene, s, bound: float) -> dict:
     original = shading.occluded
     shadow, seen = [], {}
 
-    def recording(frames, src, tau0, x0, d, s_lo, s_hi, cache=None):
-        blocked = original(frames, src, tau0, x0, d, s_lo, s_hi, cache)
+    def recording(frames, src, tau0, x0, d, s_lo, s_hi, cache=None, see_through=None):
+        blocked = original(frames, src, tau0, x0, d, s_lo, s_hi, cache, see_through)
         seen["frames"] = frames
         if frames.frames[src].window is not None:
             to_world = frames.map(src, frames.world)

@@ -9,7 +9,7 @@ import numpy as np
 import OpenEXR
 
 from restframe_addon import export
-from restframe_addon.__main__ import configure_output
+from restframe_addon.headless import configure_output
 from restframe_addon.exr import read_passes as read_exr
 
 

@@ -102,3 +102,71 @@ def test_render_errors_exit_non_zero_with_the_message(scene, tmp_path):
     assert result.returncode == 1 and "no such .blend file" in result.stderr
     result = run_cli(blend, "-o", tmp_path / "x.gif")
     assert result.returncode == 1 and "unknown output extension" in result.stderr
+
+
+def test_unreadable_files_and_unwritable_outputs_are_clear_errors_before_rendering(sample, tmp_path):
+    text = tmp_path / "notes.blend"
+    text.write_text("not a .blend file\n")
+    truncated = tmp_path / "truncated.blend"
+    truncated.write_bytes(open(sample, "rb").read()[:30000])
+    folder = tmp_path / "taken.png"
+    folder.mkdir()
+    plain_file = tmp_path / "plain"
+    plain_file.write_text("")
+    cases = [
+        ((text, "-o", tmp_path / "x.png"), f"{text}: not a readable .blend file"),
+        ((truncated, "-o", tmp_path / "x.png"), f"{truncated}: not a readable .blend file"),
+        ((sample, "-o", folder), f"{folder}: is a folder, not an image file name"),
+        ((sample, "-o", plain_file / "x.png"), f"{plain_file} is a file, not a folder"),
+        ((sample, "-o", "/proc/restframe.png"), "/proc/restframe.png: cannot write in /proc"),
+        # the Dask path checks its outputs before it looks for a scheduler
+        ((sample, "-o", plain_file / "f_#.exr", "--frames", "1-2", "--scheduler", "tcp://127.0.0.1:9"),
+         f"{plain_file} is a file, not a folder"),
+        ((sample, "-o", tmp_path / "x.png", "--scheduler", "nonsense"),
+         "--scheduler 'nonsense' is not a Dask scheduler address"),
+    ]
+    for args, message in cases:
+        result = run_cli(*args, "--percentage", "5", "--samples", "1")
+        assert result.returncode == 1, (args, result.stderr)
+        assert result.stderr.count("restframe: error: ") == 1 and message in result.stderr, (args, result.stderr)
+        assert "Traceback" not in result.stderr, result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.blend", "plain", "taken.png", "truncated.blend"]
+    assert not os.listdir(folder)
+
+
+@pytest.mark.parametrize("args,message", [
+    (("--frames", "1-1000000000"), "frame 1000000000 is beyond Blender's limit of 1048574"),
+    (("--frames=-1048575-0",), "frame -1048575 is beyond Blender's limit"),
+    (("--frame", "1048575"), "frame 1048575 is beyond Blender's limit"),
+])
+def test_frames_beyond_blenders_limit_are_refused(sample, tmp_path, args, message):
+    """frame_set clamps to 1048574: a frame beyond would render that frame under its own name."""
+    result = run_cli(sample, "-o", tmp_path / "f_#.png", *args)
+    assert result.returncode == 1 and f"restframe: error: {message}" in result.stderr, result.stderr
+    assert not os.listdir(tmp_path)
+
+
+@pytest.mark.parametrize("args", [("--workers", "0"), ("--workers", "-1"), ("--regions", "0"), ("--regions", "-4"),
+                                  ("--retries", "-1")])
+def test_impossible_dask_counts_are_refused(sample, tmp_path, args):
+    result = run_cli(sample, "-o", tmp_path / "x.png", *args)
+    assert result.returncode == 2 and f"argument {args[0]}: must be at least" in result.stderr, result.stderr
+    assert not os.listdir(tmp_path)
+
+
+def test_pixel_aspect_with_a_multilayer_exr_is_a_clear_error(scene, tmp_path):
+    """Blender 5.0's multilayer EXR writer fails on a pixel aspect other than 1 (for Cycles too)."""
+    add_camera(scene)
+    add_plane(scene)
+    scene.render.pixel_aspect_x = 2.0
+    blend = tmp_path / "aspect.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    result = run_cli(blend, "-o", tmp_path / "wide.exr")
+    if bpy.app.version >= (5, 0, 0):
+        assert result.returncode == 1, result.stderr
+        assert "cannot write a multilayer EXR with a pixel aspect of 2:1" in result.stderr
+        assert "Traceback" not in result.stderr and not (tmp_path / "wide.exr").exists()
+    else:
+        assert result.returncode == 0, result.stderr
+    result = run_cli(blend, "-o", tmp_path / "wide.png")
+    assert result.returncode == 0, result.stderr

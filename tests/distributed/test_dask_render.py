@@ -2,6 +2,7 @@
 processes on loopback match single-process renders pixel for pixel; faults lose nothing."""
 
 import contextlib
+import glob
 import os
 import shutil
 import signal
@@ -14,8 +15,8 @@ import numpy as np
 import pytest
 
 from dask_helpers import ROOT, assert_same_exr, exr_channels, png_pixels, run_cli
-from restframe_addon.distributed import (DistributedError, Progress, bundle_dir, render_task, split_regions,
-                                         write_atomically)
+from restframe_addon.distributed import DistributedError, Progress, Task, bundle_dir, render_task, split_regions
+from restframe_addon.headless import write_bytes
 
 
 # --------------------------------------------------------------------------- pure helpers
@@ -69,10 +70,21 @@ def test_region_option_parses_pixel_rectangles():
 
 def test_atomic_write_replaces_whole_files_only(tmp_path):
     target = tmp_path / "out" / "f.exr"
-    write_atomically(str(target), b"one")
-    write_atomically(str(target), b"two")
+    write_bytes(str(target), b"one")
+    write_bytes(str(target), b"two")
     assert target.read_bytes() == b"two"
     assert os.listdir(target.parent) == ["f.exr"]
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o077, 0o002])
+def test_atomic_write_gives_the_mode_of_any_new_file(tmp_path, umask):
+    """0666 less the umask, as open() would (a temporary file from mkstemp is 0600)."""
+    previous = os.umask(umask)
+    try:
+        write_bytes(str(tmp_path / "f.exr"), b"data")
+    finally:
+        os.umask(previous)
+    assert os.stat(tmp_path / "f.exr").st_mode & 0o777 == 0o666 & ~umask
 
 
 # --------------------------------------------------------------------------- on the cluster
@@ -86,6 +98,9 @@ def test_frame_range_matches_single_process_and_reruns_skip(tiny_blend, referenc
     for frame in range(1, 5):
         assert_same_exr(out / f"f_{frame}.exr", reference / f"f_{frame}.exr")
     assert sorted(os.listdir(out)) == [f"f_{frame}.exr" for frame in range(1, 5)]  # no partial files
+    umask = os.umask(0)
+    os.umask(umask)
+    assert {os.stat(out / f"f_{frame}.exr").st_mode & 0o777 for frame in range(1, 5)} == {0o666 & ~umask}
 
     # a rerun skips what is on disk and renders only the missing frame; --overwrite renders all
     stamps = {frame: os.stat(out / f"f_{frame}.exr").st_mtime_ns for frame in range(1, 5)}
@@ -188,17 +203,17 @@ def test_killed_worker_loses_no_frame(tiny_blend, cluster, tmp_path):
 
 def test_shipped_blend_renders_where_the_path_is_not_visible(tiny_blend, reference, tmp_path):
     """A worker that cannot see the client's path renders from the bytes the client shipped."""
-    spec = {"blend": "/nonexistent/client/only/tiny.blend", "digest": "test-" + os.urandom(6).hex(), "scene": "",
-            "frame": 2, "ext": ".exr", "samples": None, "percentage": None, "region": None}
+    task = Task(blend="/nonexistent/client/only/tiny.blend", copy="test-" + os.urandom(6).hex(), scene="",
+                frame=2, ext=".exr")
     try:
-        result = render_task(spec, {"tiny.blend": tiny_blend.read_bytes()})
+        result = render_task(task, {"tiny.blend": tiny_blend.read_bytes()})
     finally:
-        shutil.rmtree(bundle_dir(spec["digest"]), ignore_errors=True)
+        shutil.rmtree(bundle_dir(task.copy), ignore_errors=True)
     assert "error" not in result, result
     (tmp_path / "shipped.exr").write_bytes(result["data"])
     assert_same_exr(tmp_path / "shipped.exr", reference / "f_2.exr")
     # not shipped and not visible: the worker's error names the file (and is not retried)
-    result = render_task(spec, None)
+    result = render_task(task, None)
     assert "no such .blend file" in result["error"] and "/nonexistent/client/only/tiny.blend" in result["error"]
 
 
@@ -251,26 +266,113 @@ def test_render_errors_on_workers_reach_the_client(tmp_path, cluster):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["tachyon.blend"]
 
 
-def test_blend_is_shipped_to_a_worker_that_cannot_see_it(tiny_blend, reference, tmp_path):
-    """A worker in its own mount namespace, with an empty tmpfs over the .blend's folder, gets the
-    .blend from the client and renders the same pixels."""
+# The tiny scene with a plane in front of the camera linked from lib.blend beside it (relative path).
+MAKE_LINKED = """
+import sys, bpy, mathutils, restframe_addon
+restframe_addon.register()
+tiny, folder = sys.argv[1], sys.argv[2]
+bpy.ops.wm.open_mainfile(filepath=tiny, load_ui=False)
+camera = bpy.context.scene.camera.matrix_world.copy()
+bpy.ops.wm.read_factory_settings(use_empty=True)
+mesh = bpy.data.meshes.new("LinkedPlane")
+mesh.from_pydata([(-0.5, -0.5, 0), (0.5, -0.5, 0), (0.5, 0.5, 0), (-0.5, 0.5, 0)], [], [(0, 1, 2, 3)])
+plane = bpy.data.objects.new("LinkedPlane", mesh)
+bpy.context.scene.collection.objects.link(plane)
+plane.matrix_world = camera @ mathutils.Matrix.Translation((0.3, 0.0, -3.0))
+bpy.ops.wm.save_as_mainfile(filepath=folder + "/lib.blend")
+bpy.ops.wm.open_mainfile(filepath=tiny, load_ui=False)
+bpy.ops.wm.save_as_mainfile(filepath=folder + "/linked.blend", copy=False)
+with bpy.data.libraries.load(folder + "/lib.blend", link=True, relative=True) as (source, linked):
+    linked.objects = ["LinkedPlane"]
+for plane in linked.objects:
+    bpy.context.scene.collection.objects.link(plane)
+bpy.ops.wm.save_mainfile()
+"""
+
+
+@pytest.fixture(scope="module")
+def linked_blend(tiny_blend, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("linked")
+    made = subprocess.run([sys.executable, "-c", MAKE_LINKED, str(tiny_blend), str(folder)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+    assert made.returncode == 0, made.stderr
+    return folder / "linked.blend"
+
+
+def test_blend_is_shipped_to_a_worker_that_cannot_see_it(tiny_blend, linked_blend, reference, tmp_path):
+    """A worker in its own mount namespace, with empty tmpfs over the .blends' folders, gets each
+    .blend from the client, with the library it links, and renders the same pixels."""
     from dask.distributed import LocalCluster
 
-    folder = os.path.dirname(tiny_blend)
+    folders = [os.path.dirname(tiny_blend), os.path.dirname(linked_blend)]
+    hide = " && ".join(f"mount -t tmpfs none '{folder}'" for folder in folders)
     probe = subprocess.run(["unshare", "--mount", "--propagation", "private", "sh", "-c",
-                            f"mount -t tmpfs none '{folder}' && test ! -e '{tiny_blend}'"], capture_output=True)
+                            f"{hide} && test ! -e '{tiny_blend}'"], capture_output=True)
     if probe.returncode != 0:
         pytest.skip(f"no private mount namespace here: {probe.stderr.decode().strip()}")
+    linked_reference = tmp_path / "linked_reference.exr"
+    result = run_cli(linked_blend, "-o", linked_reference, "--frame", "2")
+    assert result.returncode == 0, result.stderr
+    combined = "ViewLayer.Combined/ViewLayer.Combined.R"
+    assert not np.array_equal(exr_channels(linked_reference)[combined], exr_channels(reference / "f_2.exr")[combined])
     with LocalCluster(n_workers=0, host="127.0.0.1", dashboard_address=":0", processes=True) as empty:
         with outside_worker(["unshare", "--mount", "--propagation", "private", "sh", "-c",
-                             f"mount -t tmpfs none '{folder}' && exec '{sys.executable}' -m distributed.cli.dask_worker "
+                             f"{hide} && exec '{sys.executable}' -m distributed.cli.dask_worker "
                              f"{empty.scheduler_address} --nthreads 1 --no-dashboard"],
                             tmp_path, dict(os.environ, PYTHONPATH=ROOT)):
             result = run_cli(tiny_blend, "-o", tmp_path / "f_#.exr", "--frames", "2", "--scheduler",
                              empty.scheduler_address)
+            linked = run_cli(linked_blend, "-o", tmp_path / "linked.exr", "--frame", "2", "--scheduler",
+                             empty.scheduler_address)
     from restframe_addon.distributed import file_digest
 
-    shutil.rmtree(bundle_dir(file_digest(str(tiny_blend))), ignore_errors=True)  # the worker's copy
+    copies = [copy for blend in (tiny_blend, linked_blend) for copy in glob.glob(bundle_dir(file_digest(str(blend))) + "*")]
+    for copy in copies:
+        shutil.rmtree(copy, ignore_errors=True)
     assert result.returncode == 0, result.stderr
     assert "(the .blend is shipped to the workers)" in result.stdout
     assert_same_exr(tmp_path / "f_2.exr", reference / "f_2.exr")
+    assert linked.returncode == 0, linked.stderr
+    assert_same_exr(tmp_path / "linked.exr", linked_reference)  # the linked plane is there
+    assert not copies, "the worker kept its shipped copy of the .blend after the job"
+
+
+def test_shipped_copies_unused_for_a_day_are_removed(tmp_path, monkeypatch):
+    """A copy whose job never ended cleanly (client interrupted) goes when a render server starts."""
+    from restframe_addon import distributed
+
+    monkeypatch.setattr(distributed, "_task_dir_root", lambda: str(tmp_path))
+    for name, age in (("old", distributed.STALE_COPY_SECONDS + 60), ("recent", 60)):
+        os.makedirs(os.path.join(bundle_dir(name), "files"))
+        marker = os.path.join(bundle_dir(name), ".complete")
+        open(marker, "w").close()
+        os.utime(marker, (time.time() - age, time.time() - age))
+    distributed._remove_stale_copies()
+    assert sorted(os.listdir(os.path.join(tmp_path, "blends"))) == ["recent"]
+
+
+MAKE_BORDER = """
+import sys, bpy, restframe_addon
+restframe_addon.register()
+bpy.ops.wm.open_mainfile(filepath=sys.argv[1], load_ui=False)
+render = bpy.context.scene.render
+render.use_border, render.use_crop_to_border = True, sys.argv[3] == "crop"
+render.border_min_x, render.border_max_x, render.border_min_y, render.border_max_y = 0.2, 0.7, 0.15, 0.9
+bpy.ops.wm.save_as_mainfile(filepath=sys.argv[2], copy=True)
+"""
+
+
+@pytest.mark.parametrize("crop", ["crop", "no-crop"])
+def test_regions_fill_the_files_render_border_as_one_render_does(tiny_blend, cluster, tmp_path, crop):
+    blend = tmp_path / "border.blend"
+    made = subprocess.run([sys.executable, "-c", MAKE_BORDER, str(tiny_blend), str(blend), crop], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+    assert made.returncode == 0, made.stderr
+    result = run_cli(blend, "-o", tmp_path / "whole.exr", "--frame", "3")
+    assert result.returncode == 0, result.stderr
+    result = run_cli(blend, "-o", tmp_path / "regions.exr", "--frame", "3", "--regions", "4", "--scheduler",
+                     cluster[0].scheduler_address)
+    assert result.returncode == 0, result.stderr
+    shape = (18, 16) if crop == "crop" else (24, 32)  # the border: x 6..22, y 3..21 (Blender truncates)
+    assert exr_channels(tmp_path / "whole.exr")["ViewLayer.Combined/ViewLayer.Combined.R"].shape == shape
+    assert_same_exr(tmp_path / "regions.exr", tmp_path / "whole.exr")
