@@ -90,7 +90,7 @@ MUTANTS = (
     Mutant("shadow-ray-present-position", "shadow rays aimed at the light's present instead of its retarded position",
            (Patch(SHADING, "        r = doppler * r_rest  # distance to the retarded position in the surface frame\n",
                   "        r = doppler * r_rest  # distance to the retarded position in the surface frame\n"
-                  "        u0, u = back.events(np.ones(n), np.zeros((n, 3)))  # the light's 4-velocity in frame k\n"
+                  "        u0, u = self.frames.map(pl.frame, k).events(np.ones(n), np.zeros((n, 3)))  # its 4-velocity\n"
                   "        e_k = rows.normalized(rows.scale(e_k, r) + rows.scale(u, r / u0))  # where it is now\n"),),
            (T_LIGHTS,)),
     Mutant("shadow-ray-observation-time", "shadow rays start at the observation time instead of the hit event's",
@@ -109,7 +109,7 @@ MUTANTS = (
            (T_LIGHTS,)),
     Mutant("area-light-cosine-surface-frame", "a moving area light's emission cosine taken in the surface's frame",
            (Patch(SHADING, "intensity = np.maximum(e_j @ z_axis, 0.0) / np.pi",
-                  "intensity = np.maximum(back.rays(e_j)[0] @ z_axis, 0.0) / np.pi"),),
+                  "intensity = np.maximum(back(e_j)[0] @ z_axis, 0.0) / np.pi"),),
            (T_LIGHTS,)),
     Mutant("sun-d4", "sun irradiance scaled by D^4 instead of D^2",
            (Patch(SHADING, "return e_k, self._power(doppler, 2), doppler, np.full(n, np.inf)",
@@ -117,7 +117,7 @@ MUTANTS = (
            (f"{T_SHADING}::test_sun_seen_from_a_moving_surface_is_aberrated_and_scaled_by_d_squared",)),
     Mutant("spot-cone-surface-frame", "a moving spot light's cone taken about the surface-frame direction",
            (Patch(SHADING, "intensity = intensity * _spot_falloff(e_j @ z_axis, light.spot_size, light.spot_blend)",
-                  "intensity = intensity * _spot_falloff(back.rays(e_j)[0] @ z_axis, light.spot_size, "
+                  "intensity = intensity * _spot_falloff(back(e_j)[0] @ z_axis, light.spot_size, "
                   "light.spot_blend)"),),
            (T_LIGHTS,)),
     Mutant("bounce-in-observer-frame", "bounce (mirror/glass) rays built from the observer's direction, not mapped "
@@ -136,15 +136,14 @@ MUTANTS = (
            (Patch(SHADING, "emission_factor(mat, frame.object_clock(tau, prim))", "emission_factor(mat, tau)"),),
            (T_OBSERVERS,)),
     Mutant("texture-uv-swapped", "texture coordinates interpolated with the barycentrics swapped",
-           (Patch(SHADING, "uv = (1.0 - uu - vv) * cuv[:, 0] + uu * cuv[:, 1] + vv * cuv[:, 2]",
-                  "uv = (1.0 - uu - vv) * cuv[:, 0] + vv * cuv[:, 1] + uu * cuv[:, 2]"),),
+           (Patch(SHADING, "return (1.0 - uu - vv) * cuv[:, 0] + uu * cuv[:, 1] + vv * cuv[:, 2]",
+                  "return (1.0 - uu - vv) * cuv[:, 0] + vv * cuv[:, 1] + uu * cuv[:, 2]"),),
            (T_OBSERVERS,)),
     Mutant("doppler-pass-inverted", "D replaced by 1/D in the Doppler pass",
            (Patch(PASSES, 'passes["Doppler"][sel, 0] = hit_doppler(', 'passes["Doppler"][sel, 0] = 1.0 / hit_doppler('),),
            (f"{T_RENDER}::test_doppler_head_on_approach_on_the_axis_ray",)),
     Mutant("factor-display-inverse", "the FACTOR grey display computed from 1/D",
-           (Patch(RENDER, "_doppler_grey(prepared, ray_doppler(prepared.frames, hits))",
-                  "_doppler_grey(prepared, 1.0 / ray_doppler(prepared.frames, hits))"),
+           (Patch(RENDER, "doppler = ray_doppler(prepared.frames, hits)", "doppler = 1.0 / ray_doppler(prepared.frames, hits)"),
             Patch(PREPARED, "doppler = ray_doppler(frames, hits)[hits.frame >= 0]",
                   "doppler = 1.0 / ray_doppler(frames, hits)[hits.frame >= 0]")),
            (f"{T_RENDER}::test_factor_display_paints_d_across_the_frames_own_range",)),
@@ -242,10 +241,14 @@ def run_pytest(copy: Path, tests, stop_first: bool = True):
     return result.returncode, result.stdout + result.stderr
 
 
-def failed_tests(output: str) -> list[str]:
-    """The failed tests of pytest's short summary, each with the start of its message."""
-    found = re.findall(r"^(?:FAILED|ERROR) (.+?)(?: - (.*))?$", output, flags=re.MULTILINE)
-    return [f"{test} ({message[:70]})" if message else test for test, message in found]
+# a test failing with one of these has met a mistake in the mutant's own code, not caught the physics
+_CRASHES = ("AttributeError", "NameError", "UnboundLocalError", "TypeError", "ImportError", "ModuleNotFoundError",
+            "SyntaxError", "IndentationError")
+
+
+def failed_tests(output: str) -> list[tuple[str, str]]:
+    """(test, start of its message) of each failure in pytest's short summary."""
+    return re.findall(r"^(?:FAILED|ERROR) (.+?)(?: - (.*))?$", output, flags=re.MULTILINE)
 
 
 def run_mutant(copy: Path, mutant: Mutant, full: bool) -> Outcome:
@@ -257,8 +260,12 @@ def run_mutant(copy: Path, mutant: Mutant, full: bool) -> Outcome:
         for path, text in originals.items():
             path.write_text(text)
     seconds = time.monotonic() - started
-    if code == 1 and failed_tests(output):  # tests ran and failed: killed
-        return Outcome(mutant, True, ", ".join(failed_tests(output)), seconds)
+    failures = failed_tests(output)
+    crashed = [f"{test} ({message[:70]})" for test, message in failures if message.startswith(_CRASHES)]
+    if code == 1 and failures and not crashed:  # tests ran and failed on what they check: killed
+        return Outcome(mutant, True, ", ".join(f"{t} ({m[:70]})" if m else t for t, m in failures), seconds)
+    if crashed:
+        return Outcome(mutant, False, f"NOT A KILL: the mutant's code crashed: {', '.join(crashed)}", seconds)
     if code == 0:
         return Outcome(mutant, False, "SURVIVED: every test passed", seconds)
     tail = output.strip().splitlines()[-1] if output.strip() else ""
