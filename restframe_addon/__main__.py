@@ -132,6 +132,12 @@ def render_command(args) -> int:
                            "images yet; render with blender -b FILE -E RESTFRAME -f FRAME (every view), or switch "
                            "Stereoscopy off")
     headless.apply_overrides(scene, args.samples, args.percentage)
+    if args.denoise:
+        if use_dask:
+            raise CommandError("--denoise works on whole frames rendered here, not with Dask")
+        from .denoise import use_denoiser
+
+        use_denoiser(scene)
     ext = headless.configure_output(scene, args.output)
     out = args.output if os.path.splitext(args.output)[1] else args.output + ext
     if frames is None:
@@ -183,6 +189,9 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--region", metavar="X0,Y0,X1,Y1",
                         help="render only this pixel rectangle (origin bottom left, X1/Y1 exclusive) as a "
                         "cropped image: Blender's render border")
+    render.add_argument("--denoise", action="store_true",
+                        help="denoise with Blender's Denoise node (OpenImageDenoise) from the Denoising "
+                        "Albedo and Normal passes; replaces the file's compositing set-up for this render")
     dask = render.add_argument_group("Dask (render on a cluster; needs dask[distributed])")
     dask.add_argument("--scheduler", metavar="ADDRESS",
                       help="Dask scheduler to send frames to, e.g. tcp://farm:8786")

@@ -31,6 +31,13 @@ DOPPLER_MODES = (
      "scaled by D (blue shift when approaching, red shift when receding)", 2),
 )
 
+INTEGRATORS = (
+    ('PATH', "Path Tracing", "Full light transport across rest frames: lamps, the world and emissive "
+     "surfaces light everything, light bounces between surfaces (Light Paths limits)", 0),
+    ('DIRECT', "Direct Light", "Lamps only, with traced mirrors and glass: fast and noise-free "
+     "(the renderer before path tracing)", 1),
+)
+
 MOTION_MODES = (
     ('CONSTANT', "Constant Velocity", "Move at the constant Velocity (or Lorentz Factor) below; "
      "the location is where the object is at the reference frame", 0),
@@ -190,12 +197,56 @@ class RestframeSceneSettings(PropertyGroup):
         soft_max=256,
         max=1 << 16,
     )
+    integrator: EnumProperty(
+        name="Integrator",
+        description="How light reaches the surfaces seen",
+        items=INTEGRATORS,
+        default='PATH',
+    )
     max_bounces: IntProperty(
         name="Max Bounces",
-        description="Maximum number of mirror and glass bounces of a light path",
+        description="Path Tracing: total number of bounces of a light path (as Cycles' Total). "
+        "Direct Light: maximum number of mirror and glass bounces",
         default=4,
         min=0,
         max=128,
+    )
+    diffuse_bounces: IntProperty(
+        name="Diffuse Bounces",
+        description="Path Tracing: maximum number of diffuse reflection bounces, bounded by Max Bounces",
+        default=4,
+        min=0,
+        max=128,
+    )
+    glossy_bounces: IntProperty(
+        name="Glossy Bounces",
+        description="Path Tracing: maximum number of glossy (and mirror) reflection bounces, bounded by Max Bounces",
+        default=4,
+        min=0,
+        max=128,
+    )
+    transmission_bounces: IntProperty(
+        name="Transmission Bounces",
+        description="Path Tracing: maximum number of transmission (refraction) bounces, bounded by Max Bounces",
+        default=12,
+        min=0,
+        max=128,
+    )
+    clamp_direct: FloatProperty(
+        name="Clamp Direct",
+        description="Path Tracing: largest contribution of a sample's light after one bounce "
+        "(sum of RGB), against fireflies at the cost of accuracy; 0 = off",
+        default=0.0,
+        min=0.0,
+        soft_max=100.0,
+    )
+    clamp_indirect: FloatProperty(
+        name="Clamp Indirect",
+        description="Path Tracing: largest contribution of a sample's light after two or more bounces "
+        "(sum of RGB), against fireflies at the cost of accuracy; 0 = off",
+        default=10.0,
+        min=0.0,
+        soft_max=100.0,
     )
     tile_size: IntProperty(
         name="Tile Size",
@@ -281,9 +332,30 @@ class RestframeSceneSettings(PropertyGroup):
         del bpy.types.Scene.restframe
 
 
+class RestframeViewLayerSettings(PropertyGroup):
+    """Per view layer render data (``ViewLayer.restframe``)."""
+
+    denoising_store_passes: BoolProperty(
+        name="Denoising Data",
+        description="Store the Denoising Albedo and Denoising Normal passes (sample averages of the "
+        "first surface seen), for the compositor's Denoise node as with Cycles",
+        default=False,
+    )
+
+    @classmethod
+    def register(cls):
+        bpy.types.ViewLayer.restframe = PointerProperty(
+            name="RESTframe", description="RESTframe view layer settings", type=cls)
+
+    @classmethod
+    def unregister(cls):
+        del bpy.types.ViewLayer.restframe
+
+
 classes = (
     RestframeObjectSettings,
     RestframeSceneSettings,
+    RestframeViewLayerSettings,
 )
 
 

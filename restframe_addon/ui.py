@@ -62,6 +62,7 @@ class RESTFRAME_RENDER_PT_relativity(RestframeButtonsPanel, Panel):
         scene = context.scene
         rf = scene.restframe
         col = layout.column()
+        col.prop(rf, "integrator")
         col.prop(rf, "light_speed")
         col.prop(rf, "reference_frame")
         col.prop(rf, "motion_tolerance")
@@ -82,7 +83,33 @@ class RESTFRAME_RENDER_PT_sampling(RestframeButtonsPanel, Panel):
         rf = context.scene.restframe
         col = layout.column()
         col.prop(rf, "samples")
-        col.prop(rf, "max_bounces")
+        if rf.integrator == 'DIRECT':  # Path Tracing: in Light Paths, as the total
+            col.prop(rf, "max_bounces", text="Mirror/Glass Bounces")
+
+
+class RESTFRAME_RENDER_PT_light_paths(RestframeButtonsPanel, Panel):
+    """Cycles' Light Paths: the bounce limits and clamps of the path tracer."""
+
+    bl_label = "Light Paths"
+    bl_context = "render"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and context.scene.restframe.integrator == 'PATH'
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        rf = context.scene.restframe
+        col = layout.column(heading="Max Bounces", align=True)
+        col.prop(rf, "max_bounces", text="Total")
+        col.prop(rf, "diffuse_bounces", text="Diffuse")
+        col.prop(rf, "glossy_bounces", text="Glossy")
+        col.prop(rf, "transmission_bounces", text="Transmission")
+        col = layout.column(heading="Clamping", align=True)
+        col.prop(rf, "clamp_direct", text="Direct Light")
+        col.prop(rf, "clamp_indirect", text="Indirect Light")
 
 
 class RESTFRAME_RENDER_PT_doppler(RestframeButtonsPanel, Panel):
@@ -198,6 +225,8 @@ class RESTFRAME_VIEWLAYER_PT_passes(RestframeButtonsPanel, Panel):
         col.prop(view_layer, "use_pass_z")
         col.prop(view_layer, "use_pass_normal")
         col.prop(view_layer, "use_pass_object_index")
+        col = layout.column(heading="Denoising", align=True)
+        col.prop(view_layer.restframe, "denoising_store_passes", text="Denoising Data")
         col = layout.column(align=True)
         col.label(text="Doppler, Emission Time and Object Time are always rendered", icon='INFO')
 
@@ -329,6 +358,7 @@ class RESTFRAME_LIGHT_PT_light(RestframeButtonsPanel, Panel):
 classes = (
     RESTFRAME_RENDER_PT_relativity,
     RESTFRAME_RENDER_PT_sampling,
+    RESTFRAME_RENDER_PT_light_paths,
     RESTFRAME_RENDER_PT_doppler,
     RESTFRAME_RENDER_PT_motion_blur,
     RESTFRAME_RENDER_PT_motion_blur_curve,

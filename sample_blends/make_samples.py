@@ -41,6 +41,7 @@ def build_moving_sphere():
     scene = bpy.context.scene
     scene.name = "Moving Sphere"
     scene.render.engine = 'RESTFRAME'
+    scene.restframe.integrator = 'DIRECT'  # the samples show lamp-lit scenes, noise-free
     scene.render.resolution_x, scene.render.resolution_y = 320, 180
     scene.render.resolution_percentage = 100
     scene.render.fps = 24

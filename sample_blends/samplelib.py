@@ -52,6 +52,7 @@ def new_scene(name: str, camera_distance: float, resolution=(256, 256), samples=
     scene = bpy.context.scene
     scene.name = name
     scene.render.engine = 'RESTFRAME'
+    scene.restframe.integrator = 'DIRECT'  # the samples show lamp-lit scenes, noise-free
     scene.render.resolution_x, scene.render.resolution_y = resolution
     scene.render.resolution_percentage = 100
     scene.render.fps, scene.render.fps_base = FPS, 1.0

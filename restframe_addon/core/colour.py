@@ -58,6 +58,10 @@ class RGBColour:
     def world(self, lam, n):
         return np.broadcast_to(self.world_rgb, (n, 3))
 
+    def emitter_rgb(self, rgb, lam):
+        """Emitted radiance of RGB colours (n, 3) varying per ray (an environment image)."""
+        return rgb
+
     def to_rgb(self, values, lam):
         return values
 
@@ -140,6 +144,14 @@ class SpectralColour:
 
     def world(self, lam, n):
         return self._emitter(np.broadcast_to(self.world_coeffs, (n, 3)), np.broadcast_to(self.world_scale, (n,)), lam)
+
+    def emitter_rgb(self, rgb, lam):
+        """Emission spectra (n, K) of RGB colours (n, 3) varying per ray (an environment image):
+        scale x a reflectance spectrum from the RGB-cube table x white, exact in RGB as textures."""
+        rgb = np.maximum(rgb, 0.0)
+        scale = rgb.max(axis=1)
+        shape = _lut_reflectance(self.quadrature.count, rgb / np.where(scale > 0.0, scale, 1.0)[:, None], lam)
+        return scale[:, None] * shape * spectral.white_spectrum(lam)
 
     def to_rgb(self, values, lam):
         """Observed spectra as Rec.709; spectra outside its gamut (strongly shifted, nearly

@@ -1,7 +1,7 @@
 """The render passes: their table, and the per-hit quantities they (and the shading) are made of.
 
-Every pass but Combined holds one exact value of the pixel-centre ray (no sample averaging),
-so that it can be quoted: the Doppler factor D of the surface seen there (the frame's, times
+Every pass but Combined and the denoising passes holds one exact value of the pixel-centre ray
+(no sample averaging), so that it can be quoted: the Doppler factor D of the surface seen there (the frame's, times
 a spinning surface's own), the world time the light left it, the surface's own clock then,
 its depth, facing normal and object index.  The shading uses the same D (:func:`hit_doppler`)
 and normals (:func:`facing_normals`): one formula for each.
@@ -26,6 +26,7 @@ class Pass:
     channels: str
     kind: str  # 'COLOR', 'VALUE' or 'VECTOR' (Blender's pass types)
     own: bool = False  # RESTframe's own pass (always filled); else one Blender has (filled where enabled)
+    on_request: bool = False  # filled only when asked for by name (not among the default passes)
 
 
 # The order is the order passes are listed in and registered with Blender.
@@ -37,11 +38,16 @@ TABLE = (
     Pass("Depth", "Z", "VALUE"),
     Pass("Normal", "XYZ", "VECTOR"),
     Pass("IndexOB", "X", "VALUE"),
+    # Cycles' denoising data (for the compositor's Denoise node): averaged over the camera samples
+    Pass("Denoising Normal", "XYZ", "VECTOR", on_request=True),
+    Pass("Denoising Albedo", "RGB", "COLOR", on_request=True),
 )
 BY_NAME = {p.name: p for p in TABLE}
 PASSES = {p.name: len(p.channels) for p in TABLE if p.own}  # RESTframe's own (Depth, Normal, IndexOB are Blender's)
 EXTRA_PASSES = {p.name: len(p.channels) for p in TABLE if p.name != "Combined"}  # what RenderSettings.passes may ask for
 ALL_PASSES = {p.name: len(p.channels) for p in TABLE}
+DEFAULT_PASSES = {name: n for name, n in EXTRA_PASSES.items() if not BY_NAME[name].on_request}  # RenderSettings.passes None
+DENOISING_PASSES = ("Denoising Normal", "Denoising Albedo")
 
 _MISS_DEPTH = 1e10  # Blender's depth of the background
 

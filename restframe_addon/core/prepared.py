@@ -22,7 +22,8 @@ from . import lens, observer
 from .camera import CameraRays
 from .colour import RGBColour, SpectralColour
 from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
-from .passes import EXTRA_PASSES, ray_doppler
+from .integrator import PathTracer, scene_world
+from .passes import DEFAULT_PASSES, EXTRA_PASSES, ray_doppler
 from .scene import RAY_CAMERA, Camera, RenderSettings, Scene
 from .shading import MaterialTable, PreparedLight, Shader, prepare_lights
 from .tracer import TraceCache
@@ -43,6 +44,7 @@ class PreparedScene:
     materials: MaterialTable
     colour: RGBColour | SpectralColour
     shader: Shader
+    path_tracer: PathTracer | None  # the Path Tracing integrator (None: Direct Light, the shader alone)
     camera_tau: float  # camera-frame time of the observation event: primary rays start then (motion blur: about it)
     camera_rays: CameraRays
     passes: tuple[str, ...]  # the passes to fill besides Combined
@@ -181,12 +183,20 @@ def _build(scene: Scene, settings: RenderSettings, should_stop: Callable[[], boo
         colour = SpectralColour(materials, lights, scene.world_color, settings.spectral_samples)
     else:
         colour = RGBColour(materials, lights, scene.world_color)
+    shader = Shader(frames, materials, lights, colour, settings.max_bounces, settings.searchlight,
+                    layered=settings.integrator == "PATH")
+    path_tracer = None
+    if settings.integrator == "PATH":
+        try:
+            path_tracer = PathTracer(shader, scene_world(scene), settings)
+        except ValueError as error:
+            raise RenderError(str(error)) from error
     camera_tau, camera_rays = _camera(scene, settings, frames)
     return PreparedScene(
         scene=scene, settings=settings, frames=frames, lights=lights, materials=materials, colour=colour,
-        shader=Shader(frames, materials, lights, colour, settings.max_bounces, settings.searchlight),
+        shader=shader, path_tracer=path_tracer,
         camera_tau=camera_tau, camera_rays=camera_rays,
-        passes=tuple(EXTRA_PASSES) if settings.passes is None else tuple(settings.passes),
+        passes=tuple(DEFAULT_PASSES) if settings.passes is None else tuple(settings.passes),
         doppler_range=settings.doppler_range, exposure=1.0)
 
 
@@ -239,15 +249,22 @@ def _measure_exposure(prepared: PreparedScene, should_stop) -> float:
     pixel = np.arange(len(px), dtype=np.int64)
     materials, lights = prepared.materials, prepared.lights
     plain = Shader(prepared.frames, materials, lights, RGBColour(materials, lights, prepared.scene.world_color),
-                   prepared.settings.max_bounces, searchlight=False)
+                   prepared.settings.max_bounces, searchlight=False, layered=prepared.shader.layered)
+    tracers = (prepared.shader, plain)
+    if prepared.path_tracer is not None:  # the same integrator, with and without the Doppler changes
+        tracers = (prepared.path_tracer, PathTracer(plain, prepared.path_tracer.world, prepared.settings))
     cache = TraceCache()
     means = []
-    for shader in (prepared.shader, plain):
+    for tracer in tracers:
         if should_stop():
             return 1.0
-        lam = shader.colour.camera_wavelengths(pixel, pixel * 0)
+        colour = tracer.colour
+        lam = colour.camera_wavelengths(pixel, pixel * 0)
         rays = prepared.rays(px, py)
-        values, _ = shader.radiance(prepared.frames.camera, *rays, 0, pixel, pixel * 0, lam, cache=cache)
-        means.append(float(np.mean(shader.colour.to_rgb(values, lam) @ _LUMINANCE)))
+        if isinstance(tracer, PathTracer):
+            values, _ = tracer.radiance(prepared.frames.camera, *rays, pixel, pixel * 0, lam, cache=cache)
+        else:
+            values, _ = tracer.radiance(prepared.frames.camera, *rays, 0, pixel, pixel * 0, lam, cache=cache)
+        means.append(float(np.mean(colour.to_rgb(values, lam) @ _LUMINANCE)))
     rendered, reference = means
     return reference / rendered if rendered > 0 and reference > 0 else 1.0

@@ -24,7 +24,8 @@ from typing import Callable, Iterator
 import numpy as np
 
 from . import blas, sampling
-from .passes import ALL_PASSES, EXTRA_PASSES, PASSES, pixel_passes, ray_doppler  # noqa: F401 (PASSES: public name)
+from .passes import (ALL_PASSES, DENOISING_PASSES, EXTRA_PASSES, PASSES, pixel_passes,  # noqa: F401 (PASSES: public)
+                     ray_doppler)
 from .prepared import PreparedScene, prepare
 from .scene import RAY_CAMERA, RenderSettings, Scene
 from .tracer import TraceCache
@@ -69,6 +70,7 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     rgb = np.zeros((n, 3))
     coverage = np.zeros(n)  # the share of samples that hit a surface (holdouts included)
     held = np.zeros(n)  # the share of samples that hit a holdout
+    denoising = {name: np.zeros((n, 3)) for name in DENOISING_PASSES if name in prepared.passes}
     complete = True
     for index, (part, first, count) in enumerate(_batches(n, samples, prepared.colour.channels)):
         if index and should_stop():  # Esc between sample batches of a long tile
@@ -90,6 +92,10 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
             hits = shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache)
         color, hit, hole = _sample(prepared, rays, hits, pix, smp, cache, observed)
         rgb[part] += color.reshape(m, count, 3).sum(axis=1)
+        if denoising:
+            for name, values in prepared.shader.denoising_data(hits).items():
+                if name in denoising:
+                    denoising[name][part] += values.reshape(m, count, 3).sum(axis=1)
         coverage[part] += hit.reshape(m, count).sum(axis=1)
         if hole is not None:
             held[part] += hole.reshape(m, count).sum(axis=1)
@@ -99,6 +105,8 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     # holdouts are holes in the image whether or not the film is transparent (as in Cycles)
     alpha = coverage - held if settings.film_transparent else 1.0 - held
     passes["Combined"] = np.concatenate([rgb, alpha[:, None]], axis=1)
+    for name, total in denoising.items():
+        passes[name] = total / samples
     return Tile(x0, y0, x1, y1, {k: v.reshape(h, w, -1).astype(np.float32) for k, v in passes.items()}, complete)
 
 
@@ -118,7 +126,12 @@ def _sample(prepared: PreparedScene, rays, hits, pixel, sample, cache: TraceCach
         colour = prepared.colour
         lam = colour.camera_wavelengths(pixel, sample)
         traced = lam if observed is None else colour.shift(lam, observed)  # the wavelengths in the camera frame
-        values, hits = prepared.shader.radiance(prepared.frames.camera, *rays, 0, pixel, sample, traced, hits, cache)
+        if prepared.path_tracer is not None:
+            values, hits = prepared.path_tracer.radiance(prepared.frames.camera, *rays, pixel, sample, traced, hits,
+                                                         cache)
+        else:
+            values, hits = prepared.shader.radiance(prepared.frames.camera, *rays, 0, pixel, sample, traced, hits,
+                                                    cache)
         if observed is not None:
             values = values * prepared.shader._power(observed, 4)[:, None]
         rgb = colour.to_rgb(values, lam)

@@ -191,6 +191,24 @@ class Camera:
 
 
 @dataclass
+class WorldTexture:
+    """An Environment Texture on the world's Background (equirectangular), at rest in the world frame.
+
+    ``image`` (H, W, 3 or 4) scene-linear radiance, row 0 = bottom (Blender order); ``rotation``:
+    the Euler XYZ rotation of a Mapping node before it (``vector_type`` as the node's), see
+    :mod:`.world`.  Lights the scene with the Path Tracing integrator (Direct Light shows
+    ``Scene.world_color`` behind the scene, as before).
+    """
+
+    image: np.ndarray
+    strength: float = 1.0
+    rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    vector_type: str = "POINT"
+    interpolation: str = "Linear"
+    name: str = "World"
+
+
+@dataclass
 class Scene:
     """Everything one rendered frame needs.
 
@@ -202,7 +220,8 @@ class Scene:
     meshes: list[Mesh] = field(default_factory=list)
     materials: list[Material] = field(default_factory=lambda: [Material()])
     lights: list[Light] = field(default_factory=list)
-    world_color: tuple[float, float, float] = (0.05, 0.05, 0.05)
+    world_color: tuple[float, float, float] = (0.05, 0.05, 0.05)  # the Background colour x strength
+    world_texture: WorldTexture | None = None  # an environment image instead of the plain colour
     tau_obs: float = 0.0
     light_speed: float = 299792458.0
 
@@ -214,7 +233,15 @@ class RenderSettings:
     resolution: tuple[int, int] = (64, 64)  # (x, y) pixels of the full image
     region: tuple[int, int, int, int] | None = None  # (x0, y0, x1, y1) pixels, x1/y1 exclusive
     samples: int = 1  # stratified camera samples per pixel
-    max_bounces: int = 4  # mirror / glass recursion depth
+    # DIRECT: lamps light surfaces, mirrors and glass are traced (the core's default, unchanged);
+    # PATH: full light transport, world and emissive surfaces lighting others (core/integrator.py)
+    integrator: str = "DIRECT"
+    max_bounces: int = 4  # DIRECT: mirror / glass recursion depth; PATH: total scattering events (Cycles' Total)
+    diffuse_bounces: int = 4  # PATH: limits by the kind of scattering (Cycles' Light Paths)
+    glossy_bounces: int = 4
+    transmission_bounces: int = 12
+    clamp_direct: float = 0.0  # PATH: largest RGB sum of one sample's light after one scattering (0 = off)
+    clamp_indirect: float = 0.0  # PATH: the same after two or more (0 = off)
     doppler_mode: str = "OFF"  # OFF (geometry only), FACTOR (D as grey), SPECTRAL (colour shift)
     searchlight: bool = True  # apply the D^4 intensity transforms (headlamp effect)
     spectral_samples: int = 32  # SPECTRAL: wavelengths per camera ray over 360-830 nm
@@ -225,4 +252,4 @@ class RenderSettings:
     threads: int = 0  # 0 = all cores
     doppler_range: tuple[float, float] | None = None  # FACTOR display: None = the frame's own range
     doppler_levels: int = 0  # FACTOR display: quantise to N grey levels (0 = continuous)
-    passes: tuple[str, ...] | None = None  # passes to fill besides Combined (passes.EXTRA_PASSES names); None = all
+    passes: tuple[str, ...] | None = None  # passes to fill besides Combined (passes.EXTRA_PASSES names); None = passes.DEFAULT_PASSES

@@ -25,7 +25,8 @@ from types import MappingProxyType
 import numpy as np
 
 from . import rows, sampling, spectral
-from .bsdf import dielectric_f0, fresnel_dielectric, ggx_reflection
+from .bsdf import (dielectric_f0, fresnel_average_f82_tint, fresnel_average_principled_dielectric, fresnel_dielectric,
+                   fresnel_f82_tint, ggx_dielectric_albedo, ggx_energy_compensation, ggx_g2, ggx_ndf, ggx_reflection)
 from .frames import FrameSet, clock_shift, shift_into_frame
 from .lorentz import RowBoosts
 from .passes import facing_normals, hit_doppler, hit_times
@@ -88,6 +89,13 @@ class MaterialTable:
         self.f0_dielectric = np.minimum(dielectric_f0(self.ior) * self.specular_scale, 1.0) * (1.0 - self.metallic)
         self.f90 = np.minimum(self.specular_scale, 1.0) * (1.0 - self.metallic) + self.metallic
         self.alpha = np.maximum(self.roughness**2, _MIN_ALPHA)
+        # the Principled BSDF as Cycles adjusts it: Specular IOR Level scales F0, which sets the IOR
+        f0_adjusted = np.minimum(dielectric_f0(self.ior) * self.specular_scale, 1.0 - 1e-9)
+        self.f0_adjusted = f0_adjusted
+        self.ior_adjusted = (1.0 + np.sqrt(f0_adjusted)) / (1.0 - np.sqrt(f0_adjusted))
+        # its hemispherical Fresnel average (for the multiscatter compensation), once per material
+        self.fresnel_average_dielectric = fresnel_average_principled_dielectric(
+            self.ior_adjusted, f0_adjusted[:, None], np.ones(len(materials)))[:, 0]
         # rough surfaces with a specular lobe get GGX highlights (Specular IOR Level 0, not metallic: none)
         self.glossy = ~self.mirror & ((self.f90 > 0.0) | (self.f0_dielectric > 0.0) | (self.metallic > 0.0))
 
@@ -203,11 +211,88 @@ def _keyed_output(light: Light, light_speed: float):
     return seconds * light_speed, color, power
 
 
+class LayeredLobes:
+    """The Principled BSDF's lobes at some surface points, layered as Cycles does (the Path
+    Tracing integrator's BSDF; Direct Light keeps :meth:`Shader.brdf`'s plain sum).
+
+    Metallic m mixes a metal (F82-Tint Fresnel from the base colour) with a dielectric whose
+    specular layer (real Fresnel of the IOR as Specular IOR Level adjusts it) lies over glass
+    (Transmission) or over the diffuse base, which it dims by its directional albedo; rough
+    specular lobes are multiscatter GGX (energy-compensated), smooth ones (roughness below
+    ``MIRROR_ROUGHNESS``) delta reflections.  All in the surfaces' rest frame; ``view`` toward
+    the viewer, ``back``: the back of the surface was hit (for a transmissive one: from inside).
+    """
+
+    def __init__(self, mats: MaterialTable, base, mat, ns, view, back=None):
+        self.ns, self.view, self.base, self.mat = ns, view, base, mat
+        n, channels = base.shape
+        self.metallic = mats.metallic[mat]
+        self.alpha = mats.alpha[mat]
+        self.glossy = mats.glossy[mat]
+        self.mirror = mats.mirror[mat]
+        ior = mats.ior_adjusted[mat]
+        # n_view / n_other: light inside a transmissive body sees the interface from within
+        inside = (back if back is not None else np.zeros(n, dtype=bool)) & (mats.transmission[mat] > 0.0)
+        self.eta = np.where(inside, ior, 1.0 / ior)
+        cos_v = np.clip(rows.dot(ns, view), 1e-6, 1.0)
+        self.cos_v = cos_v
+        f0 = np.broadcast_to(mats.f0_adjusted[mat][:, None], (n, channels))
+        ones = np.ones(n)
+        white = np.ones((n, channels))
+        dielectric_albedo = ggx_dielectric_albedo(cos_v, self.alpha, ior, f0, ones)
+        self.diffuse = rows.scale(base, mats.diffuse_weight[mat]) * (1.0 - dielectric_albedo)  # f, not albedo
+        average = np.broadcast_to(mats.fresnel_average_dielectric[mat][:, None], (n, channels))
+        self.compensation_dielectric = ggx_energy_compensation(cos_v, self.alpha, average)
+        self.compensation_metal = ggx_energy_compensation(cos_v, self.alpha, fresnel_average_f82_tint(base, white))
+        self.white = white
+        # the delta lobes
+        reflectance = self.fresnel(cos_v, compensated=False)
+        self.reflect_weight = rows.scale(reflectance, self.mirror.astype(np.float64))
+        transmission = mats.transmission[mat] * (1.0 - self.metallic)
+        through = (1.0 - fresnel_dielectric(cos_v, self.eta)) * transmission
+        self.transmit_weight = np.broadcast_to(through[:, None], (n, channels))
+
+    def fresnel(self, cos_h, compensated: bool = True):
+        """The specular reflectance (n, C) at microfacet angle cos_h: dielectric and metal mixed by Metallic."""
+        dielectric = fresnel_dielectric(cos_h, self.eta) * (1.0 - self.metallic)
+        metal = rows.scale(fresnel_f82_tint(cos_h, self.base, self.white), self.metallic)
+        if compensated:
+            return self.compensation_dielectric * dielectric[:, None] + self.compensation_metal * metal
+        return metal + dielectric[:, None]
+
+    def value(self, light):
+        """f (n, C), without the cosine: the diffuse and the rough specular lobes."""
+        value = self.diffuse.copy()
+        r = np.flatnonzero(self.glossy)
+        if len(r):
+            ns, view, light_r = self.ns[r], self.view[r], light[r]
+            h = rows.normalized(view + light_r)
+            cos_l = rows.dot(ns, light_r)
+            above = (rows.dot(ns, view) > 0.0) & (cos_l > 0.0)
+            cos_l = np.clip(cos_l, 1e-6, 1.0)
+            alpha, cos_v = self.alpha[r], self.cos_v[r]
+            single = ggx_ndf(rows.dot(ns, h), alpha) * ggx_g2(cos_v, cos_l, alpha) / (4.0 * cos_v * cos_l)
+            value[r] += rows.scale(self.take(r).fresnel(rows.dot(view, h)), np.where(above, single, 0.0))
+        return value
+
+    def take(self, index) -> "LayeredLobes":
+        """The lobes of some of the points (an index array)."""
+        part = object.__new__(LayeredLobes)
+        for name, value in vars(self).items():
+            setattr(part, name, value[index] if isinstance(value, np.ndarray) else value)
+        return part
+
+
 class Shader:
-    """Traces and shades backward rays for one prepared scene (thread-safe: read-only state)."""
+    """Traces and shades backward rays for one prepared scene (thread-safe: read-only state).
+
+    ``layered``: evaluate surfaces with :class:`LayeredLobes` (Path Tracing) instead of the
+    direct-light integrator's plain sum of lobes.
+    """
 
     def __init__(self, frames: FrameSet, materials: MaterialTable, lights: list[PreparedLight],
-                 colour, max_bounces: int, searchlight: bool):
+                 colour, max_bounces: int, searchlight: bool, layered: bool = False):
+        self.layered = layered
         self.frames = frames
         self.materials = materials
         self.lights = tuple(lights)
@@ -223,6 +308,25 @@ class Shader:
         if not self.searchlight:
             return np.ones_like(doppler)
         return doppler ** (exponent + self.colour.extra_power)
+
+    # ------------------------------------------------------------------ denoising data
+    def denoising_data(self, hits):
+        """Cycles' denoising passes of camera rays: the first surface's albedo (RGB, diffuse plus
+        specular reflectance plus transmission as its BSDF weighs them, at most 1) and its
+        shading normal (the surface's frame, as the Normal pass); 0 where nothing is hit."""
+        n = len(hits.frame)
+        albedo, normal = np.zeros((n, 3)), np.zeros((n, 3))
+        for k in frames_hit(hits):
+            sel = np.flatnonzero(hits.frame == k)
+            frame = self.frames.frames[int(k)]
+            prim, u, v, d_k = hits.prim[sel], hits.u[sel], hits.v[sel], hits.d_frame[sel]
+            _, _, ns, mat, back = self.surface_info(int(k), prim, u, v, d_k, hit_times(hits, sel))
+            uv = hit_uv(frame, prim, u, v)
+            lobes = LayeredLobes(self.materials, self.materials.base_color(mat, uv), mat, ns, -d_k, back)
+            specular = np.where(lobes.glossy[:, None], lobes.fresnel(lobes.cos_v), lobes.reflect_weight)
+            albedo[sel] = np.minimum(lobes.diffuse * np.pi + specular + lobes.transmit_weight, 1.0)
+            normal[sel] = ns
+        return {"Denoising Albedo": albedo, "Denoising Normal": normal}
 
     # ------------------------------------------------------------------ rays
     def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, depth: int, pixel, sample, lam, hits=None,
@@ -380,13 +484,24 @@ class Shader:
         return ns
 
     # ------------------------------------------------------------------ direct light
-    def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache):
+    def brdf(self, ns, view, light, base, mat, lobes: LayeredLobes | None = None):
+        """The surfaces' non-delta BSDF f (n, C) (without the cosine), in their rest frame: the
+        diffuse lobe and, on rough surfaces with a specular lobe, GGX highlights (``layered``: as
+        :class:`LayeredLobes`; ``lobes``: those of these very points, if already made).  Mirror
+        reflection and refraction are delta lobes, traced instead (DIRECT: ``_secondary``)."""
         mats = self.materials
-        diffuse = rows.scale(base, mats.diffuse_weight[mat])
+        if self.layered:
+            return (lobes if lobes is not None else LayeredLobes(mats, base, mat, ns, view)).value(light)
+        value = rows.scale(base, mats.diffuse_weight[mat])
         rough = mats.glossy[mat]
-        if rough.any():
-            f0 = rows.scale(base, mats.metallic[mat]) + mats.f0_dielectric[mat][:, None]
-            f90, alpha = mats.f90[mat], mats.alpha[mat]
+        r = np.flatnonzero(rough)
+        if len(r):
+            m = mat[r]
+            f0 = rows.scale(base[r], mats.metallic[m]) + mats.f0_dielectric[m][:, None]
+            value[rough] += ggx_reflection(ns[r], view[r], light[r], mats.alpha[m], f0, mats.f90[m])
+        return value
+
+    def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache, lobes=None):
         eps = self.epsilon[k]
         origin = position + eps * ng
         total = np.zeros_like(base)
@@ -406,10 +521,8 @@ class Shader:
             sel = sel[~blocked]
             if len(sel) == 0:
                 continue
-            brdf = diffuse[sel].copy()
-            r = sel[rough[sel]]
-            if len(r):
-                brdf[rough[sel]] += ggx_reflection(ns[r], view[r], e_k[r], alpha[r], f0[r], f90[r])
+            part = None if lobes is None else lobes.take(sel)
+            brdf = self.brdf(ns[sel], view[sel], e_k[sel], base[sel], mat[sel], part)
             emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel),
                                         None if clock is None else clock[sel])
             total[sel] += rows.scale(brdf * emitted, strength[sel] * cos_n[sel])

@@ -19,6 +19,9 @@ class RenderError(ValueError):
 
 
 DOPPLER_MODES = ("OFF", "FACTOR", "SPECTRAL")
+INTEGRATORS = ("PATH", "DIRECT")
+_BOUNCE_LIMITS = ("max_bounces", "diffuse_bounces", "glossy_bounces", "transmission_bounces")
+_CLAMPS = ("clamp_direct", "clamp_indirect")
 
 
 def one_minus_speed_squared(beta) -> float:
@@ -131,6 +134,15 @@ def check_render(scene, settings, known_passes) -> None:
         raise RenderError(f"unknown passes {sorted(unknown)}: RESTframe fills {list(known_passes)} besides Combined")
     if settings.doppler_mode not in DOPPLER_MODES:
         raise RenderError(f"Doppler display mode {settings.doppler_mode!r} is not one of {DOPPLER_MODES}")
+    if settings.integrator not in INTEGRATORS:
+        raise RenderError(f"integrator {settings.integrator!r} is not one of {INTEGRATORS}")
+    for name in _BOUNCE_LIMITS:
+        if int(getattr(settings, name)) < 0:
+            raise RenderError(f"the light-path limit {name} must be 0 or more (got {getattr(settings, name)})")
+    for name in _CLAMPS:
+        value = float(getattr(settings, name))
+        if not (math.isfinite(value) and value >= 0.0):
+            raise RenderError(f"the light-path clamp {name} must be 0 (off) or a positive number (got {value:g})")
     try:
         check_camera_optics(scene.camera)
     except ValueError as error:

@@ -1,4 +1,4 @@
-"""Lights and the world: Blender lamps -> core Lights, the world's uniform background radiance."""
+"""Lights and the world: Blender lamps -> core Lights, the world's background radiance and environment image."""
 
 from __future__ import annotations
 
@@ -6,8 +6,9 @@ from typing import Callable
 
 import numpy as np
 
-from ..core.scene import Light, Velocity
+from ..core.scene import Light, Velocity, WorldTexture
 from ..motion_query import fcurves
+from .images import ImageMissing, image_texture
 from .materials import output_node, upstream
 from .motion import MAX_SAMPLES, SUBFRAMES
 
@@ -164,7 +165,61 @@ def world_color(scene, warn: Callable[[str], None]) -> tuple[float, float, float
         warn(f"World '{world.name}': shader '{node.bl_label}' is not supported, using the world colour")
         return tuple(float(c) for c in world.color[:3])
     color, strength = node.inputs["Color"], node.inputs["Strength"]
-    if upstream(color) is not None or upstream(strength) is not None:
-        warn(f"World '{world.name}': textures on the background are not supported, using its plain colour")
+    texture = upstream(color)
+    if (texture is not None and texture.type != 'TEX_ENVIRONMENT') or upstream(strength) is not None:
+        warn(f"World '{world.name}': textures on the background other than an Environment Texture on its "
+             "Color are not supported, using its plain colour")
     return tuple(float(c) * float(strength.default_value) for c in color.default_value[:3])
+
+
+_ENVIRONMENT_INTERPOLATIONS = {'Linear': "Linear", 'Closest': "Closest", 'Cubic': "Linear", 'Smart': "Linear"}
+
+
+def world_texture(scene, warn: Callable[[str], None]) -> WorldTexture | None:
+    """The Environment Texture (equirectangular image, optionally rotated by a Mapping node) on the
+    world's Background Color, or None (a plain colour, or something RESTframe cannot read: warned)."""
+    world = scene.world
+    output = output_node(world) if world is not None else None
+    node = upstream(output.inputs["Surface"]) if output is not None else None
+    if node is None or node.type != 'BACKGROUND':
+        return None
+    texture = upstream(node.inputs["Color"])
+    if texture is None or texture.type != 'TEX_ENVIRONMENT':
+        return None
+    label = f"World '{world.name}'"
+    if texture.projection != 'EQUIRECTANGULAR':
+        warn(f"{label}: the Environment Texture's {texture.projection.title().replace('_', ' ')} projection is not "
+             "supported (use Equirectangular); using the plain Background colour")
+        return None
+    if texture.image is None:
+        warn(f"{label}: the Environment Texture has no image; using the plain Background colour")
+        return None
+    try:
+        image = image_texture(texture.image, texture.image_user, scene.frame_current, warn)
+    except ImageMissing as missing:
+        warn(f"Image '{texture.image.name}' (world '{world.name}') could not be loaded: '{missing}' is missing; "
+             "using the plain Background colour")
+        return None
+    if image.tiles != (1, 1):
+        warn(f"{label}: a tiled (UDIM) image cannot be an environment; using the plain Background colour")
+        return None
+    image = image.pixels
+    if texture.interpolation not in ('Linear', 'Closest'):
+        warn(f"{label}: {texture.interpolation} interpolation of the Environment Texture is read as Linear")
+    rotation, vector_type = (0.0, 0.0, 0.0), "POINT"
+    mapping = upstream(texture.inputs["Vector"])
+    if mapping is not None and mapping.type != 'MAPPING':
+        warn(f"{label}: only a Mapping node may feed the Environment Texture's Vector; '{mapping.bl_label}' is ignored")
+    elif mapping is not None:
+        vector_type = mapping.vector_type
+        inputs = mapping.inputs
+        if any(upstream(inputs[name]) is not None for name in ("Location", "Rotation", "Scale")):
+            warn(f"{label}: the Mapping node's inputs must not be linked; using their values")
+        moved = vector_type in ('POINT', 'TEXTURE') and any(inputs["Location"].default_value)
+        if moved or tuple(inputs["Scale"].default_value) != (1.0, 1.0, 1.0):
+            warn(f"{label}: the Mapping node's location and scale are ignored (a world direction is only rotated)")
+        rotation = tuple(float(a) for a in inputs["Rotation"].default_value)
+    return WorldTexture(image=image, strength=float(node.inputs["Strength"].default_value), rotation=rotation,
+                        vector_type=vector_type, interpolation=_ENVIRONMENT_INTERPOLATIONS[texture.interpolation],
+                        name=world.name)
 

@@ -20,7 +20,7 @@ from ..motion_query import assembly_root, has_animated_location, observation_tim
 from .camera import export_camera, render_views
 from .errors import ExportCancelled, ExportError
 from .features import FeatureReport, object_features
-from .lights import export_light, world_color
+from .lights import export_light, world_color, world_texture
 from .materials import MaterialExporter
 from .meshes import MeshData, place, read_mesh
 from .motion import body_radius, lamp_trajectory, object_trajectory, object_velocity
@@ -228,12 +228,17 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
     for name in sorted(jumping):
         warn_once(f"{name}: has a velocity and a keyframed location, so it jumps between frames "
                   "(set its Motion to Animation to follow the keyframed path)")
+    environment = world_texture(scene, warn_once)
+    if environment is not None and rf.integrator == 'DIRECT':
+        warn_once(f"World '{environment.name}': Direct Light shows the plain Background colour behind the scene; "
+                  "the Environment Texture lights it with Path Tracing")
     out = Scene(
         camera=camera,
         meshes=meshes,
         materials=materials.materials,
         lights=lights,
         world_color=world_color(scene, warn_once),
+        world_texture=environment,
         tau_obs=rf.light_speed * observation_time(scene),
         light_speed=rf.light_speed,
     )

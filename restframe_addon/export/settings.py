@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.passes import PASSES
+from ..core.passes import DENOISING_PASSES, PASSES
 from ..core.scene import RenderSettings
 from .errors import ExportError
 
@@ -38,8 +38,9 @@ def border_region(scene, resolution) -> tuple[int, int, int, int] | None:
 def core_passes(view_layer) -> tuple[str, ...]:
     """The core passes a render of this view layer fills besides Combined: Blender's where the
     view layer enables them, RESTframe's own always."""
+    denoising = view_layer.restframe.denoising_store_passes
     blender = (("Depth", view_layer.use_pass_z), ("Normal", view_layer.use_pass_normal),
-               ("IndexOB", view_layer.use_pass_object_index))
+               ("IndexOB", view_layer.use_pass_object_index)) + tuple((name, denoising) for name in DENOISING_PASSES)
     return tuple(name for name, used in blender if used) + tuple(PASSES)
 
 
@@ -52,7 +53,13 @@ def render_settings(scene, resolution=None, view_layer=None) -> RenderSettings:
         resolution=resolution,
         region=border_region(scene, resolution),
         samples=rf.samples,
+        integrator=rf.integrator,
         max_bounces=rf.max_bounces,
+        diffuse_bounces=rf.diffuse_bounces,
+        glossy_bounces=rf.glossy_bounces,
+        transmission_bounces=rf.transmission_bounces,
+        clamp_direct=rf.clamp_direct,
+        clamp_indirect=rf.clamp_indirect,
         doppler_mode=rf.doppler_mode,
         searchlight=rf.searchlight,
         spectral_samples=rf.spectral_samples,

@@ -25,6 +25,7 @@ def scene(addon):
     scene.view_settings.view_transform = 'Standard'  # 5.0 defaults to AgX: keep pixel values plain
     scene.restframe.light_speed = 10.0
     scene.restframe.samples = 1
+    scene.restframe.integrator = 'DIRECT'  # these tests are about the direct-light renderer
     return scene
 
 

@@ -59,10 +59,12 @@ def context_for(scene, obj=None):
 
 
 def test_render_panels_draw_every_setting(scene):
+    scene.restframe.integrator = 'PATH'  # its Light Paths panel shows the bounce limits and clamps
     context = context_for(scene)
     shown = set()
-    for panel in (ui.RESTFRAME_RENDER_PT_relativity, ui.RESTFRAME_RENDER_PT_sampling, ui.RESTFRAME_RENDER_PT_doppler,
-                  ui.RESTFRAME_RENDER_PT_motion_blur, ui.RESTFRAME_RENDER_PT_film, ui.RESTFRAME_RENDER_PT_performance):
+    for panel in (ui.RESTFRAME_RENDER_PT_relativity, ui.RESTFRAME_RENDER_PT_sampling, ui.RESTFRAME_RENDER_PT_light_paths,
+                  ui.RESTFRAME_RENDER_PT_doppler, ui.RESTFRAME_RENDER_PT_motion_blur, ui.RESTFRAME_RENDER_PT_film,
+                  ui.RESTFRAME_RENDER_PT_performance):
         shown |= set(draw(panel, context).get("props", []))
     settings = set(scene.restframe.bl_rna.properties.keys()) - {"rna_type", "name"}
     assert settings <= shown
@@ -72,24 +74,43 @@ def test_render_panels_draw_every_setting(scene):
     assert "Frame 25: t = 1 s, c\u00b7t = 10" in labels
 
 
-def test_every_toggle_of_the_passes_panel_adds_a_pass_the_render_delivers(scene):
-    """Each switch the Passes panel shows turns on one more pass of the render result (the ones the
-    engine fills besides its own, which are always there)."""
+def test_every_toggle_of_the_passes_panel_adds_passes_the_render_delivers(scene):
+    """Each switch the Passes panel shows turns on more passes of the render result (the ones the
+    engine fills besides its own, which are always there): Blender's Depth, Normal and Object Index,
+    and Cycles' two denoising passes (the names the compositor's Denoise node reads)."""
     from restframe_addon.engine import OBJECT_INDEX_PASS, list_render_passes
 
     layer = scene.view_layers[0]
     toggles = draw(ui.RESTFRAME_VIEWLAYER_PT_passes, context_for(scene))["props"]
+
+    def owner(toggle):  # Blender's own pass switches are on the view layer, RESTframe's on its settings
+        return layer if toggle in layer.bl_rna.properties else layer.restframe
+
     for toggle in toggles:
-        setattr(layer, toggle, False)
+        setattr(owner(toggle), toggle, False)
     always = {name for name, _, _ in list_render_passes(scene, layer)}
     assert always == {"Combined", "Doppler", "Emission Time", "Object Time"}
     added = set()
     for toggle in toggles:
-        setattr(layer, toggle, True)
+        setattr(owner(toggle), toggle, True)
         now = {name for name, _, _ in list_render_passes(scene, layer)}
-        assert len(now - always - added) == 1, toggle
+        assert now - always - added, toggle
         added |= now - always
-    assert added == {"Depth", "Normal", OBJECT_INDEX_PASS}
+    assert added == {"Depth", "Normal", OBJECT_INDEX_PASS, "Denoising Normal", "Denoising Albedo"}
+
+
+def test_light_paths_panel_shows_with_path_tracing(scene):
+    """Cycles' Light Paths (total, diffuse, glossy, transmission bounces, clamps) for Path Tracing;
+    Direct Light keeps its mirror/glass bounce limit in the Sampling panel."""
+    context = context_for(scene)
+    scene.restframe.integrator = 'DIRECT'
+    assert not ui.RESTFRAME_RENDER_PT_light_paths.poll(context)
+    assert "max_bounces" in draw(ui.RESTFRAME_RENDER_PT_sampling, context)["props"]
+    scene.restframe.integrator = 'PATH'
+    assert ui.RESTFRAME_RENDER_PT_light_paths.poll(context)
+    assert "max_bounces" not in draw(ui.RESTFRAME_RENDER_PT_sampling, context)["props"]
+    assert draw(ui.RESTFRAME_RENDER_PT_light_paths, context)["props"] == [
+        "max_bounces", "diffuse_bounces", "glossy_bounces", "transmission_bounces", "clamp_direct", "clamp_indirect"]
 
 
 def test_object_panel_shows_speed_and_warns_about_keyframed_location(scene):

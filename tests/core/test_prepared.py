@@ -14,7 +14,7 @@ from restframe_addon.core import prepared as prepared_module
 from restframe_addon.core import render
 from restframe_addon.core.lorentz import Boost
 from restframe_addon.core.motion import Trajectory
-from restframe_addon.core.passes import ALL_PASSES, EXTRA_PASSES, PASSES
+from restframe_addon.core.passes import ALL_PASSES, DEFAULT_PASSES, EXTRA_PASSES, PASSES
 from restframe_addon.core.prepared import prepare
 from restframe_addon.core.render import render_image, render_tile, render_tiles
 from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity
@@ -180,6 +180,8 @@ def test_velocity_errors_have_one_wording_in_every_layer():
 
 def test_the_pass_table_keeps_its_public_names_and_order():
     assert list(PASSES) == ["Doppler", "Emission Time", "Object Time"]
-    assert EXTRA_PASSES == {"Doppler": 1, "Emission Time": 1, "Object Time": 1, "Depth": 1, "Normal": 3, "IndexOB": 1}
+    assert EXTRA_PASSES == {"Doppler": 1, "Emission Time": 1, "Object Time": 1, "Depth": 1, "Normal": 3, "IndexOB": 1,
+                            "Denoising Normal": 3, "Denoising Albedo": 3}
+    assert list(DEFAULT_PASSES) == list(EXTRA_PASSES)[:6]  # the denoising data only when asked for
     assert list(ALL_PASSES) == ["Combined", *EXTRA_PASSES] and ALL_PASSES["Combined"] == 4
     assert (render.PASSES, render.EXTRA_PASSES, render.ALL_PASSES) == (PASSES, EXTRA_PASSES, ALL_PASSES)

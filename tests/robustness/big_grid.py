@@ -12,6 +12,7 @@ def build_grid_scene(subdivisions: int, camera_location=(0.0, -9.0, 6.0)):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.engine = 'RESTFRAME'
+    scene.restframe.integrator = 'DIRECT'  # measured before path tracing existed: keep comparable
     bpy.ops.mesh.primitive_grid_add(x_subdivisions=subdivisions, y_subdivisions=subdivisions, size=10.0)
     bpy.context.active_object.restframe.velocity = (0.5, 0.0, 0.0)
     cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))

@@ -1,0 +1,468 @@
+"""Path tracing across rest frames: world light, bounced light and emissive surfaces.
+
+Every scattering event happens in the rest frame k of the surface hit: there the BSDF
+picks the next incoming direction (cosine for diffuse, GGX visible normals for glossy,
+mirror and Fresnel-weighted refraction for the delta lobes), and the bounce ray is traced
+backward from the hit event across every frame, exactly as a camera ray is from the
+camera's (``Shader.trace(k, ...)``: visibility, cut-outs).  Light crossing from the frame it comes
+from into frame k is carried by the Doppler factor D between them: radiance times D^4
+(RGB), or D^5 at wavelengths multiplied by D (Spectral): the factors multiply along the
+path, each path keeping its throughput and its wavelengths in the current frame
+(``docs/physics.md``; the world: ``docs/physics-world.md``).
+
+At each vertex the path adds the emission of the surface hit (emissive meshes light
+others by being hit), next-event estimates of the lamps (the direct-light code of
+:class:`~.shading.Shader`, retarded positions, one formula with the Direct Light
+integrator) and of the world (sampled in the world frame, its density carried into
+frame k by the aberration Jacobian D^2, weighed against BSDF sampling by the power
+heuristic), then scatters.  Bounce limits follow Cycles' Light Paths: a vertex reached
+past a limit only adds what the ray found (emission, world), Russian roulette after
+``RR_START`` bounces, clamps on each sample's light after one (direct) and after more
+(indirect) scatterings.
+
+All paths of a batch advance together (one numpy call per frame and bounce); random
+numbers are keyed by (pixel, sample, dimension), so tiles stay independent.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import mis, rows, sampling
+from .emitters import EmitterTable, solid_angle_pdf
+from .bsdf import diffuse_pdf, ggx_reflection_pdf, reflect, refract, sample_diffuse, sample_ggx_reflection
+from .passes import hit_doppler, hit_times
+from .scene import RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_TRANSMISSION, RenderSettings, Scene
+from .shading import LayeredLobes, Shader, _cutout_dimension, hit_uv
+from .tracer import Hits, TraceCache, frames_hit, occluded
+from .world import EnvironmentWorld, UniformWorld, mapping_rotation
+
+RR_START = 3  # bounces without Russian roulette
+_DIMENSION = 1 << 20  # first random-number dimension of the path tracer (the direct light uses 1000 + ...)
+_DIMENSIONS_PER_BOUNCE = 16
+_DIFFUSE, _GLOSSY, _MIRROR, _TRANSMIT = range(4)  # lobes
+_KIND_OF_LOBE = np.array([1, 2, 2, 3])  # bounce counters: 0 total, 1 diffuse, 2 glossy (mirror too), 3 transmission
+_RAY_OF_LOBE = np.array([RAY_DIFFUSE, RAY_GLOSSY, RAY_GLOSSY, RAY_TRANSMISSION])  # what the bounce ray is (visibility)
+_WORLD_STREAM, _EMITTER_STREAM = 6, 7  # cut-out streams of the shadow rays toward the world and the emitters
+
+
+def scene_world(scene: Scene):
+    """The world light of a scene, at rest in the world frame: its environment image or its colour."""
+    texture = scene.world_texture
+    if texture is None:
+        return UniformWorld(scene.world_color)
+    return EnvironmentWorld(texture.image, texture.strength, mapping_rotation(texture.rotation, texture.vector_type),
+                            texture.interpolation, texture.name)
+
+
+class PathTracer:
+    """Traces camera paths of one prepared scene (thread-safe: read-only state)."""
+
+    def __init__(self, shader: Shader, world, settings: RenderSettings):
+        self.shader = shader
+        self.frames = shader.frames
+        self.materials = shader.materials
+        self.colour = shader.colour
+        self.world = world
+        self.uniform_world = isinstance(world, UniformWorld)
+        self.limits = np.array([settings.max_bounces, settings.diffuse_bounces, settings.glossy_bounces,
+                                settings.transmission_bounces])
+        self.clamp_direct = float(settings.clamp_direct)
+        self.clamp_indirect = float(settings.clamp_indirect)
+        mats = self.materials
+        self.emissive = bool(np.any(mats.emission > 0.0))
+        self.emitters = _emitter_tables(self.frames, mats) if self.emissive else {}
+        power = np.array([table.total for table, _ in self.emitters.values()])
+        self.emitter_frames = np.array(list(self.emitters), dtype=np.int64)
+        self.emitter_choice = power / power.sum() if len(power) else power  # probability of each frame
+        # a ray past the limits is still traced for what it finds: only worth it if there is something
+        self.findable = self.emissive or not world.is_black
+
+    # ------------------------------------------------------------------ paths
+    def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, pixel, sample, lam, hits=None,
+                 cache: TraceCache | None = None):
+        """Radiance (n, C) arriving at events (tau0, x0) of frame src from backward directions d
+        (camera rays), at the wavelengths ``lam`` of frame src; ``hits`` if already traced.
+        Returns (values, hits of the first rays)."""
+        n = len(d)
+        if hits is None:
+            hits = self.shader.trace(src, tau0, x0, d, s_lo, s_hi, RAY_CAMERA, pixel, sample, 0, cache)
+        first_hits = hits
+        out = np.zeros((n, self.colour.channels))
+        path = np.arange(n)
+        state = _Paths(
+            src=np.full(n, src, dtype=np.int64), d=np.asarray(d, dtype=np.float64), lam=lam,
+            throughput=np.ones((n, self.colour.channels)), pdf=np.full(n, np.inf),
+            counts=np.zeros((n, 4), dtype=np.int64), terminal=np.zeros(n, dtype=bool), reference=np.ones(n),
+            ray=np.full(n, RAY_CAMERA, dtype=np.int64))
+        bounce = 0
+        while len(path):
+            self._add_world(out, path, state, hits, bounce)
+            path, state, rays = self._vertices(out, path, state, hits, bounce, pixel, sample, cache)
+            bounce += 1
+            if not len(path):
+                break
+            hits = self._trace(state, *rays, pixel[path], sample[path], bounce, cache)
+        return out, first_hits
+
+    def _trace(self, state, tau, origin, d, s_lo, pixel, sample, depth: int, cache):
+        """Nearest hits of bounce rays starting in different frames, of different types (one
+        trace per frame and type: ray visibility and cut-outs as the shader's)."""
+        n = len(d)
+        hits = Hits(frame=np.full(n, -1, dtype=np.int32), s=np.full(n, np.inf), s_frame=np.full(n, np.inf),
+                    w=np.ones(n), prim=np.full(n, -1, dtype=np.int32), u=np.zeros(n, dtype=np.float32),
+                    v=np.zeros(n, dtype=np.float32), d_frame=d.copy(), tau_frame=tau.copy())
+        for k, ray in {(int(k), int(r)) for k, r in zip(state.src, state.ray)}:
+            sel = np.flatnonzero((state.src == k) & (state.ray == ray))
+            part = self.shader.trace(k, tau[sel], origin[sel], d[sel], s_lo[sel], np.inf, ray, pixel[sel],
+                                     sample[sel], depth, cache)
+            for name in ("frame", "s", "s_frame", "w", "prim", "u", "v", "d_frame", "tau_frame"):
+                getattr(hits, name)[sel] = getattr(part, name)
+        return hits
+
+    # ------------------------------------------------------------------ the world
+    def _world_light(self, to_world, d, lam):
+        """World radiance arriving along backward directions d of a frame (``to_world``: its map
+        to the world frame), in that frame, with the density of :meth:`_sample_world` there."""
+        if to_world.is_identity:
+            d_world, doppler = d, np.ones(len(d))
+        else:
+            d_world, w = to_world.rays(d)
+            doppler = 1.0 / w  # nu_frame / nu_world
+        values = self._world_values(d_world, self.colour.shift(lam, doppler))
+        return rows.scale(values, self.shader._power(doppler, 4)), self.world.pdf(d_world) * doppler**2
+
+    def _world_values(self, d_world, lam):
+        if self.uniform_world:
+            return self.colour.world(lam, len(d_world))
+        return self.colour.emitter_rgb(self.world.radiance(d_world), lam)
+
+    def _add_world(self, out, path, state, hits, bounce):
+        """What paths leaving the scene bring from the world (MIS-weighted against the world
+        samples of the vertex they left)."""
+        miss = np.flatnonzero(hits.frame < 0)
+        if not len(miss) or self.world.is_black:
+            return
+        for k in np.unique(state.src[miss]):
+            sel = miss[state.src[miss] == k]
+            light, pdf_world = self._world_light(self.frames.map(int(k), self.frames.world), state.d[sel],
+                                                 _rows(state.lam, sel))
+            pdf_bsdf = state.pdf[sel]
+            weight = mis.power_heuristic(pdf_bsdf, pdf_world) if bounce else np.ones(len(sel))
+            self._accumulate(out, path[sel], state.throughput[sel] * light, weight, bounce)
+
+    def _sample_world(self, k, tau, origin, ng, ns, view, base, mat, mix, eps, pixel, sample, lam, dim, depth,
+                      cache):
+        """Next-event estimate of the world at vertices of frame k: a direction drawn from the
+        world's own density in the world frame, seen from frame k (density times D^2)."""
+        u1, u2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
+        d_world, pdf = self.world.sample(u1, u2)
+        to_frame = self.frames.map(self.frames.world, k)
+        if to_frame.is_identity:
+            light, doppler = d_world, np.ones(len(u1))
+        else:
+            light, doppler = to_frame.rays(d_world)  # w = nu_k / nu_world = D
+        pdf = pdf * doppler**2
+        cos = rows.dot(ns, light)
+        sel = np.flatnonzero((cos > 0.0) & (rows.dot(ng, light) > 0.0) & (pdf > 0.0))
+        total = np.zeros((len(u1), self.colour.channels))
+        if not len(sel):
+            return total
+        blocked = occluded(self.frames, k, tau[sel], origin[sel], light[sel], eps, np.inf, cache,
+                           see_through=self.shader.cutouts(pixel[sel], sample[sel],
+                                                           _cutout_dimension(depth, _WORLD_STREAM)))
+        sel = sel[~blocked]
+        if not len(sel):
+            return total
+        f = self.shader.brdf(ns[sel], view[sel], light[sel], base[sel], mat[sel], mix.take(sel))
+        values = self._world_values(d_world[sel], self.colour.shift(_rows(lam, sel), doppler[sel]))
+        values = rows.scale(values, self.shader._power(doppler[sel], 4))
+        weight = mis.power_heuristic(pdf[sel], mix.pdf(sel, ns[sel], view[sel], light[sel])) * cos[sel] / pdf[sel]
+        total[sel] = rows.scale(f * values, weight)
+        return total
+
+    # ------------------------------------------------------------------ emissive surfaces
+    def _emitter_pdf(self, j, prim, distance, cos_emit, doppler):
+        """Density per unit solid angle of the receiving frame with which :meth:`_sample_emitters`
+        draws points of triangles ``prim`` of frame j seen at path length ``distance`` (frame j)
+        under ``cos_emit``, their light's Doppler factor ``doppler`` (frame j to the receiver)."""
+        table, rows_of_prim = self.emitters[j]
+        row = rows_of_prim[prim]
+        choice = self.emitter_choice[np.searchsorted(self.emitter_frames, j)]
+        pdf_area = np.where(row >= 0, table.pdf_area(np.maximum(row, 0)), 0.0)
+        cos = np.abs(cos_emit)
+        pdf = np.where(cos > 0.0, choice * pdf_area * distance**2 / np.maximum(cos, 1e-300), 0.0)
+        return pdf * doppler**2
+
+    def _sample_emitters(self, k, tau, origin, ng, ns, view, base, mat, lobes, pixel, sample, lam, dim, depth,
+                         cache):
+        """Next-event estimate of the emissive triangles: a frame of emitters drawn by power, a
+        triangle by area x luminance and a point on it.  An emitter is static in its frame: the
+        hit event mapped there sees it where it is (its retarded position), as a lamp."""
+        n = len(tau)
+        total = np.zeros((n, self.colour.channels))
+        pick = np.minimum(np.searchsorted(np.cumsum(self.emitter_choice), sampling.uniform(pixel, sample, dim),
+                                          side="right"), len(self.emitter_frames) - 1)
+        for slot, j in enumerate(self.emitter_frames):
+            sel = np.flatnonzero(pick == slot)
+            if not len(sel):
+                continue
+            table, _ = self.emitters[int(j)]
+            row, point, normal, pdf_area = table.sample(sampling.uniform(pixel[sel], sample[sel], dim + 1),
+                                                        sampling.uniform(pixel[sel], sample[sel], dim + 2),
+                                                        sampling.uniform(pixel[sel], sample[sel], dim + 3))
+            tau_j, x_j = self.frames.map(k, int(j)).events(tau[sel], origin[sel])
+            e_j, r_j, pdf_j = solid_angle_pdf(pdf_area, x_j, point, normal)
+            light, doppler = self.frames.map(int(j), k).rays(e_j)  # w = nu_k / nu_j: D of the emitter seen here
+            pdf = self.emitter_choice[slot] * pdf_j * doppler**2
+            cos = rows.dot(ns[sel], light)
+            ok = (cos > 0.0) & (rows.dot(ng[sel], light) > 0.0) & (pdf > 0.0)
+            sel, light, doppler, pdf, cos, r_j, tau_j = (a[ok] for a in (sel, light, doppler, pdf, cos, r_j, tau_j))
+            row = row[ok]
+            if not len(sel):
+                continue
+            eps = self.shader.epsilon[k]
+            reach = doppler * r_j * (1.0 - 1e-6) - 2.0 * eps  # stop short of the emitter itself
+            see_through = self.shader.cutouts(pixel[sel], sample[sel], _cutout_dimension(depth, _EMITTER_STREAM))
+            blocked = occluded(self.frames, k, tau[sel], origin[sel], light, eps, reach, cache,
+                               see_through=see_through)
+            sel, light, doppler, pdf, cos, r_j, tau_j, row = (a[~blocked] for a in
+                                                               (sel, light, doppler, pdf, cos, r_j, tau_j, row))
+            if not len(sel):
+                continue
+            emitter_mat = self.materials.clamp(self.frames.frames[int(j)].geometry.tri_material[table.prims[row]])
+            emitted = np.array(self.colour.emission(emitter_mat, self.colour.shift(_rows(lam, sel), doppler)),
+                               dtype=np.float64)
+            if self.materials.emission_curves:  # the emitter's clock when the light left it
+                clock = self.frames.frames[int(j)].object_clock(tau_j - r_j, table.prims[row])
+                emitted *= self.materials.emission_factor(emitter_mat, clock)[:, None]
+            emitted = rows.scale(emitted, self.shader._power(doppler, 4))
+            f = self.shader.brdf(ns[sel], view[sel], light, base[sel], mat[sel], lobes.take(sel))
+            weight = mis.power_heuristic(pdf, lobes.pdf(sel, ns[sel], view[sel], light)) * cos / pdf
+            total[sel] = rows.scale(f * emitted, weight)
+        return total
+
+    # ------------------------------------------------------------------ vertices
+    def _vertices(self, out, path, state, hits, bounce, pixel, sample, cache):
+        """Light at the surfaces hit and the scattered rays that continue the paths."""
+        pieces = []
+        held = self.shader.held_out(hits) if self.shader.has_holdouts else None  # holdouts end paths, dark
+        for k in frames_hit(hits):
+            sel = np.flatnonzero(hits.frame == k if held is None else (hits.frame == k) & ~held)
+            if not len(sel):
+                continue
+            piece = self._vertex(int(k), out, path[sel], state.take(sel), hits.take(sel), bounce,
+                                 pixel[path[sel]], sample[path[sel]], cache)
+            if piece is not None:
+                pieces.append(piece)
+        if not pieces:
+            return path[:0], state, None
+        path = np.concatenate([p[0] for p in pieces])
+        state = _Paths.join([p[1] for p in pieces])
+        rays = tuple(np.concatenate([p[2][i] for p in pieces]) for i in range(4))
+        return path, state, rays
+
+    def _vertex(self, k, out, path, state, hits, bounce, pixel, sample, cache):
+        shader, mats, colour = self.shader, self.materials, self.colour
+        frame = self.frames.frames[k]
+        d_k, tau = hits.d_frame, hit_times(hits, slice(None))
+        prim, u, v = hits.prim, hits.u, hits.v
+        doppler = hit_doppler(frame, prim, u, v, tau, d_k, hits.w)
+        throughput = rows.scale(state.throughput, shader._power(doppler, 4))
+        lam = colour.shift(state.lam, doppler)
+        if bounce == 0:  # Russian roulette compares throughputs with the camera hit's
+            state.reference = np.maximum(throughput.max(axis=1), 1e-300)
+        position, ng, ns, mat, back = shader.surface_info(k, prim, u, v, d_k, tau)
+        uv = hit_uv(frame, prim, u, v)
+        if self.emissive:
+            emitted = np.array(colour.emission(mat, lam), dtype=np.float64)
+            if mats.emission_curves:
+                emitted *= mats.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
+            weight = None
+            if bounce and k in self.emitters:  # also drawn by the emitter samples of the last vertex
+                pdf_light = self._emitter_pdf(k, prim, hits.s_frame, rows.dot(frame.geometry.face_normals[prim], d_k),
+                                              doppler)
+                weight = mis.power_heuristic(state.pdf, pdf_light)
+            self._accumulate(out, path, throughput * emitted, weight, bounce)
+        live = np.flatnonzero(~state.terminal)
+        if not len(live):
+            return None
+        keep = lambda a: a[live] if a is not None else None  # noqa: E731
+        path, throughput, lam, state = path[live], throughput[live], keep(lam), state.take(live)
+        d_k, tau, position, ng, ns, mat, back = d_k[live], tau[live], position[live], ng[live], ns[live], \
+            mat[live], back[live]
+        pixel, sample = pixel[live], sample[live]
+        base = colour.base_color(mat, keep(uv), lam)
+        view = -d_k
+        eps = shader.epsilon[k]
+        origin = position + eps * ng
+        lobes = _Lobes(mats, base, mat, ns, view, back)
+        dim = _DIMENSION + _DIMENSIONS_PER_BOUNCE * bounce
+        # next-event estimation: lamps (the direct-light integrator's own code) and the world
+        direct = None
+        if shader.lights:
+            direct = shader._direct(k, tau, position, ng, ns, view, base, mat, bounce, pixel, sample, lam, cache,
+                                    lobes)
+        if not self.world.is_black and lobes.any_smooth:
+            world = self._sample_world(k, tau, origin, ng, ns, view, base, mat, lobes, eps, pixel, sample, lam,
+                                       dim + 3, bounce, cache)
+            direct = world if direct is None else direct + world
+        if self.emitters and lobes.any_smooth:
+            glow = self._sample_emitters(k, tau, origin, ng, ns, view, base, mat, lobes, pixel, sample, lam,
+                                         dim + 6, bounce, cache)
+            direct = glow if direct is None else direct + glow
+        if direct is not None:
+            self._accumulate(out, path, throughput * direct, None, bounce + 1)
+        # scattering: one lobe chosen by its weight, a direction from its sampler
+        lobe, probability = lobes.choose(sampling.uniform(pixel, sample, dim))
+        u1, u2 = sampling.uniform(pixel, sample, dim + 1), sampling.uniform(pixel, sample, dim + 2)
+        light, weight, pdf = lobes.sample(lobe, probability, u1, u2)
+        transmitted = lobe == _TRANSMIT
+        side = np.where(transmitted, -1.0, 1.0)
+        valid = (probability > 0.0) & (rows.dot(ng, light) * side > 0.0) & np.any(weight > 0.0, axis=1)
+        counts = state.counts.copy()
+        counts[:, 0] += 1
+        kind = _KIND_OF_LOBE[lobe]
+        counts[np.arange(len(kind)), kind] += 1
+        terminal = (counts[:, 0] > self.limits[0]) | (counts[np.arange(len(kind)), kind] > self.limits[kind])
+        throughput = throughput * weight
+        if bounce + 1 > RR_START:  # Russian roulette
+            survive = np.clip(throughput.max(axis=1) / state.reference, 0.0, 1.0)
+            valid &= sampling.uniform(pixel, sample, dim + 5) < survive
+            throughput = rows.scale(throughput, 1.0 / np.where(survive > 0.0, survive, 1.0))
+        if not self.findable:
+            valid &= ~terminal
+        go = np.flatnonzero(valid)
+        if not len(go):
+            return None
+        ray_origin = position[go] + rows.scale(ng[go], side[go] * eps)
+        nxt = _Paths(src=np.full(len(go), k, dtype=np.int64), d=light[go], lam=None if lam is None else lam[go],
+                     throughput=throughput[go], pdf=pdf[go], counts=counts[go], terminal=terminal[go],
+                     reference=state.reference[go], ray=_RAY_OF_LOBE[lobe[go]])
+        return path[go], nxt, (tau[go], ray_origin, light[go], np.full(len(go), eps))
+
+    # ------------------------------------------------------------------ accumulation
+    def _accumulate(self, out, path, values, weight, scatterings: int):
+        """Add light to the paths' camera samples: ``scatterings`` = how often the light has
+        scattered (0: seen directly, unclamped; 1: direct light; more: indirect)."""
+        if weight is not None:
+            values = rows.scale(values, weight)
+        limit = 0.0 if scatterings == 0 else self.clamp_direct if scatterings == 1 else self.clamp_indirect
+        if limit > 0.0:
+            total = np.abs(self.colour.to_rgb(values, None)).sum(axis=1)
+            values = rows.scale(values, np.minimum(1.0, limit / np.maximum(total, 1e-300)))
+        out[path] += values  # a path is one camera sample: no index repeats
+
+
+def _emitter_tables(frames, mats) -> dict:
+    """frame -> (EmitterTable of its emissive triangles in frame coordinates, table row of each
+    triangle or -1), for the frames where emitters stay put: inertial, not spinning (emitters
+    of spinning or accelerated bodies light others only when bounce rays hit them)."""
+    tables = {}
+    for k in frames.geometry:
+        frame = frames.frames[k]
+        if frame.spin is not None or frame.window is not None:
+            continue
+        geometry = frame.geometry
+        emission = mats.emission[mats.clamp(geometry.tri_material)]
+        prims = np.flatnonzero(np.any(emission > 0.0, axis=1))
+        if not len(prims):
+            continue
+        corners = geometry.vertices[geometry.triangles[prims]] + frame.offset
+        table = EmitterTable(corners, emission[prims], prims)
+        if table.is_empty:
+            continue
+        rows_of_prim = np.full(len(geometry.triangles), -1, dtype=np.int64)
+        rows_of_prim[prims] = np.arange(len(prims))
+        tables[k] = (table, rows_of_prim)
+    return tables
+
+
+class _Paths:
+    """The state of live paths (rows): the frame their next ray starts in and its direction,
+    wavelengths in that frame (None: RGB), throughput, the BSDF density of the direction (inf:
+    a delta lobe or a camera ray), bounce counters, whether the next vertex is past the limits,
+    the Russian roulette reference throughput and the ray's type (``RAY_*``)."""
+
+    __slots__ = ("src", "d", "lam", "throughput", "pdf", "counts", "terminal", "reference", "ray")
+
+    def __init__(self, src, d, lam, throughput, pdf, counts, terminal, reference, ray):
+        self.src, self.d, self.lam, self.throughput = src, d, lam, throughput
+        self.pdf, self.counts, self.terminal, self.reference, self.ray = pdf, counts, terminal, reference, ray
+
+    def take(self, index) -> "_Paths":
+        return _Paths(*(None if getattr(self, name) is None else getattr(self, name)[index]
+                        for name in self.__slots__))
+
+    @staticmethod
+    def join(parts) -> "_Paths":
+        return _Paths(*(None if getattr(parts[0], name) is None else np.concatenate([getattr(p, name) for p in parts])
+                        for name in _Paths.__slots__))
+
+
+class _Lobes(LayeredLobes):
+    """The surfaces' lobes at some vertices with the weights that choose among them: diffuse,
+    rough specular (multiscatter GGX), mirror and refraction (:class:`~.shading.LayeredLobes`)."""
+
+    def __init__(self, mats, base, mat, ns, view, back):
+        super().__init__(mats, base, mat, ns, view, back)
+        glossy_albedo = np.where(self.glossy[:, None], self.fresnel(self.cos_v), 0.0)
+        weights = np.stack([(self.diffuse * np.pi).mean(axis=1), glossy_albedo.mean(axis=1),
+                            self.reflect_weight.mean(axis=1), self.transmit_weight.mean(axis=1)], axis=1)
+        weights = np.maximum(weights, 0.0)
+        total = weights.sum(axis=1)
+        self.probability = np.where(total[:, None] > 0.0, weights / np.where(total > 0.0, total, 1.0)[:, None], 0.0)
+        self.any_smooth = bool(np.any(self.probability[:, _DIFFUSE] + self.probability[:, _GLOSSY] > 0.0))
+
+    def pdf(self, index, ns, view, light):
+        """Density per unit solid angle with which :meth:`sample` draws ``light`` at vertices
+        ``index`` (the non-delta lobes, each times its probability)."""
+        p = self.probability[index]
+        pdf = p[:, _DIFFUSE] * diffuse_pdf(ns, light)
+        glossy = np.flatnonzero(self.glossy[index])
+        if len(glossy):
+            pdf[glossy] += p[glossy, _GLOSSY] * ggx_reflection_pdf(ns[glossy], view[glossy], light[glossy],
+                                                                   self.alpha[index][glossy])
+        return pdf
+
+    def choose(self, u):
+        """A lobe per vertex drawn by the weights, and its probability (0: nothing scatters)."""
+        cdf = np.cumsum(self.probability, axis=1)
+        lobe = np.minimum((u[:, None] >= cdf).sum(axis=1), 3)
+        return lobe, self.probability[np.arange(len(lobe)), lobe]
+
+    def sample(self, lobe, probability, u1, u2):
+        """Directions from each vertex's chosen lobe: (light, weight f cos / (pdf probability)
+        (n, C), density for MIS against the world samples (inf for the delta lobes))."""
+        ns, view = self.ns, self.view
+        n = len(lobe)
+        light = np.zeros((n, 3))
+        weight = np.zeros(self.base.shape)
+        pdf = np.full(n, np.inf)
+        scale = 1.0 / np.where(probability > 0.0, probability, 1.0)
+        sel = np.flatnonzero(lobe == _DIFFUSE)
+        if len(sel):
+            light[sel], _ = sample_diffuse(ns[sel], u1[sel], u2[sel])
+            weight[sel] = rows.scale(self.diffuse[sel], np.pi * scale[sel])  # f cos / pdf = f pi
+        sel = np.flatnonzero(lobe == _GLOSSY)
+        if len(sel):
+            light[sel], _, g = sample_ggx_reflection(ns[sel], view[sel], self.alpha[sel], u1[sel], u2[sel])
+            h = rows.normalized(view[sel] + light[sel])
+            fresnel = self.take(sel).fresnel(rows.dot(view[sel], h))
+            weight[sel] = rows.scale(fresnel, g * scale[sel])
+        sel = np.flatnonzero(lobe == _MIRROR)
+        if len(sel):
+            light[sel] = reflect(view[sel], ns[sel])
+            weight[sel] = rows.scale(self.reflect_weight[sel], scale[sel])
+        sel = np.flatnonzero(lobe == _TRANSMIT)
+        if len(sel):
+            light[sel], ok = refract(view[sel], ns[sel], self.eta[sel])
+            weight[sel] = rows.scale(self.transmit_weight[sel], np.where(ok, scale[sel], 0.0))
+        smooth = np.flatnonzero((lobe == _DIFFUSE) | (lobe == _GLOSSY))
+        if len(smooth):
+            pdf[smooth] = self.pdf(smooth, ns[smooth], view[smooth], light[smooth])
+        return light, weight, pdf
+
+
+def _rows(lam, index):
+    return None if lam is None else lam[index]

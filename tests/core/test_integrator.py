@@ -1,0 +1,382 @@
+"""The Path Tracing integrator against closed forms computed here: moving Lambertian bodies in a
+uniform world, furnaces and their bounce limits, energy conservation, colour bleeding across frames."""
+
+import math
+
+import numpy as np
+import pytest
+from shapes import box, look_at_camera, quad, uv_sphere
+
+from restframe_addon.core.render import render_image
+from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity, WorldTexture
+from restframe_addon.core.validation import RenderError
+
+
+def lambert(albedo=1.0, emission=0.0):
+    return Material("lambert", base_color=(albedo,) * 3, specular_ior_level=0.0, roughness=1.0,
+                    emission=(emission,) * 3)
+
+
+def path_settings(res=(8, 8), samples=64, **kw):
+    return RenderSettings(resolution=res, samples=samples, integrator="PATH", threads=1, **kw)
+
+
+def mean_rgb(passes):
+    return passes["Combined"][..., :3].reshape(-1, 3).mean(axis=0)
+
+
+# ---------------------------------------------------------------------------- moving Lambertian faces
+def lambert_face_radiance(beta, normal, world=1.0, nodes=400):
+    """(1/pi) * integral over the rest-frame hemisphere about ``normal`` of L D^4 cos, with
+    D = 1 / (gamma (1 - beta . d)) for backward directions d (light from ahead is blue-shifted):
+    Gauss-Legendre in cos(theta), midpoints in phi."""
+    beta = np.asarray(beta, dtype=float)
+    b = np.linalg.norm(beta)
+    gamma = 1.0 / math.sqrt(1.0 - b * b)
+    normal = np.asarray(normal, dtype=float)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(normal[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    t1 = np.cross(normal, helper)
+    t1 /= np.linalg.norm(t1)
+    t2 = np.cross(normal, t1)
+    x, w = np.polynomial.legendre.leggauss(nodes)
+    mu, w_mu = 0.5 * (x + 1.0), 0.5 * w
+    phi = (np.arange(2 * nodes) + 0.5) * math.pi / nodes
+    sin = np.sqrt(1.0 - mu**2)[:, None]
+    d = (sin[..., None] * (np.cos(phi)[None, :, None] * t1 + np.sin(phi)[None, :, None] * t2)
+         + mu[:, None, None] * normal)
+    doppler = 1.0 / (gamma * (1.0 - d @ beta))
+    integrand = world * doppler**4 * mu[:, None]
+    return float(np.einsum("ij,i->", integrand, w_mu) * (math.pi / nodes) / math.pi)
+
+
+def moving_box_face(beta, normal, samples=1024):
+    """A white Lambertian cube moving at ``beta`` (x) through a uniform world of radiance 1, seen
+    head-on at ``normal``'s face by a camera moving with it: the face's mean radiance."""
+    velocity = Velocity((beta, 0.0, 0.0))
+    normal = np.asarray(normal, dtype=float)
+    camera = look_at_camera(3.0 * normal, 0.5 * normal, up=(0, 0, 1) if abs(normal[2]) < 0.9 else (0, 1, 0),
+                            fov_half_tan=0.05, velocity=velocity)
+    scene = Scene(camera=camera, meshes=[Mesh("cube", *box(size=(1, 1, 1)), velocity=velocity)],
+                  materials=[lambert()], world_color=(1.0, 1.0, 1.0))
+    return mean_rgb(render_image(scene, path_settings(samples=samples)))
+
+
+@pytest.mark.parametrize("beta", [0.5, 0.9])
+@pytest.mark.parametrize("normal", [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, 0, 1)])
+def test_moving_lambertian_faces_receive_the_aberrated_doppler_shifted_world(beta, normal):
+    expected = lambert_face_radiance((beta, 0.0, 0.0), normal)
+    assert moving_box_face(beta, normal) == pytest.approx(np.full(3, expected), rel=0.01)
+
+
+def test_face_quadrature_closed_forms():
+    """The test's own quadrature: 1 at rest, and (2 / gamma^4) int x / (1 -+ b x)^4 dx ahead / behind
+    at 0.5c (3.75 and 7/36)."""
+    assert lambert_face_radiance((0.0, 0, 0), (1, 0, 0)) == pytest.approx(1.0, rel=1e-9)
+    assert lambert_face_radiance((0.5, 0, 0), (1, 0, 0)) == pytest.approx(3.75, rel=1e-6)
+    assert lambert_face_radiance((0.5, 0, 0), (-1, 0, 0)) == pytest.approx(7.0 / 36.0, rel=1e-6)
+
+
+def test_nearly_at_rest_equals_rest():
+    rest = moving_box_face(0.0, (1, 0, 0), samples=16)
+    slow = moving_box_face(1e-12, (1, 0, 0), samples=16)
+    assert slow == pytest.approx(rest, rel=1e-9)
+    assert rest == pytest.approx(np.ones(3), rel=0.01)
+
+
+# ---------------------------------------------------------------------------- furnaces
+def furnace(albedo, emission, **kw):
+    """The mean radiance seen from inside a closed sphere of the given albedo and emission."""
+    camera = look_at_camera((0, 0, 0), (1, 0, 0), fov_half_tan=1.0)
+    scene = Scene(camera=camera, meshes=[Mesh("shell", *uv_sphere(radius=2.0, segments=24, rings=12))],
+                  materials=[lambert(albedo, emission)], world_color=(0.0, 0.0, 0.0))
+    return mean_rgb(render_image(scene, path_settings(**kw)))
+
+
+@pytest.mark.parametrize("albedo, limits, terms", [
+    (0.5, dict(max_bounces=128, diffuse_bounces=128), None),  # Le / (1 - a)
+    (0.8, dict(max_bounces=0), 2),  # Total 0: seen, and the light of one scattering
+    (0.8, dict(max_bounces=2, diffuse_bounces=8), 4),
+    (0.8, dict(max_bounces=8, diffuse_bounces=1), 3),  # the diffuse limit binds
+])
+def test_emissive_furnace_sums_its_bounces(albedo, limits, terms):
+    """Radiance Le * sum_{b < terms} a^b: each scattering adds a factor a, a limit of N bounces
+    keeps N + 2 terms (the light found by the last scattered ray counts, as in Cycles)."""
+    value = furnace(albedo, 1.0, samples=128, **limits)
+    expected = 1.0 / (1.0 - albedo) if terms is None else sum(albedo**b for b in range(terms))
+    assert value == pytest.approx(np.full(3, expected), rel=0.01)
+
+
+def test_white_furnace_conserves_energy():
+    """White Lambertian bodies (a sphere resting on a slab) in a uniform world: with unlimited
+    bounces every surface sends back exactly the world's radiance."""
+    camera = look_at_camera((0, -6, 3), (0, 0, 0.5), fov_half_tan=0.4)
+    sphere = Mesh("sphere", *uv_sphere(center=(0, 0, 1.0), radius=1.0, segments=32, rings=16))
+    slab = Mesh("slab", *box(center=(0, 0, -0.25), size=(4, 4, 0.5)))
+    scene = Scene(camera=camera, meshes=[sphere, slab], materials=[lambert()], world_color=(0.5, 0.5, 0.5))
+    passes = render_image(scene, path_settings(res=(12, 12), samples=64, max_bounces=64, diffuse_bounces=64))
+    assert mean_rgb(passes) == pytest.approx(np.full(3, 0.5), rel=0.01)
+    absorbing = dataclass_replace(scene, materials=[lambert(0.5)])
+    assert np.all(mean_rgb(render_image(absorbing, path_settings(res=(12, 12), samples=16))) < 0.5 * 0.75)
+
+
+def dataclass_replace(scene, **changes):
+    import dataclasses
+    return dataclasses.replace(scene, **changes)
+
+
+# ---------------------------------------------------------------------------- against the direct light
+def lamp_floor(world=(0.0, 0.0, 0.0), material=Material("grey", roughness=0.4)):
+    camera = look_at_camera((0, -3, 2), (0, 0, 0), fov_half_tan=0.5)
+    floor = Mesh("floor", *quad((0, 0, 0), (6, 6)))
+    block = Mesh("block", *box(center=(0.5, 0.5, 0.5)))
+    lamp = Light("lamp", "POINT", (1.0, -1.0, 3.0), power=500.0, radius=0.2)
+    return Scene(camera=camera, meshes=[floor, block], materials=[material], lights=[lamp], world_color=world)
+
+
+def test_one_scattering_without_world_is_the_direct_light():
+    """Total 0, a black world and no emitters: on diffuse surfaces (where the layered Principled
+    BSDF of Path Tracing is the plain one of Direct Light) the path tracer's light is the Direct
+    Light integrator's, sample for sample (the same next-event code and random numbers)."""
+    scene = lamp_floor(material=lambert(0.6))
+    direct = render_image(scene, RenderSettings(resolution=(12, 12), samples=4, threads=1))
+    path = render_image(scene, path_settings(res=(12, 12), samples=4, max_bounces=0))
+    np.testing.assert_array_equal(path["Combined"], direct["Combined"])
+    bounced = render_image(scene, path_settings(res=(12, 12), samples=4, max_bounces=2))
+    assert mean_rgb(bounced).sum() > mean_rgb(direct).sum()  # light bounced off the floor onto the block
+
+
+def test_world_lights_the_unlit_faces():
+    """Blender's default-scene complaint: faces turned from the lamp are black under Direct Light,
+    lit by a grey world under Path Tracing."""
+    scene = lamp_floor(world=(0.2, 0.2, 0.2))
+    direct = render_image(scene, RenderSettings(resolution=(12, 12), samples=4, threads=1))["Combined"][..., 0]
+    path = render_image(scene, path_settings(res=(12, 12), samples=16))["Combined"][..., 0]
+    shadowed = direct < 1e-6
+    assert shadowed.any() and np.all(path[shadowed] > 0.0)
+
+
+def test_clamps_cap_each_samples_light():
+    scene = lamp_floor()
+    free = mean_rgb(render_image(scene, path_settings(res=(12, 12), samples=8, max_bounces=2)))
+    clamped = mean_rgb(render_image(scene, path_settings(res=(12, 12), samples=8, max_bounces=2,
+                                                         clamp_direct=0.05, clamp_indirect=0.01)))
+    assert np.all(clamped < free)
+    assert np.all(clamped <= 0.05 + 0.01 * 2 + 1e-9)  # at most one direct and two indirect pieces per sample
+
+
+def test_bad_light_path_settings_are_refused():
+    scene = lamp_floor()
+    with pytest.raises(RenderError, match="integrator"):
+        render_image(scene, RenderSettings(resolution=(4, 4), integrator="BIDIR"))
+    with pytest.raises(RenderError, match="diffuse_bounces"):
+        render_image(scene, path_settings(diffuse_bounces=-1))
+    with pytest.raises(RenderError, match="clamp_indirect"):
+        render_image(scene, path_settings(clamp_indirect=float("nan")))
+
+
+# ---------------------------------------------------------------------------- environment
+@pytest.mark.parametrize("mode", ["OFF", "SPECTRAL"])
+def test_uniform_environment_image_equals_the_background_colour(mode):
+    """An environment image of one colour lights as the plain Background colour (same estimator
+    through the image's importance sampling; in Spectral mode its pixels become spectra per ray)."""
+    camera = look_at_camera((0, -4, 0), (0, 0, 0), fov_half_tan=0.2)
+    sphere = Mesh("sphere", *uv_sphere(radius=1.0, segments=32, rings=16))
+    colour = (0.45, 0.3, 0.3)
+    plain = Scene(camera=camera, meshes=[sphere], materials=[lambert(0.8)], world_color=colour)
+    texture = WorldTexture(np.tile(colour, (8, 16, 1)), rotation=(0.3, 0.2, 0.1))
+    textured = dataclass_replace(plain, world_texture=texture)
+    settings = path_settings(samples=64, doppler_mode=mode, spectral_samples=16)
+    a = mean_rgb(render_image(plain, settings))
+    b = mean_rgb(render_image(textured, settings))
+    assert b == pytest.approx(a, rel=0.01)
+
+
+def test_environment_sun_lights_from_its_direction():
+    """A bright patch in the environment image (texture +Y, rotated by the Mapping node to world -Y)
+    lights the face of a sphere turned to it."""
+    image = np.full((32, 64, 3), 0.01)
+    image[14:18, 14:18] = 500.0  # u ~ 1/4 (texture +Y), v ~ 1/2 (horizon)
+    world = WorldTexture(image, rotation=(0.0, 0.0, math.pi))  # world direction d -> texture R d: -Y -> +Y
+    sphere = Mesh("sphere", *uv_sphere(radius=1.0, segments=32, rings=16))
+    looks = {}
+    for side in (-1, 1):
+        camera = look_at_camera((0, 4 * side, 0), (0, 0, 0), fov_half_tan=0.1)
+        scene = Scene(camera=camera, meshes=[sphere], materials=[lambert()], world_texture=world)
+        looks[side] = mean_rgb(render_image(scene, path_settings(samples=16)))[0]
+    assert looks[-1] > 20.0 * looks[1]
+
+
+# ---------------------------------------------------------------------------- colour bleeding
+def bleeding(beta, samples=256):
+    """The RGB seen on a static white floor lit only by a white emissive wall beside it that
+    moves along its normal (toward the floor patch for beta > 0), Spectral mode."""
+    camera = look_at_camera((0, 0, 1.0), (0, 0, 0), up=(0, 1, 0), fov_half_tan=0.05)
+    floor = Mesh("floor", *quad((0, 0, 0), (8, 8)))
+    wall = Mesh("wall", *quad((-1.5, 0, 1.6), (3.0, 3.0), normal_axis=0), velocity=Velocity((beta, 0.0, 0.0)),
+                pivot=(-1.5, 0.0, 1.6), material_indices=np.array([1, 1]))
+    scene = Scene(camera=camera, meshes=[floor, wall], materials=[lambert(), lambert(0.0, 2.0)],
+                  world_color=(0.0, 0.0, 0.0))
+    settings = path_settings(samples=samples, max_bounces=1, doppler_mode="SPECTRAL", spectral_samples=16)
+    return mean_rgb(render_image(scene, settings))
+
+
+def test_moving_wall_bleeds_doppler_shifted_colour_onto_a_static_floor():
+    """Light from a wall moving toward the floor patch arrives blue-shifted, from one moving away
+    red-shifted (its brightness also changes with where the wall was when the light left it): the
+    blue/red ratio moves as the Doppler factor
+    D = 1 / (gamma (1 - beta . e)) of the wall's light toward the patch (e: wall to patch)."""
+    rest = bleeding(0.0)
+    assert rest.min() > 0.0
+    toward_patch = np.array([1.5, 0.0, -1.6]) / np.hypot(1.5, 1.6)
+    for beta in (0.6, -0.6):
+        doppler = 1.0 / (math.sqrt(1.0 - beta * beta) * (1.0 - beta * toward_patch[0]))
+        moving = bleeding(beta)
+        shift = (moving[2] / moving[0]) / (rest[2] / rest[0])
+        assert (shift > 1.0) == (doppler > 1.0) and abs(math.log(shift)) > 0.1
+
+
+def test_normalised_exposure_measures_the_path_traced_image():
+    """Normalize Exposure compares the path-traced view with and without the Doppler changes: a
+    uniform world seen from a camera moving through it at 0.6c comes out as bright as at rest."""
+    sphere = Mesh("sphere", *uv_sphere(radius=1.0, segments=32, rings=16))
+    fast = Velocity((0.0, 0.6, 0.0))
+    camera = look_at_camera((0, -4, 0), (0, 0, 0), fov_half_tan=0.6, velocity=fast)
+    scene = Scene(camera=camera, meshes=[sphere], materials=[lambert(0.5)], world_color=(0.4, 0.4, 0.4))
+    raw = mean_rgb(render_image(scene, path_settings(samples=8)))
+    normalised = mean_rgb(render_image(scene, path_settings(samples=8, normalize_exposure=True)))
+    assert raw[0] > 1.5 * 0.4  # looking ahead: the world and the lit sphere blue-shifted, brighter
+    assert 0.2 < normalised[0] < 0.45
+
+
+@pytest.mark.parametrize("material", [
+    Material("white metal", base_color=(1.0, 1.0, 1.0), metallic=1.0, roughness=0.6),
+    Material("white plastic", base_color=(1.0, 1.0, 1.0), roughness=0.5),
+    Material("white mirror", base_color=(1.0, 1.0, 1.0), metallic=1.0, roughness=0.0),
+], ids=["metal", "plastic", "mirror"])
+def test_principled_white_furnace(material):
+    """The Path Tracing BSDF is Cycles' layered, energy-compensated Principled BSDF: a white sphere
+    of it (rough white metal, white plastic whose diffuse base the specular layer dims by its
+    albedo, a white mirror) in a uniform world sends the world's radiance back (within the
+    albedo tables' interpolation)."""
+    camera = look_at_camera((0, -4, 0), (0, 0, 0), fov_half_tan=0.2)
+    sphere = Mesh("sphere", *uv_sphere(radius=1.0, segments=48, rings=24))
+    scene = Scene(camera=camera, meshes=[sphere], materials=[material], world_color=(0.5, 0.5, 0.5))
+    value = mean_rgb(render_image(scene, path_settings(res=(8, 8), samples=256, max_bounces=8, glossy_bounces=8)))
+    assert value == pytest.approx(np.full(3, 0.5), rel=0.02)
+
+
+def test_denoising_passes_hold_the_first_surfaces_albedo_and_normal():
+    """Asked for by name: per pixel, the sample average of the first surface's albedo (diffuse
+    base colour where it has no specular lobe) and shading normal; 0 on the background."""
+    camera = look_at_camera((0, 0, 3), (0, 0, 0), up=(0, 1, 0), fov_half_tan=1.0)
+    floor = Mesh("floor", *quad((0, 0, 0), (2, 2)))
+    scene = Scene(camera=camera, meshes=[floor], materials=[Material("red", (0.6, 0.2, 0.1), specular_ior_level=0.0)],
+                  world_color=(0.1, 0.1, 0.1))
+    passes = render_image(scene, path_settings(res=(12, 12), samples=4,
+                                               passes=("Denoising Albedo", "Denoising Normal", "Depth")))
+    albedo, normal = passes["Denoising Albedo"], passes["Denoising Normal"]
+    np.testing.assert_allclose(albedo[6, 6], (0.6, 0.2, 0.1), rtol=1e-6)
+    np.testing.assert_allclose(normal[6, 6], (0.0, 0.0, 1.0), atol=1e-6)
+    assert np.all(albedo[0, 0] == 0.0)  # the corner sees the world beside the floor
+    assert "Denoising Albedo" not in render_image(scene, path_settings(res=(4, 4)))
+
+
+# ---------------------------------------------------------------------------- emissive surfaces as lights
+def polygon_irradiance(radiance, corners, point, normal):
+    """Lambert's formula: irradiance at ``point`` (surface ``normal``) from a polygon of uniform
+    radiance, 0.5 L sum over edges of the angle they subtend times the cosine of their plane."""
+    u = np.asarray(corners, dtype=float) - point
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    total = 0.0
+    for a, b in zip(u, np.roll(u, -1, axis=0)):
+        cross = np.cross(a, b)
+        total += math.acos(np.clip(a @ b, -1.0, 1.0)) * (cross @ normal) / np.linalg.norm(cross)
+    return 0.5 * radiance * abs(total)
+
+
+def glowing_panel_scene(panel_velocity=Velocity()):
+    camera = look_at_camera((0, 0, 1.0), (0, 0, 0), up=(0, 1, 0), fov_half_tan=0.01)
+    floor = Mesh("floor", *quad((0, 0, 0), (20, 20)))
+    panel = Mesh("panel", *quad((0.3, 0.2, 1.5), (0.8, 0.6)), velocity=panel_velocity, pivot=(0.3, 0.2, 1.5),
+                 material_indices=np.array([1, 1]))
+    return Scene(camera=camera, meshes=[floor, panel], materials=[lambert(), lambert(0.0, 5.0)],
+                 world_color=(0.0, 0.0, 0.0))
+
+
+def test_emissive_panel_is_sampled_as_a_light():
+    """A white floor under a glowing panel (no lamps, black world): Lambert's polygon formula, to
+    0.5 % with few samples, as the panel is drawn explicitly (next-event estimation)."""
+    corners = [(-0.1, -0.1, 1.5), (0.7, -0.1, 1.5), (0.7, 0.5, 1.5), (-0.1, 0.5, 1.5)]
+    expected = polygon_irradiance(5.0, corners, np.zeros(3), np.array([0.0, 0.0, 1.0])) / math.pi
+    value = mean_rgb(render_image(glowing_panel_scene(), path_settings(res=(4, 4), samples=256, max_bounces=0)))
+    assert value == pytest.approx(np.full(3, expected), rel=0.005)
+
+
+def test_emitter_samples_and_bounce_rays_agree_across_frames(monkeypatch):
+    """A panel moving at 0.6c lights a static floor: the explicit samples of the panel in its own
+    frame (density carried into the floor's by D^2) and the bounce rays that happen to hit it give
+    the same light, within noise."""
+    from restframe_addon.core import integrator
+
+    scene = glowing_panel_scene(Velocity((0.6, 0.0, 0.0)))
+    settings = path_settings(res=(4, 4), samples=1024, max_bounces=0)
+    sampled = mean_rgb(render_image(scene, settings))
+    monkeypatch.setattr(integrator, "_emitter_tables", lambda frames, mats: {})
+    found = mean_rgb(render_image(scene, settings))
+    assert found == pytest.approx(sampled, rel=0.03)
+    assert sampled[0] > 0.0
+
+
+@pytest.mark.parametrize("beta", [0.5, 0.9])
+def test_energy_density_seen_by_a_moving_panorama(beta):
+    """A full-sphere equirectangular camera moving at beta through a uniform world of radiance L:
+    the solid-angle average of what it sees is gamma^2 (1 + beta^2 / 3) L (the energy density of
+    isotropic radiation in a moving frame), by the midpoint rule over its pixel centres."""
+    from restframe_addon.core.scene import Camera
+
+    camera = Camera(matrix=np.eye(4), kind="PANO", panorama_type="EQUIRECTANGULAR",
+                    velocity=Velocity((0.0, 0.0, beta)), clip_start=1e-3, clip_end=1e3)
+    scene = Scene(camera=camera, meshes=[], materials=[lambert()], world_color=(0.25, 0.25, 0.25))
+    image = render_image(scene, path_settings(res=(128, 64), samples=1))["Combined"][..., 0]
+    latitude = -0.5 * math.pi + (np.arange(64) + 0.5) * math.pi / 64  # row 0 at the bottom
+    average = float((image.mean(axis=1) * np.cos(latitude)).sum() / np.cos(latitude).sum())
+    assert average == pytest.approx(0.25 / (1.0 - beta**2) * (1.0 + beta**2 / 3.0), rel=2e-3)
+
+
+def test_path_traced_tiles_threads_and_pickles_give_the_same_bits():
+    """Every random number is keyed by (pixel, sample, dimension): any tile split, two threads or a
+    pickled copy (as sent to another process) render the same bits."""
+    import pickle
+
+    from restframe_addon.core.prepared import prepare
+    from restframe_addon.core.render import render_tiles
+
+    scene = lamp_floor(world=(0.2, 0.3, 0.4))
+    scene.meshes.append(Mesh("glow", *quad((-1.0, 1.0, 1.0), (0.5, 0.5)), velocity=Velocity((0.0, -0.4, 0.0)),
+                             pivot=(-1.0, 1.0, 1.0), material_indices=np.array([1, 1])))
+    scene.materials.append(lambert(0.0, 3.0))
+
+    def image(prepared, threads):
+        width, height = prepared.settings.resolution
+        out = np.zeros((height, width, 4), np.float32)
+        for tile in render_tiles(prepared, threads=threads):
+            out[tile.y0:tile.y1, tile.x0:tile.x1] = tile.passes["Combined"]
+        return out
+
+    whole = render_image(scene, path_settings(res=(20, 14), samples=3, tile_size=64))["Combined"]
+    prepared = prepare(scene, path_settings(res=(20, 14), samples=3, tile_size=6))
+    np.testing.assert_array_equal(image(prepared, 1), whole)
+    np.testing.assert_array_equal(image(prepared, 2), whole)
+    np.testing.assert_array_equal(image(pickle.loads(pickle.dumps(prepared)), 1), whole)
+
+
+def test_glass_white_furnace():
+    """A clear glass ball (Fresnel reflection and refraction, total internal reflection inside) in a
+    uniform world absorbs nothing: it sends back the world's radiance."""
+    camera = look_at_camera((0, -4, 0), (0, 0, 0), fov_half_tan=0.2)
+    sphere = Mesh("ball", *uv_sphere(radius=1.0, segments=48, rings=24))
+    glass = Material("glass", base_color=(1.0, 1.0, 1.0), roughness=0.0, transmission=1.0, ior=1.5)
+    scene = Scene(camera=camera, meshes=[sphere], materials=[glass], world_color=(0.5, 0.5, 0.5))
+    value = mean_rgb(render_image(scene, path_settings(res=(8, 8), samples=64, max_bounces=32, glossy_bounces=32,
+                                                       transmission_bounces=32)))
+    assert value == pytest.approx(np.full(3, 0.5), rel=0.01)
