@@ -174,6 +174,20 @@ MUTANTS = (
     Mutant("aberration-without-gamma", "the aberrated direction's perpendicular part not divided by gamma",
            (Patch(LORENTZ, "inverse = 1.0 / (self.gamma * one_plus_bd)", "inverse = 1.0 / one_plus_bd"),),
            (T_LORENTZ,)),
+    Mutant("world-jacobian-inverted", "a world direction drawn in S given the density 1/D^2 instead of D^2 in "
+                                      "the moving surface's frame",
+           (Patch(CORE + "world.py", "return pdf_world * doppler * doppler", "return pdf_world / (doppler * doppler)"),),
+           ("tests/core/test_integrator.py::test_moving_lambertian_faces_receive_the_aberrated_doppler_shifted_world",
+            "tests/core/test_world.py")),
+    Mutant("path-searchlight-dropped", "the light a path brings across a frame crossing not multiplied by D^4",
+           (Patch(CORE + "integrator.py", "throughput = rows.scale(state.throughput, shader._power(doppler, 4))",
+                  "throughput = state.throughput"),),
+           ("tests/core/test_integrator.py::test_emitter_samples_and_bounce_rays_agree_across_frames",
+            "tests/core/test_integrator.py::test_moving_wall_bleeds_doppler_shifted_colour_onto_a_static_floor")),
+    Mutant("path-wavelengths-unshifted", "the wavelengths of a path not scaled by D at a frame crossing",
+           (Patch(CORE + "integrator.py", "lam = colour.shift(state.lam, doppler)", "lam = state.lam"),),
+           ("tests/core/test_integrator.py::test_emitter_samples_and_bounce_rays_agree_across_frames",
+            "tests/core/test_integrator.py::test_moving_wall_bleeds_doppler_shifted_colour_onto_a_static_floor")),
 )
 
 
