@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 import pytest
+from references import boost_matrix
 from shapes import box, look_at_camera, quad
 
 from restframe_addon.core.camera import primary_rays
@@ -20,20 +21,6 @@ from restframe_addon.core.render import render_image
 from restframe_addon.core.scene import Camera, Light, Material, Mesh, RenderSettings, Scene, Velocity
 
 C = 10.0  # scene speed of light, so that the time passes are not the tracer's own units
-
-
-def boost_matrix(beta):
-    """The textbook Lorentz boost into a frame moving with velocity beta, acting on (tau, x, y, z)."""
-    beta = np.asarray(beta, dtype=np.float64)
-    b2 = float(beta @ beta)
-    if b2 == 0.0:
-        return np.eye(4)
-    gamma = 1.0 / math.sqrt(1.0 - b2)
-    m = np.eye(4)
-    m[0, 0] = gamma
-    m[0, 1:] = m[1:, 0] = -gamma * beta
-    m[1:, 1:] += (gamma - 1.0) * np.outer(beta, beta) / b2
-    return m
 
 
 def apply(matrix, tau, x):
