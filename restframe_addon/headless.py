@@ -24,6 +24,8 @@ import threading
 from dataclasses import asdict, dataclass
 from typing import Callable
 
+from .core.validation import RenderError, check_region
+
 # extension -> (file format, multilayer)
 FORMATS = {
     ".png": ("PNG", False),
@@ -280,8 +282,10 @@ def set_region(scene, region: tuple[int, int, int, int]) -> None:
 
     width, height = full_resolution(scene)
     x0, y0, x1, y1 = region
-    if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
-        raise CommandError(f"the region {region} is empty or outside the {width}x{height} image")
+    try:
+        check_region(region, (width, height))
+    except RenderError as error:
+        raise CommandError(str(error)) from error
     render = scene.render
     render.use_border = True
     render.use_crop_to_border = True

@@ -35,7 +35,7 @@ from .passes import hit_doppler, hit_times
 from .scene import RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_TRANSMISSION, RenderSettings, Scene
 from .shading import LayeredLobes, Shader, _cutout_dimension, hit_uv
 from .tracer import Hits, TraceCache, frames_hit, occluded
-from .world import EnvironmentWorld, UniformWorld, mapping_rotation
+from .world import EnvironmentWorld, UniformWorld, frame_pdf, mapping_rotation
 
 RR_START = 3  # bounces without Russian roulette
 _DIMENSION = 1 << 20  # first random-number dimension of the path tracer (the direct light uses 1000 + ...)
@@ -130,7 +130,7 @@ class PathTracer:
             d_world, w = to_world.rays(d)
             doppler = 1.0 / w  # nu_frame / nu_world
         values = self._world_values(d_world, self.colour.shift(lam, doppler))
-        return rows.scale(values, self.shader._power(doppler, 4)), self.world.pdf(d_world) * doppler**2
+        return rows.scale(values, self.shader._power(doppler, 4)), frame_pdf(self.world.pdf(d_world), doppler)
 
     def _world_values(self, d_world, lam):
         if self.uniform_world:
@@ -162,7 +162,7 @@ class PathTracer:
             light, doppler = d_world, np.ones(len(u1))
         else:
             light, doppler = to_frame.rays(d_world)  # w = nu_k / nu_world = D
-        pdf = pdf * doppler**2
+        pdf = frame_pdf(pdf, doppler)
         cos = rows.dot(ns, light)
         sel = np.flatnonzero((cos > 0.0) & (rows.dot(ng, light) > 0.0) & (pdf > 0.0))
         total = np.zeros((len(u1), self.colour.channels))
@@ -192,7 +192,7 @@ class PathTracer:
         pdf_area = np.where(row >= 0, table.pdf_area(np.maximum(row, 0)), 0.0)
         cos = np.abs(cos_emit)
         pdf = np.where(cos > 0.0, choice * pdf_area * distance**2 / np.maximum(cos, 1e-300), 0.0)
-        return pdf * doppler**2
+        return frame_pdf(pdf, doppler)
 
     def _sample_emitters(self, k, tau, origin, ng, ns, view, base, mat, lobes, pixel, sample, lam, dim, depth,
                          cache):
@@ -214,7 +214,7 @@ class PathTracer:
             tau_j, x_j = self.frames.map(k, int(j)).events(tau[sel], origin[sel])
             e_j, r_j, pdf_j = solid_angle_pdf(pdf_area, x_j, point, normal)
             light, doppler = self.frames.map(int(j), k).rays(e_j)  # w = nu_k / nu_j: D of the emitter seen here
-            pdf = self.emitter_choice[slot] * pdf_j * doppler**2
+            pdf = frame_pdf(self.emitter_choice[slot] * pdf_j, doppler)
             cos = rows.dot(ns[sel], light)
             ok = (cos > 0.0) & (rows.dot(ng[sel], light) > 0.0) & (pdf > 0.0)
             sel, light, doppler, pdf, cos, r_j, tau_j = (a[ok] for a in (sel, light, doppler, pdf, cos, r_j, tau_j))

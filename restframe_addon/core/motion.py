@@ -34,6 +34,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .validation import check_finite_motion
+
 _MAX_DEPTH = 40
 
 
@@ -62,8 +64,8 @@ class Trajectory:
         self.position = np.asarray(self.position, dtype=np.float64).reshape(-1, 3)
         if len(self.tau) < 2 or len(self.tau) != len(self.position):
             raise ValueError(f"{self.name}: an animated motion needs at least two samples")
-        if not (np.all(np.isfinite(self.tau)) and np.all(np.isfinite(self.position))):
-            raise ValueError(f"{self.name}: the animated location is not a finite number")
+        check_finite_motion(self.tau, self.name)
+        check_finite_motion(self.position, self.name)
         if np.any(np.diff(self.tau) <= 0):
             raise ValueError(f"{self.name}: animation samples must be in increasing time")
         frames = self.frames if self.frames is not None else np.arange(len(self.tau))

@@ -72,6 +72,17 @@ def check_light_speed(light_speed: float) -> None:
                          f"(got {light_speed:g})")
 
 
+def non_finite_motion(name: str) -> str:
+    """The message for an animated world line with a sample that is not a finite number."""
+    return f"{name}: the animated location is not a finite number"
+
+
+def check_finite_motion(values, name: str) -> None:
+    """Raises ValueError (naming the object) unless an animated world line's samples are all finite."""
+    if not np.all(np.isfinite(values)):
+        raise ValueError(non_finite_motion(name))
+
+
 def check_region(region, resolution) -> None:
     """Raises RenderError unless the region (x0, y0, x1, y1), x1 and y1 exclusive, holds pixels of the image."""
     width, height = resolution

@@ -94,11 +94,11 @@ def object_trajectory(root, scene, camera_position, radius: float, *, should_sto
     coarse = np.linspace(first, end, int(min(end - first, 2000)) + 2)
     seen = world(coarse)
     if not np.all(is_finite(seen)):
-        raise ExportError(f"{root.name}: the animated location is not a finite number")
+        raise ExportError(validation.non_finite_motion(root.name))
     reach = float(np.linalg.norm(seen - np.asarray(camera_position), axis=1).max()) + radius
     start = first - math.ceil(2.0 * reach / c * fps) - 1.0
     if not math.isfinite(start):
-        raise ExportError(f"{root.name}: the animated location is not a finite number")
+        raise ExportError(validation.non_finite_motion(root.name))
     count = int(min((end - start) * SUBFRAMES, MAX_SAMPLES)) + 1
     keys = np.concatenate([curve.key_frame for curve in keyed.values()] + [np.empty(0)])
     # the keys themselves are samples too: a short burst between two keys is not averaged away

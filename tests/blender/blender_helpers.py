@@ -88,3 +88,18 @@ def render_rgba(scene, path) -> np.ndarray:
         rgba = channels["RGBA"].pixels if "RGBA" in channels else np.stack(
             [channels[c].pixels for c in "RGBA"], axis=-1)
     return np.asarray(rgba, dtype=np.float64)[::-1]
+
+
+def render_direct_light(scene, path, engine, samples) -> np.ndarray:
+    """RGB of an F12 render with Cycles (CPU, direct light only, no denoising, box-like pixels) or
+    RESTframe at the same samples: the set-up of the tests that compare the two on lit surfaces."""
+    scene.render.engine = engine
+    if engine == 'CYCLES':
+        scene.cycles.device = 'CPU'
+        scene.cycles.samples = samples
+        scene.cycles.use_denoising = False
+        scene.cycles.filter_width = 0.01
+        scene.cycles.max_bounces = 0
+    else:
+        scene.restframe.samples = samples
+    return render_rgba(scene, path)[..., :3]

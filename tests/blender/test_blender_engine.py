@@ -8,7 +8,7 @@ import pytest
 
 import restframe_addon
 from blender_helpers import add_camera, add_plane, render_exr
-from restframe_addon import engine, ui
+from restframe_addon import engine
 from restframe_addon.core import workers
 from restframe_addon.engine import OBJECT_INDEX_PASS, RestframeRenderEngine
 from restframe_addon.properties import speed_of
@@ -59,11 +59,6 @@ def test_register_and_unregister_twice_in_a_row(addon):
     finally:
         if not registered():
             restframe_addon.register()
-
-
-def test_engine_identity():
-    assert RestframeRenderEngine.bl_idname == "RESTFRAME"
-    assert RestframeRenderEngine.bl_label == "RESTframe"
 
 
 def test_object_properties(scene):
@@ -231,7 +226,3 @@ def test_cancel_during_export_renders_nothing(scene, monkeypatch):
     # (no write_still: Blender itself skips writing a cancelled frame)
     assert bpy.ops.render.render() == {'FINISHED'}
     assert outcomes == ["ExportCancelled"]
-
-
-def test_ui_module_lists_its_panels():
-    assert {cls.__name__ for cls in ui.classes} >= {"RESTFRAME_OBJECT_PT_motion", "RESTFRAME_RENDER_PT_relativity"}

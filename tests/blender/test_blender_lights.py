@@ -4,7 +4,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_helpers import add_camera, add_plane, export_now, render_rgba
+from blender_helpers import add_camera, add_plane, export_now, render_direct_light
 
 SAMPLES = 16
 
@@ -44,16 +44,7 @@ def emission_tree(lamp, color, strength, connected=True):
 
 
 def render(scene, tmp_path, engine, name):
-    scene.render.engine = engine
-    if engine == 'CYCLES':
-        scene.cycles.device = 'CPU'
-        scene.cycles.samples = SAMPLES
-        scene.cycles.use_denoising = False
-        scene.cycles.filter_width = 0.01
-        scene.cycles.max_bounces = 0
-    else:
-        scene.restframe.samples = SAMPLES
-    return render_rgba(scene, tmp_path / f"{name}-{engine}.exr")[..., :3]
+    return render_direct_light(scene, tmp_path / f"{name}-{engine}.exr", engine, SAMPLES)
 
 
 @pytest.mark.parametrize("color, strength, connected", [

@@ -28,8 +28,7 @@ def test_doppler_on_axis_of_approaching_plane(scene, tmp_path):
 
     assert {"Combined", "Depth", "Normal", OBJECT_INDEX_PASS, "Doppler", "Emission Time", "Object Time"} <= set(passes)
     assert passes["Doppler"].shape == (15, 21, 1)
-    assert passes["Doppler"][AXIS][0] == pytest.approx(gamma(0.9) * 1.9, abs=1e-6)
-    assert 4.358898943540674 == pytest.approx(gamma(0.9) * 1.9, rel=1e-15)
+    assert passes["Doppler"][AXIS][0] == pytest.approx(math.sqrt((1 + 0.9) / (1 - 0.9)), abs=1e-6)
     # Light reaching the camera (z = 10) at t = 0 left the plane when it was at z = -90:
     # path length s = 100, emitted 100 / c = 10 s before the reference time.
     assert passes["Depth"][AXIS][0] == pytest.approx(100.0, rel=1e-6)

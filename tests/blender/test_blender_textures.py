@@ -12,7 +12,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from blender_helpers import add_camera, render_rgba
+from blender_helpers import add_camera, render_direct_light
 from restframe_addon.export import images
 
 SAMPLES = 64
@@ -51,16 +51,7 @@ def textured_plane(scene, image, size=(2.0, 2.0), uv_scale=(1.0, 1.0)):
 
 
 def render(scene, tmp_path, engine, name):
-    scene.render.engine = engine
-    if engine == 'CYCLES':
-        scene.cycles.device = 'CPU'
-        scene.cycles.samples = SAMPLES
-        scene.cycles.use_denoising = False
-        scene.cycles.filter_width = 0.01
-        scene.cycles.max_bounces = 0
-    else:
-        scene.restframe.samples = SAMPLES
-    return render_rgba(scene, tmp_path / f"{name}-{engine}.exr")[..., :3]
+    return render_direct_light(scene, tmp_path / f"{name}-{engine}.exr", engine, SAMPLES)
 
 
 def albedo(scene, tmp_path, engine, mat, tex, name="t"):

@@ -74,9 +74,29 @@ def test_render_panels_draw_every_setting(scene):
     assert "Frame 25: t = 1 s, c\u00b7t = 10" in labels
 
 
-def test_passes_panel(scene):
-    props = draw(ui.RESTFRAME_VIEWLAYER_PT_passes, context_for(scene))["props"]
-    assert props == ["use_pass_z", "use_pass_normal", "use_pass_object_index", "denoising_store_passes"]
+def test_every_toggle_of_the_passes_panel_adds_passes_the_render_delivers(scene):
+    """Each switch the Passes panel shows turns on more passes of the render result (the ones the
+    engine fills besides its own, which are always there): Blender's Depth, Normal and Object Index,
+    and Cycles' two denoising passes (the names the compositor's Denoise node reads)."""
+    from restframe_addon.engine import OBJECT_INDEX_PASS, list_render_passes
+
+    layer = scene.view_layers[0]
+    toggles = draw(ui.RESTFRAME_VIEWLAYER_PT_passes, context_for(scene))["props"]
+
+    def owner(toggle):  # Blender's own pass switches are on the view layer, RESTframe's on its settings
+        return layer if toggle in layer.bl_rna.properties else layer.restframe
+
+    for toggle in toggles:
+        setattr(owner(toggle), toggle, False)
+    always = {name for name, _, _ in list_render_passes(scene, layer)}
+    assert always == {"Combined", "Doppler", "Emission Time", "Object Time"}
+    added = set()
+    for toggle in toggles:
+        setattr(owner(toggle), toggle, True)
+        now = {name for name, _, _ in list_render_passes(scene, layer)}
+        assert now - always - added, toggle
+        added |= now - always
+    assert added == {"Depth", "Normal", OBJECT_INDEX_PASS, "Denoising Normal", "Denoising Albedo"}
 
 
 def test_light_paths_panel_shows_with_path_tracing(scene):
@@ -173,38 +193,47 @@ def test_velocity_arrows_geometry(scene):
     assert arrow_segments(scene, scene.view_layers[0]).shape == (3, 2, 3)
 
 
-def test_velocity_arrows_draw_call(scene, monkeypatch):
-    """The draw handler's gpu calls (no GPU in module mode: a recording stand-in)."""
+def test_velocity_arrows_are_drawn_from_the_origin_only_for_restframe(scene, monkeypatch):
+    """The viewport's draw handler (no GPU in module mode: a recording stand-in for ``gpu``) draws one
+    arrow per moving object -- the shaft from its origin, 0.5 c x 1 s = 5 units (c = 10) along its
+    velocity, and two head strokes -- and nothing when the arrows are off or another engine renders."""
     import sys
     import types
 
     from restframe_addon import overlay
 
-    calls = []
+    drawn = []
 
     class Shader:
         def uniform_float(self, name, value):
-            calls.append((name, tuple(value) if hasattr(value, "__len__") else value))
+            pass
 
     class Batch:
-        def draw(self, shader):
-            calls.append("draw")
+        def __init__(self, points):
+            self.points = points
 
-    def batch_for_shader(shader, kind, content):
-        calls.append((kind, content["pos"].shape))
-        return Batch()
+        def draw(self, shader):
+            drawn.append(self.points)
 
     fake_gpu = types.SimpleNamespace(
-        shader=types.SimpleNamespace(from_builtin=lambda name: calls.append(name) or Shader()),
+        shader=types.SimpleNamespace(from_builtin=lambda name: Shader()),
         state=types.SimpleNamespace(viewport_get=lambda: (0, 0, 640, 480), blend_set=lambda mode: None))
     monkeypatch.setitem(sys.modules, "gpu", fake_gpu)
-    monkeypatch.setitem(sys.modules, "gpu_extras.batch", types.SimpleNamespace(batch_for_shader=batch_for_shader))
+    monkeypatch.setitem(sys.modules, "gpu_extras.batch", types.SimpleNamespace(
+        batch_for_shader=lambda shader, kind, content: Batch(np.array(content["pos"]).reshape(-1, 2, 3))))
 
-    add_plane(scene, velocity=(0.5, 0.0, 0.0))
+    add_plane(scene, "Still")
+    add_plane(scene, "Ship", location=(1.0, 2.0, 3.0), velocity=(0.5, 0.0, 0.0))
+    scene.view_layers[0].update()
     overlay.draw_arrows()
-    assert calls == ['POLYLINE_UNIFORM_COLOR', ('LINES', (6, 3)), ("viewportSize", (640, 480)),
-                     ("lineWidth", 2.0), ("color", overlay.COLOR), "draw"]
-    calls.clear()
+    (segments,) = drawn
+    assert segments.shape == (3, 2, 3)
+    np.testing.assert_allclose(segments[0], [(1.0, 2.0, 3.0), (6.0, 2.0, 3.0)], atol=1e-5)
+    np.testing.assert_allclose(segments[1:, 0], [(6.0, 2.0, 3.0)] * 2, atol=1e-5)  # the head at the tip
+    assert np.all(segments[1:, 1, 0] < 6.0)  # pointing back along the shaft
     scene.restframe.show_velocity = False
     overlay.draw_arrows()
-    assert calls == []
+    scene.restframe.show_velocity = True
+    scene.render.engine = 'CYCLES'
+    overlay.draw_arrows()
+    assert len(drawn) == 1

@@ -312,14 +312,16 @@ def test_emissive_panel_is_sampled_as_a_light():
     assert value == pytest.approx(np.full(3, expected), rel=0.005)
 
 
-def test_emitter_samples_and_bounce_rays_agree_across_frames(monkeypatch):
+@pytest.mark.parametrize("mode", ["OFF", "SPECTRAL"])
+def test_emitter_samples_and_bounce_rays_agree_across_frames(monkeypatch, mode):
     """A panel moving at 0.6c lights a static floor: the explicit samples of the panel in its own
     frame (density carried into the floor's by D^2) and the bounce rays that happen to hit it give
-    the same light, within noise."""
+    the same light, within noise -- in Spectral mode the same colour too (each estimate shifts the
+    panel's spectrum by its own D, the bounce rays at the frame crossing of their path)."""
     from restframe_addon.core import integrator
 
     scene = glowing_panel_scene(Velocity((0.6, 0.0, 0.0)))
-    settings = path_settings(res=(4, 4), samples=1024, max_bounces=0)
+    settings = path_settings(res=(4, 4), samples=1024, max_bounces=0, doppler_mode=mode, spectral_samples=8)
     sampled = mean_rgb(render_image(scene, settings))
     monkeypatch.setattr(integrator, "_emitter_tables", lambda frames, mats: {})
     found = mean_rgb(render_image(scene, settings))

@@ -357,8 +357,16 @@ def test_animated_emission_follows_the_emitters_own_clock():
                           world_color=(0, 0, 0))
             passes = render_image(scene, settings((3, 3), searchlight=False))
             seen.append((passes["Combined"][1, 1, 1], passes["Object Time"][1, 1, 0]))
-        # with the searchlight off the emission is exactly the curve at the seen clock reading
-        assert seen[0][0] == pytest.approx(seen[0][1], rel=1e-5, abs=1e-5)
+        # closed form: the wall (y = 30 - beta tau) is seen from the origin at tau_obs where its light left
+        # at tau_e = (tau_obs - 30) / (1 - beta), from y_e = tau_obs - tau_e; its clock there reads
+        # gamma (tau_e - beta (30 - y_e)) (0 at its origin event (0, pivot)); with the searchlight off the
+        # emission is exactly the curve at that reading
+        gamma = 1.0 / math.sqrt(1.0 - beta**2)
+        for t_obs, (emission, clock) in zip((1.0, 1.5), seen):
+            tau_e = (c * t_obs - 30.0) / (1.0 - beta)
+            expected = gamma * (tau_e - beta * (30.0 - (c * t_obs - tau_e))) / c
+            assert clock == pytest.approx(expected, rel=1e-5, abs=1e-5)
+            assert emission == pytest.approx(expected, rel=1e-5, abs=1e-5)
         assert (seen[1][0] - seen[0][0]) / 0.5 == pytest.approx(rate, rel=1e-5)
 
 

@@ -221,6 +221,51 @@ def test_nearer_object_emitting_earlier_is_hidden():
     assert abs(later["Depth"][16, 16, 0] - 5.0) < 1e-5
 
 
+@pytest.mark.parametrize("beta,start,expect_moving_seen", [(-0.9, 5.0, False), (0.9, 10.0, True)],
+                         ids=["approaching screen hidden", "receding tile seen"])
+def test_visibility_is_decided_by_the_observer_path_length_not_the_rest_frame_one(beta, start, expect_moving_seen):
+    """A wall moving along the line of sight (start away at tau = 0) and a static wall 12 away, seen at
+    tau = 0.  Closed form: the moving wall is seen at s = start / (1 + beta) -- approaching at 0.9c from
+    5 away, s = 50 (behind the static wall) but s' = s / D = 50 / 4.36 = 11.5 in its own frame; receding
+    at 0.9c from 10 away, s = 5.26 (in front) but s' = 22.9.  The smaller s wins, whatever s' says."""
+    moving = quad((0.0, start, 0.0), (2.0, 2.0) if beta > 0 else (400.0, 400.0), normal_axis=1)
+    still = quad((0.0, 12.0, 0.0), (400.0, 400.0) if beta > 0 else (2.0, 2.0), normal_axis=1)
+    scene = Scene(camera=look_at_camera((0, 0, 0), (0, 1, 0)),
+                  meshes=[Mesh("moving", *moving, velocity=Velocity((0.0, beta, 0.0)), pivot=(0, start, 0),
+                               object_index=1), Mesh("still", *still, object_index=2)])
+    passes = render_image(scene, settings((33, 33)))
+    s = start / (1.0 + beta)
+    doppler = math.sqrt((1 - beta) / (1 + beta))
+    assert s / doppler < 12.0 if beta < 0 else s / doppler > 12.0  # the rest-frame path length says the opposite
+    seen = passes["IndexOB"][16, 16, 0], passes["Depth"][16, 16, 0], passes["Doppler"][16, 16, 0]
+    if expect_moving_seen:
+        assert seen == (1, pytest.approx(s, rel=1e-6), pytest.approx(doppler, rel=1e-6))
+    else:
+        assert seen == (2, pytest.approx(12.0, rel=1e-6), 1.0)
+
+
+@pytest.mark.parametrize("levels", [0, 4])
+def test_factor_display_paints_d_across_the_frames_own_range(levels):
+    """FACTOR mode: grey = (D - D_min) / (D_max - D_min) over the frame (optionally in N levels), with
+    D = 1 / (gamma (1 + beta.d)) of each pixel's camera-ray direction d for a wall sliding across the
+    view at 0.8c (closed form): brightest where it approaches, on the left."""
+    beta = 0.8
+    v, t = quad((0.0, 10.0, 0.0), (1e4, 1e4), normal_axis=1)
+    camera = look_at_camera((0, 0, 0), (0, 1, 0), fov_half_tan=0.8)
+    res = (31, 9)
+    scene = Scene(camera=camera, meshes=[Mesh("wall", v, t, velocity=Velocity((beta, 0.0, 0.0)), pivot=(0, 10, 0))])
+    passes = render_image(scene, settings(res, doppler_mode="FACTOR", doppler_levels=levels))
+    ys, xs = np.mgrid[0:res[1], 0:res[0]]
+    d = pixel_directions(camera, res, xs.ravel() + 0.5, ys.ravel() + 0.5)
+    doppler = 1.0 / (gamma_of(beta) * (1.0 + beta * d[:, 0]))
+    grey = (doppler - doppler.min()) / (doppler.max() - doppler.min())
+    if levels:
+        grey = np.minimum(np.floor(grey * levels), levels - 1) / (levels - 1)
+    rgb = passes["Combined"][..., :3].reshape(-1, 3)
+    np.testing.assert_allclose(rgb, np.repeat(grey[:, None], 3, axis=1), atol=1e-5)
+    assert rgb[:, 0].reshape(res[1], res[0])[4, 0] == pytest.approx(1.0, abs=1e-5)
+
+
 def test_emission_time_pass_is_world_time_of_the_hit():
     v, t = quad((0.0, 20.0, 0.0), (400.0, 400.0), normal_axis=1)
     c = 10.0

@@ -1,7 +1,5 @@
 """Bad and odd input to the core (issue 9): every case ends in a correct image or a clear error."""
 
-import time
-
 import numpy as np
 import pytest
 
@@ -191,17 +189,13 @@ def many_velocities_scene(count, seed=7):
 
 
 def test_a_thousand_distinct_velocities_finish():
-    """1000 small quads, each with its own velocity (1000 rest frames): prepared and rendered in bounded time."""
+    """1000 small quads, each with its own velocity (1000 rest frames): prepared and rendered (the time
+    it takes is measured by tests/robustness/measure_velocities.py, not asserted)."""
     scene = many_velocities_scene(1000)
-    started = time.perf_counter()
     renderer = prepare(scene, settings((8, 8)))
-    prepared = time.perf_counter() - started
     assert len(renderer.frames.frames) >= 1000
     (tile,) = render_tiles(renderer)
-    total = time.perf_counter() - started
     assert_sane(tile.passes)
-    print(f"1000 velocities: prepare {prepared:.2f} s, prepare + render 8x8 {total:.2f} s")
-    assert total < 60
 
 
 _MANY = """
