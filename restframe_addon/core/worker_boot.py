@@ -16,11 +16,15 @@ import importlib
 import importlib.machinery
 import os
 import pickle
+import signal
 import sys
 import types
 
 
 def main():
+    # Ctrl-C in a terminal signals the whole process group: the parent decides what stops (it
+    # cancels the tiles, or exits and so closes the pipes), a worker never dies of it mid-tile
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     commands = sys.stdin.buffer
     results = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)

@@ -399,8 +399,11 @@ def serve(commands, results, parent_pid: int):
         os._exit(0)
 
     def send(message):
-        results.write(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
-        results.flush()
+        try:
+            results.write(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
+            results.flush()
+        except OSError:  # the parent closed the pipe or died (Ctrl-C, SIGTERM): nobody waits for this tile
+            os._exit(0)
 
     threading.Thread(target=read, name="restframe-commands", daemon=True).start()
     threading.Thread(target=watch_parent, name="restframe-watchdog", daemon=True).start()
