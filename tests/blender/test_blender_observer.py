@@ -166,7 +166,7 @@ def test_flash_seen_in_blender_lights_the_floor_only_between_the_ellipses(scene,
     scene.render.resolution_x = scene.render.resolution_y = 48
     scene.world = None
     camera_position = np.array([0.0, -10.0, 8.0])
-    camera = add_camera(scene, location=tuple(camera_position), rotation=(math.radians(45), 0.0, 0.0))
+    add_camera(scene, location=tuple(camera_position), rotation=(math.radians(45), 0.0, 0.0))
     add_plane(scene, size=60.0)
     lamp = add_point_lamp(scene, (0.0, 0.0, 2.0))
     key_pulse(lamp.data, (1, 13), 30000.0)  # on for 0.5 s of the lamp's clock from its zero
