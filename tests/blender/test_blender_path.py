@@ -28,6 +28,19 @@ BLOCK = 8  # region size of the comparison
 
 
 # --------------------------------------------------------------------------- settings and world export
+def principled(name, color, metallic, roughness):
+    """A new material whose Principled BSDF has this base colour, metallic and roughness."""
+    m = bpy.data.materials.new(name)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        m.use_nodes = True
+    bsdf = m.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Base Color"].default_value = (*color, 1.0)
+    bsdf.inputs["Metallic"].default_value = metallic
+    bsdf.inputs["Roughness"].default_value = roughness
+    return m
+
+
 def test_new_scenes_path_trace_with_cycles_light_path_defaults(addon):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     rf = bpy.context.scene.restframe
@@ -185,13 +198,7 @@ def cornell_box():
     scene.world = world
 
     def material(name, color):
-        m = bpy.data.materials.new(name)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", DeprecationWarning)
-            m.use_nodes = True
-        bsdf = m.node_tree.nodes["Principled BSDF"]
-        bsdf.inputs["Base Color"].default_value = (*color, 1.0)
-        bsdf.inputs["Roughness"].default_value = 1.0
+        m = principled(name, color, 0.0, 1.0)
         diffuse_only(m)
         return m
 
@@ -271,24 +278,13 @@ def hdri_scene():
     links.new(texture.outputs["Color"], nodes["Background"].inputs["Color"])
     scene.world = world
 
-    def material(name, color, metallic, roughness):
-        m = bpy.data.materials.new(name)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", DeprecationWarning)
-            m.use_nodes = True
-        bsdf = m.node_tree.nodes["Principled BSDF"]
-        bsdf.inputs["Base Color"].default_value = (*color, 1.0)
-        bsdf.inputs["Metallic"].default_value = metallic
-        bsdf.inputs["Roughness"].default_value = roughness
-        return m
-
-    for location, mat in (((-0.8, 0.0, 0.7), material("Metal", (0.9, 0.6, 0.3), 1.0, 0.35)),
-                          ((0.8, 0.0, 0.7), material("Plastic", (0.2, 0.3, 0.8), 0.0, 0.3))):
+    for location, mat in (((-0.8, 0.0, 0.7), principled("Metal", (0.9, 0.6, 0.3), 1.0, 0.35)),
+                          ((0.8, 0.0, 0.7), principled("Plastic", (0.2, 0.3, 0.8), 0.0, 0.3))):
         bpy.ops.mesh.primitive_uv_sphere_add(segments=48, ring_count=24, radius=0.7, location=location)
         bpy.ops.object.shade_smooth()
         bpy.context.active_object.data.materials.append(mat)
     bpy.ops.mesh.primitive_plane_add(size=8.0)
-    bpy.context.active_object.data.materials.append(material("Floor", (0.5, 0.5, 0.5), 0.0, 0.8))
+    bpy.context.active_object.data.materials.append(principled("Floor", (0.5, 0.5, 0.5), 0.0, 0.8))
     add_camera(scene, location=(0.0, -4.5, 1.6), rotation=(math.radians(78), 0.0, 0.0), lens=40.0)
     return scene
 
