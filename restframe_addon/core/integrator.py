@@ -130,7 +130,8 @@ class PathTracer:
             d_world, w = to_world.rays(d)
             doppler = 1.0 / w  # nu_frame / nu_world
         values = self._world_values(d_world, self.colour.shift(lam, doppler))
-        return rows.scale(values, self.shader._power(doppler, 4)), frame_pdf(self.world.pdf(d_world), doppler)
+        radiance = rows.scale(values, self.shader.searchlight_power(doppler, 4))
+        return radiance, frame_pdf(self.world.pdf(d_world), doppler)
 
     def _world_values(self, d_world, lam):
         if self.uniform_world:
@@ -176,7 +177,7 @@ class PathTracer:
             return total
         f = self.shader.brdf(ns[sel], view[sel], light[sel], base[sel], mat[sel], mix.take(sel))
         values = self._world_values(d_world[sel], self.colour.shift(_rows(lam, sel), doppler[sel]))
-        values = rows.scale(values, self.shader._power(doppler[sel], 4))
+        values = rows.scale(values, self.shader.searchlight_power(doppler[sel], 4))
         weight = mis.power_heuristic(pdf[sel], mix.pdf(sel, ns[sel], view[sel], light[sel])) * cos[sel] / pdf[sel]
         total[sel] = rows.scale(f * values, weight)
         return total
@@ -236,7 +237,7 @@ class PathTracer:
             if self.materials.emission_curves:  # the emitter's clock when the light left it
                 clock = self.frames.frames[int(j)].object_clock(tau_j - r_j, table.prims[row])
                 emitted *= self.materials.emission_factor(emitter_mat, clock)[:, None]
-            emitted = rows.scale(emitted, self.shader._power(doppler, 4))
+            emitted = rows.scale(emitted, self.shader.searchlight_power(doppler, 4))
             f = self.shader.brdf(ns[sel], view[sel], light, base[sel], mat[sel], lobes.take(sel))
             weight = mis.power_heuristic(pdf, lobes.pdf(sel, ns[sel], view[sel], light)) * cos / pdf
             total[sel] = rows.scale(f * emitted, weight)
@@ -268,7 +269,7 @@ class PathTracer:
         d_k, tau = hits.d_frame, hit_times(hits, slice(None))
         prim, u, v = hits.prim, hits.u, hits.v
         doppler = hit_doppler(frame, prim, u, v, tau, d_k, hits.w)
-        throughput = rows.scale(state.throughput, shader._power(doppler, 4))
+        throughput = rows.scale(state.throughput, shader.searchlight_power(doppler, 4))
         lam = colour.shift(state.lam, doppler)
         if bounce == 0:  # Russian roulette compares throughputs with the camera hit's
             state.reference = np.maximum(throughput.max(axis=1), 1e-300)

@@ -133,7 +133,7 @@ def _sample(prepared: PreparedScene, rays, hits, pixel, sample, cache: TraceCach
             values, hits = prepared.shader.radiance(prepared.frames.camera, *rays, 0, pixel, sample, traced, hits,
                                                     cache)
         if observed is not None:
-            values = values * prepared.shader._power(observed, 4)[:, None]
+            values = values * prepared.shader.searchlight_power(observed, 4)[:, None]
         rgb = colour.to_rgb(values, lam)
         hit = hits.frame >= 0
     if settings.film_transparent:

@@ -303,7 +303,7 @@ class Shader:
         self.epsilon = MappingProxyType({k: float(frames.surface_offsets[k]) for k in frames.geometry})
 
     # ------------------------------------------------------------------ helpers
-    def _power(self, doppler, exponent: int):
+    def searchlight_power(self, doppler, exponent: int):
         """D^(exponent + the colour model's extra power), or 1 with the searchlight off."""
         if not self.searchlight:
             return np.ones_like(doppler)
@@ -350,7 +350,7 @@ class Shader:
             else:
                 doppler = 1.0 / to_world.rays(d[miss])[1]
                 world = self.colour.world(self.colour.shift(_rows(lam, miss), doppler), len(miss))
-                values[miss] = rows.scale(world, self._power(doppler, 4))
+                values[miss] = rows.scale(world, self.searchlight_power(doppler, 4))
         held = self.held_out(hits) if self.has_holdouts else None
         if held is not None:
             values[held] = 0.0
@@ -370,7 +370,7 @@ class Shader:
             doppler = hit_doppler(frame, prim, u, v, tau_hit, d_k, w)
             local = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, pixel[sel], sample[sel],
                                         self.colour.shift(_rows(lam, sel), doppler), cache)
-            values[sel] = rows.scale(local, self._power(doppler, 4))
+            values[sel] = rows.scale(local, self.searchlight_power(doppler, 4))
         return values, hits
 
     # ------------------------------------------------------------------ tracing
@@ -553,7 +553,7 @@ class Shader:
             if pl.keyed is not None:  # the plane wave passed the lamp's place (P - x).e before reaching x
                 tau_j, x_j = self.frames.map(k, pl.frame).events(tau, position)
                 clock = tau_j - (pl.position - x_j) @ z_axis + pl.clock_offset
-            return e_k, self._power(doppler, 2), doppler, np.full(n, np.inf), clock
+            return e_k, self.searchlight_power(doppler, 2), doppler, np.full(n, np.inf), clock
         if light.trajectory is None:
             tau_j, x_j = self.frames.map(k, pl.frame).events(tau, position)
             sample = np.broadcast_to(pl.position, (n, 3))
@@ -588,7 +588,7 @@ class Shader:
         r = doppler * r_rest  # distance to the retarded position in the surface frame
         # the light left the lamp (its point ``sample``) r_rest before the hit, in the lamp's frame
         clock = None if pl.keyed is None else tau_j - r_rest + clock_zero
-        return e_k, intensity * self._power(doppler, 4) / np.maximum(r, 1e-300) ** 2, doppler, r, clock
+        return e_k, intensity * self.searchlight_power(doppler, 4) / np.maximum(r, 1e-300) ** 2, doppler, r, clock
 
     def _momentary(self, pl: PreparedLight, k, tau, position):
         """An animated lamp seen from hit events of frame k, in its momentary rest frame at the
