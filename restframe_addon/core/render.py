@@ -47,16 +47,23 @@ class Tile:
 
 
 def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] = lambda: False,
-                cache: TraceCache | None = None) -> Tile:
+                cache: TraceCache | None = None, rows: tuple[int, int] | None = None) -> Tile:
     """Render the pixels ``rect`` = (x0, y0, x1, y1) (x1, y1 exclusive) of a prepared scene.
 
     ``should_stop()`` is polled between sample batches of a long tile (the tile is then
     returned with ``complete`` False: never show it as finished); ``cache``: the calling thread's
-    :class:`~.tracer.TraceCache` (None: one for this tile).
+    :class:`~.tracer.TraceCache` (None: one for this tile); ``rows`` = (y0, y1): only these rows
+    of the tile (a share of it for another worker), in the whole tile's sample batches, so they
+    are the same bits as in the whole tile.
     """
     cache = cache if cache is not None else TraceCache()
     settings, frames = prepared.settings, prepared.frames
     x0, y0, x1, y1 = rect
+    tile_pixels, share = (x1 - x0) * (y1 - y0), None
+    if rows is not None:
+        share = slice((rows[0] - y0) * (x1 - x0), (rows[1] - y0) * (x1 - x0))
+        y0, y1 = rows
+        rect = x0, y0, x1, y1
     h, w = y1 - y0, x1 - x0
     xs, ys, pixel = prepared.pixel_grid(rect)
     n = len(pixel)
@@ -72,7 +79,7 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     held = np.zeros(n)  # the share of samples that hit a holdout
     denoising = {name: np.zeros((n, 3)) for name in DENOISING_PASSES if name in prepared.passes}
     complete = True
-    for index, (part, first, count) in enumerate(_batches(n, samples, prepared.colour.channels)):
+    for index, (part, first, count) in enumerate(_batches(tile_pixels, samples, prepared.colour.channels, share)):
         if index and should_stop():  # Esc between sample batches of a long tile
             complete = False
             break
@@ -157,16 +164,22 @@ def _doppler_grey(prepared: PreparedScene, doppler):
     return t
 
 
-def _batches(n: int, samples: int, channels: int):
+def _batches(n: int, samples: int, channels: int, share: slice | None = None):
     """(pixels, first sample, sample count) of a tile's batches: at most ``_MAX_VALUES`` colour
     values each, whatever the tile size, samples and wavelengths (pixels split when one sample
-    of the whole tile is already more)."""
+    of the whole tile is already more).  ``share``: a range of the tile's ``n`` pixels; the
+    batches are the whole tile's, cut to it and counted from its start (a pixel's samples are
+    summed in the same groups, so its bits do not depend on how the tile is shared out)."""
+    share = share or slice(0, n)
     part_size = n if n * channels <= _MAX_VALUES else max(_MAX_VALUES // channels, 1)
     for start in range(0, n, part_size):
         part = slice(start, min(start + part_size, n))
         per_batch = max(_MAX_VALUES // ((part.stop - part.start) * channels), 1)
+        mine = slice(max(part.start, share.start) - share.start, min(part.stop, share.stop) - share.start)
+        if mine.stop <= mine.start:
+            continue
         for first in range(0, samples, per_batch):
-            yield part, first, min(per_batch, samples - first)
+            yield mine, first, min(per_batch, samples - first)
 
 
 def _worker_count(threads: int) -> int:

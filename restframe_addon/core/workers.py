@@ -14,18 +14,25 @@ the dedicated entry does both first.  Only the core is imported in a worker, nev
 The pool is module-level (:func:`pool`) and kept warm across the renders of a session and
 the frames of an animation.  A render pickles its prepared scene once and sends the same
 bytes to every worker (a new prepared scene replaces the old one there; the same one
-rendered again is not sent again), then deals tiles two at a time per worker.  Esc stops
-the dealing and each worker stops its tile at the next sample batch and drops the tiles it
-holds; a worker that dies has its tiles dealt again to the others (and to threads here when
+rendered again is not sent again), then deals work two shares at a time per worker.  A share
+is a whole tile or, towards the end of a render with several workers, a band of a tile's
+rows (:func:`share_out`), so the workers finish together however unevenly the cost is spread
+over the image; the caller gets whole tiles, as from threads.  Esc stops the dealing and each
+worker stops its share at the next sample batch and drops the ones it holds; a worker that
+dies has its shares dealt again to the others (and the unfinished tiles to threads here when
 none is left).  A worker ends when its stdin reaches EOF (the parent closed it or died) or
 when its parent process is gone.  Tiles are the same bits as in threads: every random
-number is keyed by (pixel, sample) and the pickled scene is rebuilt to the same bits.
+number is keyed by (pixel, sample), a band is rendered in its tile's sample batches and the
+pickled scene is rebuilt to the same bits.  Each render leaves its :class:`RenderStats`
+(:attr:`WorkerPool.last_stats`): when each share ran in which worker and what the parent
+spent, for the benchmark's balance and serial-share figures.
 """
 
 from __future__ import annotations
 
 import atexit
 import collections
+import dataclasses
 import itertools
 import os
 import pickle
@@ -37,6 +44,8 @@ import time
 import traceback
 import weakref
 from typing import Callable, Iterator
+
+import numpy as np
 
 from . import blas
 from .persistent import GeometryCache
@@ -54,7 +63,9 @@ MALLOC_TUNING = {
 # one BLAS thread per worker: the workers fill the cores (see blas)
 _ONE_BLAS_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
-_TILES_IN_FLIGHT = 2  # per worker: one rendering, one waiting, so a worker never idles between tiles
+_TILES_IN_FLIGHT = 2  # shares per worker: one rendering, one waiting, so a worker never idles between them
+_SHARES_PER_WORKER = 4  # guided dealing: a share is about this fraction of a worker's part of what is left
+_MIN_SHARE_PIXELS = 1024  # smaller bands would cost more in per-share overhead than they win in balance
 _WORKER_MEMORY = 400 << 20  # bytes a worker needs besides its scene (interpreter, numpy, embree, tile batches)
 _SCENE_MEMORY_FACTOR = 6  # a worker's rebuilt scene (frames, BVHs, caches) against its pickled size
 _START_TIMEOUT = 120.0  # seconds a starting worker may take to say it is ready
@@ -103,6 +114,58 @@ def worker_count(requested: int, scene_bytes: int, memory: int | None) -> int:
     return max(min(requested, memory // per_worker), 1)
 
 
+def share_out(rects, workers: int) -> list[tuple[int, tuple[int, int] | None]]:
+    """The shares a render deals: (tile index, rows (y0, y1) of it, or None for the whole tile),
+    in tile order.
+
+    Guided: a tile is cut into bands of rows of about 1 / (``_SHARES_PER_WORKER`` x workers) of
+    the pixels not yet dealt (at least ``_MIN_SHARE_PIXELS``), so the first shares are whole
+    tiles and the last ones small, and a worker never waits long at the end for another's
+    expensive tile.  One worker gets whole tiles."""
+    left = sum((x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in rects)
+    shares = []
+    for index, (x0, y0, x1, y1) in enumerate(rects):
+        pixels, height = (x1 - x0) * (y1 - y0), y1 - y0
+        target = max(left / (_SHARES_PER_WORKER * workers), _MIN_SHARE_PIXELS)
+        bands = 1 if workers == 1 else max(1, min(height, round(pixels / target)))
+        if bands == 1:
+            shares.append((index, None))
+        else:
+            shares.extend((index, (y0 + height * k // bands, y0 + height * (k + 1) // bands)) for k in range(bands))
+        left -= pixels
+    return shares
+
+
+def _joined(rect, pieces: list[Tile]) -> Tile:
+    """A tile from its bands of rows (bottom first)."""
+    if len(pieces) == 1:
+        return pieces[0]
+    return Tile(*rect, {name: np.concatenate([piece.passes[name] for piece in pieces]) for name in pieces[0].passes})
+
+
+@dataclasses.dataclass
+class RenderStats:
+    """Where a process render's time went, for the benchmark.  Times are ``time.monotonic()``
+    (one clock for every process of the machine); cpu: CPU seconds of the thread doing it."""
+
+    started: float
+    ended: float = 0.0
+    workers: int = 0
+    shares: int = 0  # work units dealt (tiles, or bands of their rows)
+    pickling: float = 0.0  # this process pickling the scene (0: the scene was sent before)
+    sending: float = 0.0  # writing the scene to the workers
+    loop_cpu: float = 0.0  # the render loop (dealing, receiving, joining bands), this thread
+    receiving_cpu: float = 0.0  # the reader threads unpickling the workers' results
+    caller: float = 0.0  # wall time the caller spent between tiles (the engine: streaming a tile into Blender's result)
+    builds: dict = dataclasses.field(default_factory=dict)  # worker pid -> (start, end, cpu) of rebuilding the scene
+    rendered: dict = dataclasses.field(default_factory=dict)  # pid -> [(tile index, pixels, start, end, cpu)] per share
+
+    @property
+    def parent_seconds(self) -> float:
+        """This process's own work for the render: what runs beside or between the workers' tiles."""
+        return self.pickling + self.sending + self.loop_cpu + self.receiving_cpu + self.caller
+
+
 def _parent_packages(module_name: str) -> list[tuple[str, list[str]]]:
     """The packages above RESTframe's own (``restframe_addon``), with their folders: inside
     Blender ``bl_ext`` (a plain module there, no folder), ``bl_ext.<repo>`` and
@@ -128,7 +191,8 @@ class _Worker:
         self.ready = False
         self.alive = True
         self.scene_id = None  # the scene it holds
-        self.dealt: dict[int, tuple] = {}  # tile index -> rect, of the current render
+        self.dealt: dict[int, tuple] = {}  # share id -> (tile index, rows), of the current render
+        self.receiving_cpu = 0.0  # CPU seconds its reader thread spent unpickling results
         self.send(boot)
         threading.Thread(target=self._read, args=(inbox,), name=f"restframe-worker-{self.pid}", daemon=True).start()
 
@@ -150,7 +214,9 @@ class _Worker:
     def _read(self, inbox: queue.Queue):
         while True:
             try:
+                cpu = time.thread_time()
                 message = pickle.load(self.process.stdout)
+                self.receiving_cpu += time.thread_time() - cpu
             except Exception:  # EOF, a broken pipe or a truncated pickle: the worker is gone
                 inbox.put((self, ("dead",)))
                 return
@@ -187,6 +253,7 @@ class WorkerPool:
         self._payload = b""  # its pickled bytes
         self._tokens = itertools.count(1)
         self._broken = None  # why workers cannot run here, once every worker of a render died before it was ready
+        self.last_stats: RenderStats | None = None  # of the last render in worker processes
 
     @property
     def pids(self) -> list[int]:
@@ -209,52 +276,80 @@ class WorkerPool:
             self._busy.release()
 
     def _render(self, prepared, rects, should_stop, count, warn):
-        scene_id = self._scene_id(prepared)
+        stats = RenderStats(time.monotonic())
+        scene_id = self._scene_id(prepared, stats)
         try:
             workers = self._start(worker_count(count, len(self._payload), available_memory()))
         except WorkersUnavailable as error:
             warn(f"{error}: rendering in threads")
             yield from tiles_in_threads(prepared, rects, count, should_stop)
             return
+        self.last_stats = stats
         job = next(self._jobs)
         for worker in self._workers:
             worker.dealt = {}
+        receiving = {worker: worker.receiving_cpu for worker in workers}
+        sending = time.monotonic()
         for worker in workers:
             if worker.scene_id != scene_id:
                 worker.scene_id = scene_id if worker.send(("scene", scene_id, self._payload)) else None
-        todo = collections.deque(enumerate(rects))
-        remaining = len(rects)
+        stats.sending = time.monotonic() - sending
+        cpu = time.thread_time()
+        shares = share_out(rects, len(workers))
+        stats.workers, stats.shares = len(workers), len(shares)
+        todo = collections.deque(enumerate(shares))  # (share id, (tile index, rows))
+        bands = collections.Counter(tile for tile, _ in shares)  # shares per tile
+        pieces: dict[int, dict[int, Tile]] = {}  # tile index -> {share id: its band} of tiles not yet whole
+        done = set()  # tiles yielded
         try:
-            while remaining:
+            while len(done) < len(rects):
                 if should_stop():
                     return
-                self._deal(workers, todo, job, scene_id)
+                self._deal(workers, todo, job, scene_id, rects)
                 workers = [worker for worker in workers if worker.alive]
                 if not workers:
                     if not any(worker.ready for worker in self._workers):
                         self._broken = f"no worker process started with {sys.executable} (see the console)"
                     warn("every worker process ended: rendering the rest in threads")
-                    yield from tiles_in_threads(prepared, [rect for _, rect in todo], count, should_stop)
+                    yield from tiles_in_threads(prepared, [rect for index, rect in enumerate(rects)
+                                                           if index not in done], count, should_stop)
                     return
                 try:
                     worker, message = self._inbox.get(timeout=_POLL)
                 except queue.Empty:
                     self._stop_stuck(workers)
                     continue
-                tile = self._receive(worker, message, job, todo)
-                if tile is not None:
-                    remaining -= 1
-                    yield tile
+                received = self._receive(worker, message, job, todo, scene_id, stats)
+                if received is None:
+                    continue
+                share, tile_index, piece = received
+                got = pieces.setdefault(tile_index, {})
+                got[share] = piece
+                if len(got) < bands[tile_index]:
+                    continue
+                tile = _joined(rects[tile_index], [got[key] for key in sorted(got)])
+                del pieces[tile_index]
+                done.add(tile_index)
+                stats.loop_cpu += time.thread_time() - cpu
+                handed = time.monotonic()
+                yield tile
+                stats.caller += time.monotonic() - handed
+                cpu = time.thread_time()
         finally:
-            if remaining:  # Esc, an error, or the caller stopped iterating: free the workers at once
+            if len(done) < len(rects):  # Esc, an error, or the caller stopped iterating: free the workers at once
                 for worker in workers:
                     worker.send(("cancel", job))
+            stats.loop_cpu += time.thread_time() - cpu
+            stats.receiving_cpu = sum(worker.receiving_cpu - before for worker, before in receiving.items())
+            stats.ended = time.monotonic()
 
-    def _scene_id(self, prepared) -> int:
+    def _scene_id(self, prepared, stats: RenderStats) -> int:
         """The id of the prepared scene, pickled once into ``_payload`` (kept for workers started
         later); the same scene rendered again keeps its id and is not pickled or sent again."""
         if self._sent_scene is None or self._sent_scene[0]() is not prepared:
+            pickling = time.thread_time()
             self._payload = pickle.dumps(prepared, protocol=pickle.HIGHEST_PROTOCOL)
+            stats.pickling = time.thread_time() - pickling
             self._sent_scene = (weakref.ref(prepared), next(self._scene_ids))
         return self._sent_scene[1]
 
@@ -273,18 +368,21 @@ class WorkerPool:
                 break
         return self._workers[:count]
 
-    def _deal(self, workers, todo, job, scene_id):
-        for worker in workers:
-            while todo and worker.alive and len(worker.dealt) < _TILES_IN_FLIGHT:
-                index, rect = todo.popleft()
-                if worker.send(("tile", job, scene_id, index, rect)):
-                    worker.dealt[index] = rect
-                else:
-                    todo.appendleft((index, rect))
-                    self._lost(worker, todo)
+    def _deal(self, workers, todo, job, scene_id, rects):
+        """Fill every worker up to ``_TILES_IN_FLIGHT`` shares, one share per worker in turn (so
+        the first round reaches every worker)."""
+        for _ in range(_TILES_IN_FLIGHT):
+            for worker in workers:
+                if todo and worker.alive and len(worker.dealt) < _TILES_IN_FLIGHT:
+                    share, (tile_index, rows) = todo.popleft()
+                    if worker.send(("tile", job, scene_id, share, rects[tile_index], rows)):
+                        worker.dealt[share] = (tile_index, rows)
+                    else:
+                        todo.appendleft((share, (tile_index, rows)))
+                        self._lost(worker, todo)
 
     def _lost(self, worker: _Worker, todo):
-        """A worker ended: its tiles go back to the front of the queue."""
+        """A worker ended: its shares go back to the front of the queue."""
         worker.alive = False
         todo.extendleft(sorted(worker.dealt.items(), reverse=True))
         worker.dealt = {}
@@ -296,8 +394,9 @@ class WorkerPool:
             if not worker.ready and time.monotonic() - worker.started > _START_TIMEOUT:
                 worker.process.kill()
 
-    def _receive(self, worker: _Worker, message, job: int, todo) -> Tile | None:
-        """Handle one message of a worker; the tile when it is a finished tile of this render."""
+    def _receive(self, worker: _Worker, message, job: int, todo, scene_id: int, stats: RenderStats):
+        """Handle one message of a worker; (share id, tile index, band) when it is a finished
+        share of this render."""
         kind = message[0]
         if kind == "dead":
             if worker.alive or worker.dealt:
@@ -305,15 +404,19 @@ class WorkerPool:
             return None
         if kind == "ready":
             worker.ready = True
+        elif kind == "built" and message[1] == scene_id:
+            stats.builds[worker.pid] = message[2]
         elif kind == "error" and message[1] == job:
             raise message[2]
         elif kind == "tile" and message[1] == job:
-            _, _, index, tile = message
-            rect = worker.dealt.pop(index, None)
-            if rect is not None and tile.complete:
-                return tile
-            if rect is not None:  # cut short although this render goes on: deal it again
-                todo.appendleft((index, rect))
+            _, _, share, tile, (started, ended, cpu) = message
+            unit = worker.dealt.pop(share, None)
+            if unit is not None and tile.complete:
+                pixels = (tile.x1 - tile.x0) * (tile.y1 - tile.y0)
+                stats.rendered.setdefault(worker.pid, []).append((unit[0], pixels, started, ended, cpu))
+                return share, unit[0], tile
+            if unit is not None:  # cut short although this render goes on: deal it again
+                todo.appendleft((share, unit))
         return None  # a message of an earlier render
 
     def status(self, timeout: float = 60.0) -> dict[int, dict]:
@@ -417,26 +520,29 @@ def serve(commands, results, parent_pid: int):
             if kind == "scene":
                 prepared = cache = None  # the old scene's memory goes first
                 scene_id = message[1]
+                started, cpu = time.monotonic(), time.thread_time()
                 try:
                     with unpickling_with(geometry):
                         prepared = pickle.loads(message[2])
                     cache = TraceCache()
                 except Exception as error:
                     prepared = _picklable(error)
+                send(("built", scene_id, (started, time.monotonic(), time.thread_time() - cpu)))
             elif kind == "tile":
-                _, job, tile_scene, index, rect = message
+                _, job, tile_scene, share, rect, rows = message
                 if job <= cancelled[0]:
                     continue
+                started, cpu = time.monotonic(), time.thread_time()
                 try:
                     if tile_scene != scene_id:
                         raise RuntimeError(f"tile of scene {tile_scene} sent to a worker holding scene {scene_id}")
                     if isinstance(prepared, BaseException):
                         raise prepared
-                    tile = render_tile(prepared, rect, lambda job=job: job <= cancelled[0], cache)
+                    tile = render_tile(prepared, rect, lambda job=job: job <= cancelled[0], cache, rows)
                 except Exception as error:
                     send(("error", job, _picklable(error)))
                     continue
-                send(("tile", job, index, tile))
+                send(("tile", job, share, tile, (started, time.monotonic(), time.thread_time() - cpu)))
             elif kind == "status":
                 send(("status", message[1], sorted(sys.modules)))
 
