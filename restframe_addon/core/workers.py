@@ -12,9 +12,10 @@ its target before any code of ours could recreate Blender's in-memory ``bl_ext``
 the dedicated entry does both first.  Only the core is imported in a worker, never bpy.
 
 The pool is module-level (:func:`pool`) and kept warm across the renders of a session and
-the frames of an animation.  A render pickles its prepared scene once and sends the same
-bytes to every worker (a new prepared scene replaces the old one there; the same one
-rendered again is not sent again), then deals work two shares at a time per worker.  A share
+the frames of an animation.  A render pickles its prepared scene once into a file that every
+worker reads for itself, at once, so no worker waits for the scene to pass through the pipes
+of the others (a new prepared scene replaces the old one there; the same one rendered again
+is not sent again), then deals work two shares at a time per worker.  A share
 is a whole tile or, towards the end of a render with several workers, a band of a tile's
 rows (:func:`share_out`), so the workers finish together however unevenly the cost is spread
 over the image; the caller gets whole tiles, as from threads.  Esc stops the dealing and each
@@ -39,6 +40,7 @@ import pickle
 import queue
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import traceback
@@ -250,7 +252,9 @@ class WorkerPool:
         self._jobs = itertools.count(1)
         self._scene_ids = itertools.count(1)
         self._sent_scene = None  # (weakref to the prepared scene, its id) last pickled
-        self._payload = b""  # its pickled bytes
+        self._scene_file = None  # the file holding its pickle, which the workers read
+        self._scene_file_removal = None  # removes it when the pool goes (weakref.finalize: at exit at the latest)
+        self._scene_bytes = 0  # its size
         self._tokens = itertools.count(1)
         self._broken = None  # why workers cannot run here, once every worker of a render died before it was ready
         self.last_stats: RenderStats | None = None  # of the last render in worker processes
@@ -279,8 +283,9 @@ class WorkerPool:
         stats = RenderStats(time.monotonic())
         scene_id = self._scene_id(prepared, stats)
         try:
-            workers = self._start(worker_count(count, len(self._payload), available_memory()))
+            workers = self._start(worker_count(count, self._scene_bytes, available_memory()))
         except WorkersUnavailable as error:
+            self._forget_scene()
             warn(f"{error}: rendering in threads")
             yield from tiles_in_threads(prepared, rects, count, should_stop)
             return
@@ -292,8 +297,8 @@ class WorkerPool:
         sending = time.monotonic()
         for worker in workers:
             if worker.scene_id != scene_id:
-                worker.scene_id = scene_id if worker.send(("scene", scene_id, self._payload)) else None
-        stats.sending = time.monotonic() - sending
+                worker.scene_id = scene_id if worker.send(("scene", scene_id, self._scene_file)) else None
+        stats.sending += time.monotonic() - sending
         cpu = time.thread_time()
         shares = share_out(rects, len(workers))
         stats.workers, stats.shares = len(workers), len(shares)
@@ -344,14 +349,29 @@ class WorkerPool:
             stats.ended = time.monotonic()
 
     def _scene_id(self, prepared, stats: RenderStats) -> int:
-        """The id of the prepared scene, pickled once into ``_payload`` (kept for workers started
-        later); the same scene rendered again keeps its id and is not pickled or sent again."""
+        """The id of the prepared scene, pickled once into ``_scene_file`` (kept for workers
+        started later; the previous scene's file goes); the same scene rendered again keeps its
+        id and is not pickled or sent again."""
         if self._sent_scene is None or self._sent_scene[0]() is not prepared:
             pickling = time.thread_time()
-            self._payload = pickle.dumps(prepared, protocol=pickle.HIGHEST_PROTOCOL)
+            payload = pickle.dumps(prepared, protocol=pickle.HIGHEST_PROTOCOL)
             stats.pickling = time.thread_time() - pickling
+            writing = time.monotonic()
+            self._forget_scene()
+            descriptor, self._scene_file = tempfile.mkstemp(prefix=f"restframe-scene-{os.getpid()}-", suffix=".pickle")
+            self._scene_file_removal = weakref.finalize(self, _remove, self._scene_file)
+            with open(descriptor, "wb") as scene_file:
+                scene_file.write(payload)
+            stats.sending = time.monotonic() - writing
+            self._scene_bytes = len(payload)
             self._sent_scene = (weakref.ref(prepared), next(self._scene_ids))
         return self._sent_scene[1]
+
+    def _forget_scene(self):
+        """Remove the file of the scene sent last (workers that hold it have read it)."""
+        if self._scene_file_removal is not None:
+            self._scene_file_removal()
+        self._sent_scene, self._scene_file, self._scene_file_removal, self._scene_bytes = None, None, None, 0
 
     def _start(self, count: int) -> list[_Worker]:
         """``count`` live workers, starting the missing ones."""
@@ -448,7 +468,7 @@ class WorkerPool:
         for worker in self._workers:
             worker.close()
         self._workers = []
-        self._sent_scene, self._payload = None, b""
+        self._forget_scene()
 
 
 _pool: WorkerPool | None = None
@@ -485,13 +505,21 @@ def serve(commands, results, parent_pid: int):
     """A worker's loop (started by :mod:`.worker_boot`): scenes and tiles in, tiles out."""
     inbox: queue.Queue = queue.Queue()
     cancelled = [0]  # renders up to this job were cancelled (Esc)
+    scene_file = [None]  # the file of the last scene sent: removed here if the parent dies without doing it
+
+    def leave():
+        if scene_file[0] is not None:
+            _remove(scene_file[0])
+        os._exit(0)
 
     def read():
         while True:
             try:
                 message = pickle.load(commands)
             except Exception:  # EOF: the parent closed the pipe or died
-                os._exit(0)
+                leave()
+            if message[0] == "scene":
+                scene_file[0] = message[2]
             if message[0] == "cancel":
                 cancelled[0] = max(cancelled[0], message[1])
             inbox.put(message)
@@ -499,7 +527,7 @@ def serve(commands, results, parent_pid: int):
     def watch_parent():
         while _process_alive(parent_pid):
             time.sleep(_WATCHDOG)
-        os._exit(0)
+        leave()
 
     def send(message):
         try:
@@ -522,8 +550,8 @@ def serve(commands, results, parent_pid: int):
                 scene_id = message[1]
                 started, cpu = time.monotonic(), time.thread_time()
                 try:
-                    with unpickling_with(geometry):
-                        prepared = pickle.loads(message[2])
+                    with open(message[2], "rb") as pickled, unpickling_with(geometry):
+                        prepared = pickle.loads(pickled.read())
                     cache = TraceCache()
                 except Exception as error:
                     prepared = _picklable(error)
@@ -554,6 +582,13 @@ def _picklable(error: BaseException) -> BaseException:
         return error
     except Exception:
         return RuntimeError("".join(traceback.format_exception(error)))
+
+
+def _remove(path: str):
+    try:
+        os.remove(path)
+    except OSError:  # removed already (by a worker or the parent), or still open (Windows)
+        pass
 
 
 def _process_alive(pid: int) -> bool:

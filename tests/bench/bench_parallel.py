@@ -9,6 +9,13 @@ workers are started before timing (they stay warm across renders; their start-up
 on its own).  CPU seconds (this process and its workers, Linux) are given next to the wall
 times: unlike those, they do not grow when other work takes the cores.  Variants run interleaved in one process, rotating their order each repeat, with
 the load average noted: the machine may be shared.  Prints a markdown report.
+
+From each process render's ``RenderStats`` (when each share of the image ran in which worker,
+and what this process spent) it also reports the balance of two workers (busy and idle time
+per worker) and the serial work on the render's critical path: pickling and sending the
+scene, a worker rebuilding it, this process dealing, unpickling and joining results, and,
+from one F12 through Blender, the engine streaming each tile into Blender's result.  The
+Amdahl projection to 8 and 16 cores rests on that measured serial time.
 """
 
 from __future__ import annotations
@@ -68,6 +75,47 @@ def peak_rss_mb(pid: int) -> float:
     return float("nan")
 
 
+def balance(stats) -> list[dict]:
+    """Per worker of a process render: shares, busy seconds (rendering shares), idle seconds
+    (the render's wall time less busy) and when its first share started and its last ended,
+    from the render's start."""
+    rows = []
+    for pid, shares in sorted(stats.rendered.items()):
+        busy = sum(end - start for _, _, start, end, _ in shares)
+        rows.append({"pid": pid, "shares": len(shares), "pixels": sum(s[1] for s in shares), "busy": busy,
+                     "cpu": sum(s[4] for s in shares), "idle": stats.ended - stats.started - busy,
+                     "first": min(s[2] for s in shares) - stats.started,
+                     "last": max(s[3] for s in shares) - stats.started})
+    return rows
+
+
+def serial_seconds(stats, rebuild: float, streaming_per_tile: float, tiles: int) -> dict:
+    """The render's serial work, as measured: what no added core shortens.  This process's loop
+    and unpickling run beside the workers but are counted whole (an upper bound: on a machine
+    whose every core runs a worker they take a core's time)."""
+    return {"pickling": stats.pickling, "sending": stats.sending, "rebuild in a worker (cold)": rebuild,
+            "parent loop": stats.loop_cpu, "unpickling results": stats.receiving_cpu,
+            "streaming into Blender's result": streaming_per_tile * tiles}
+
+
+def amdahl(serial: float, work: float, cores: int) -> float:
+    return (serial + work) / (serial + work / cores)
+
+
+def engine_streaming(blend, resolution, samples, tile_size) -> tuple[float, int]:
+    """One F12 through Blender's render engine in worker processes: seconds the engine spent
+    streaming tiles into Blender's result (RenderStats.caller), and the tile count."""
+    import bpy
+
+    from restframe_addon.core import workers
+
+    export_blend(blend, resolution, samples, tile_size)
+    bpy.context.scene.restframe.parallelism = 'PROCESSES'
+    bpy.ops.render.render(write_still=False)
+    stats = workers.pool().last_stats
+    return stats.caller, len({share[0] for shares in stats.rendered.values() for share in shares})
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=3)
@@ -93,8 +141,11 @@ def main():
     for name, (blend, resolution, samples, tile_size) in SCENES.items():
         if args.quick:
             resolution, samples = (96, 54), 1
+        streaming, streamed = engine_streaming(blend, resolution, samples, tile_size)
         core_scene, settings = export_blend(blend, resolution, samples, tile_size)
+        t0 = time.perf_counter()
         prepared = prepare(core_scene, settings)
+        preparing = time.perf_counter() - t0
         t0 = time.perf_counter()
         data = pickle.dumps(prepared)
         pickling = time.perf_counter() - t0
@@ -122,6 +173,7 @@ def main():
         }
         times = {variant: [] for variant in variants}
         cpu = {variant: [] for variant in variants}
+        stats = {variant: [] for variant in variants if variant.startswith("processes")}
         images = {}
         loads = []
         names = list(variants)
@@ -135,6 +187,8 @@ def main():
                 tiles = run()
                 times[variant].append(time.perf_counter() - t0)
                 cpu[variant].append(cpu_seconds(pids) - c0)
+                if variant in stats:
+                    stats[variant].append((untuned if "untuned" in variant else tuned).last_stats)
                 images[variant] = {(t.x0, t.y0): t.passes["Combined"] for t in tiles}
         reference = images["threads x1"]
         same = all(v.keys() == reference.keys() and all(np.array_equal(v[k].view(np.uint32), reference[k].view(np.uint32))
@@ -160,10 +214,41 @@ def main():
                   f"(medians {np.median(times[one]) / np.median(times[two]):.2f}x)")
         print(f"- malloc tuning, one worker: {min(times['processes x1, glibc malloc untuned']) / min(times['processes x1']):.2f}x "
               f"faster; two workers: {min(times['processes x2, glibc malloc untuned']) / min(times['processes x2']):.2f}x")
-        serial = (pickling + rebuild) / min(cpu["processes x1"])
-        print(f"- per-render cost every worker pays whatever the worker count (pickling + rebuild) / CPU s of "
-              f"processes x1: {serial:.1%}; Amdahl with it: {1 / (serial + (1 - serial) / 8):.1f}x on 8 cores, "
-              f"{1 / (serial + (1 - serial) / 16):.1f}x on 16 (tile count permitting: {len(prepared.tiles())} tiles)")
+        tiles = len(prepared.tiles())
+        fastest = {variant: runs[int(np.argmin(times[variant]))] for variant, runs in stats.items()}
+        one, two = fastest["processes x1"], fastest["processes x2"]
+        rows = balance(two)
+        print(f"\nBalance of processes x2 (its fastest run, {two.ended - two.started:.2f} s wall; {two.shares} shares "
+              f"for {tiles} tiles; times from the render's start):\n")
+        print("| worker | shares | pixels | busy s | CPU s | idle s | first share starts, s | last share ends, s |")
+        print("|---|---|---|---|---|---|---|---|")
+        for row in rows:
+            print(f"| {row['pid']} | {row['shares']} | {row['pixels']} | {row['busy']:.2f} | {row['cpu']:.2f} "
+                  f"| {row['idle']:.2f} | {row['first']:.3f} | {row['last']:.3f} |")
+        ends = [row["last"] for row in rows]
+        work_one, work_two = sum(row["busy"] for row in balance(one)), sum(row["busy"] for row in rows)
+        wall_one, wall_two = one.ended - one.started, two.ended - two.started
+        print(f"\n- imbalance: the two workers' last shares end {max(ends) - min(ends):.3f} s apart "
+              f"({(max(ends) - min(ends)) / wall_two:.1%} of the render); both workers' busy time together "
+              f"{work_two:.2f} s against one worker's {work_one:.2f} s ({work_two / work_one:.2f}x)")
+        print(f"- processes x2 against half of processes x1 ({wall_one:.2f} / 2 s, fastest runs): {wall_two - wall_one / 2:+.3f} s "
+              f"= before the first share {min(row['first'] for row in rows) - min(row['first'] for row in balance(one)):+.3f} s, "
+              f"extra busy per worker {work_two / 2 - work_one / 2:+.3f} s, idle at the end {(max(ends) - min(ends)) / 2:+.3f} s, "
+              f"after the last share {(wall_two - max(ends)) - (wall_one - max(row['last'] for row in balance(one))):+.3f} s")
+        serial = serial_seconds(one, rebuild, streaming / streamed if streamed else 0.0, tiles)
+        total = sum(serial.values())
+        warm = max((end - start for start, end, _ in one.builds.values()), default=0.0)
+        print(f"- serial work (processes x1, fastest run; streaming measured in one F12 through the engine: "
+              f"{streaming * 1e3:.1f} ms for {streamed} tiles): "
+              + ", ".join(f"{name} {value * 1e3:.1f} ms" for name, value in serial.items())
+              + f"; total {total * 1e3:.1f} ms against {work_one:.2f} s of rendering in the worker (the warm "
+              f"worker, its geometry cached, rebuilt the scene in {warm * 1e3:.1f} ms)")
+        print(f"- serial share {total / (total + work_one):.2%}: Amdahl {amdahl(total, work_one, 8):.1f}x on 8 cores, "
+              f"{amdahl(total, work_one, 16):.1f}x on 16 (shares: {two.shares} for 2 workers, "
+              f"{len(workers.share_out(prepared.tiles(), 8))} for 8, {len(workers.share_out(prepared.tiles(), 16))} for 16)")
+        print(f"- an F12 first prepares the scene in this process ({preparing:.2f} s: rest frames and pre-passes, "
+              f"the same for threads); counted as serial too: {amdahl(total + preparing, work_one, 8):.1f}x on 8 cores, "
+              f"{amdahl(total + preparing, work_one, 16):.1f}x on 16")
         print(f"- peak RSS of the tuned workers so far: "
               f"{', '.join(f'{peak_rss_mb(pid):.0f} MB' for pid in tuned.pids)}\n")
     tuned.close()
