@@ -4,16 +4,19 @@ worker's tiles dealt again, the extension's in-memory package path recreated, wo
 with their parent."""
 
 import dataclasses
+import glob
 import os
 import signal
 import subprocess
 import sys
+import tempfile
 import textwrap
 import time
 
 import pytest
 from test_prepared import MODES, assemble, assert_same_passes, busy_scene, settings
 
+from restframe_addon.core import render as render_module
 from restframe_addon.core import workers
 from restframe_addon.core.prepared import PreparedScene, prepare
 from restframe_addon.core.render import RenderError, render_tiles
@@ -184,10 +187,11 @@ def test_the_extensions_package_path_is_recreated_and_the_main_script_not_rerun(
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_workers_end_with_their_parent(tmp_path):
-    """Killed parent: the watchdog ends its workers; closed pool: EOF ends them (they exit, not killed)."""
+    """Killed parent: the watchdog ends its workers, which remove the scene's file; closed pool: EOF
+    ends them (they exit, not killed) and the file is gone."""
     script = tmp_path / "parent.py"
     script.write_text(textwrap.dedent(f"""
-        import sys, time
+        import os, sys, time
         sys.path[:0] = [{ROOT!r}, {os.path.join(ROOT, "tests", "core")!r}]
         from test_prepared import busy_scene, settings
         from restframe_addon.core import workers
@@ -196,6 +200,7 @@ def test_workers_end_with_their_parent(tmp_path):
         prepared = prepare(busy_scene(), settings(tile_size=8))
         list(pool.render(prepared, lambda: False, 2))
         print(*pool.pids, flush=True)
+        print(os.getpid(), os.path.exists(pool._scene_file), flush=True)
         if sys.argv[1] == "close":
             codes = [worker.process for worker in pool._workers]
             pool.close()
@@ -205,11 +210,12 @@ def test_workers_end_with_their_parent(tmp_path):
     """))
     closing = subprocess.run([sys.executable, str(script), "close"], capture_output=True, text=True, timeout=300)
     assert closing.returncode == 0, closing.stderr
-    assert closing.stdout.split("\n")[1].split() == ["0", "0"]
+    lines = closing.stdout.split("\n")
+    assert lines[2].split() == ["0", "0"] and lines[1].split()[1] == "True" and not _scene_files(lines[1].split()[0])
     parent = subprocess.Popen([sys.executable, str(script), "orphan"], stdout=subprocess.PIPE, text=True)
     try:
         pids = [int(pid) for pid in parent.stdout.readline().split()]
-        assert len(pids) == 2
+        assert len(pids) == 2 and parent.stdout.readline().split() == [str(parent.pid), "True"]
     finally:
         parent.kill()
         parent.wait()
@@ -218,6 +224,11 @@ def test_workers_end_with_their_parent(tmp_path):
             break
         time.sleep(0.1)
     assert not any(_alive(pid) for pid in pids)
+    assert not _scene_files(parent.pid)
+
+
+def _scene_files(pid):
+    return glob.glob(os.path.join(tempfile.gettempdir(), f"restframe-scene-{pid}-*"))
 
 
 def _alive(pid):
@@ -231,3 +242,70 @@ def _alive(pid):
 def test_an_unknown_parallelism_is_refused():
     with pytest.raises(RenderError, match="parallelism 'GPU'"):
         prepare(busy_scene(), settings(parallelism="GPU"))
+
+
+def _rows_of(shares, rects):
+    """Every (tile index, row) the shares cover, in dealing order."""
+    return [(index, y) for index, rows in shares for y in range(*(rows or rects[index][1::2]))]
+
+
+@pytest.mark.parametrize("workers_count", [1, 2, 16])
+def test_the_shares_cover_every_row_of_every_tile_once_in_tile_order(workers_count):
+    rects = prepare(busy_scene(), settings(resolution=(960, 540), tile_size=256)).tiles()
+    shares = workers.share_out(rects, workers_count)
+    assert _rows_of(shares, rects) == [(index, y) for index, rect in enumerate(rects) for y in range(rect[1], rect[3])]
+    pixels = [(rects[i][2] - rects[i][0]) * ((rows or rects[i][1::2])[1] - (rows or rects[i][1::2])[0])
+              for i, rows in shares]
+    if workers_count == 1:
+        assert shares == [(index, None) for index in range(len(rects))]  # one worker: whole tiles
+    else:  # guided: whole tiles first, smaller bands towards the end, none below the minimum (but a tile's last rows)
+        assert (shares[0] == (0, None)) == (workers_count == 2) and len(shares) >= 4 * workers_count
+        assert max(pixels[-3:]) <= 960 * 540 / (workers_count * workers._SHARES_PER_WORKER)
+        assert min(pixels) >= min(workers._MIN_SHARE_PIXELS, 192 * 28) / 2
+
+
+def test_a_band_of_rows_is_batched_as_in_its_whole_tile(monkeypatch):
+    """Each pixel's samples are summed in the same groups whether its tile renders whole or in
+    bands (here the tile's pixels are split into two parts with different batch sizes)."""
+    monkeypatch.setattr(render_module, "_MAX_VALUES", 3 * 288)
+
+    def groups(n, share=None):
+        start = share.start if share else 0
+        by_pixel = {}
+        for part, first, count in render_module._batches(n, 4, 3, share):
+            for pixel in range(part.start + start, part.stop + start):
+                by_pixel.setdefault(pixel, []).append((first, count))
+        return by_pixel
+
+    whole = groups(432)
+    assert {len(grouping) for grouping in whole.values()} == {2, 4}  # the test means something
+    banded = {}
+    for y0 in range(0, 18, 5):  # bands of 5 rows of 24 pixels
+        banded.update(groups(432, slice(24 * y0, 24 * min(y0 + 5, 18))))
+    assert banded == whole
+
+
+def test_bands_of_tiles_render_the_same_bits_as_whole_tiles(pool, monkeypatch):
+    monkeypatch.setattr(workers, "_MIN_SHARE_PIXELS", 1)
+    monkeypatch.setattr(render_module, "_MAX_VALUES", 3 * 100)  # several sample batches per tile
+    prepared = prepare(busy_scene(Velocity((0.0, 0.4, 0.0))), settings(tile_size=12, samples=5))
+    assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
+    stats = pool.last_stats
+    assert stats.shares > len(prepared.tiles()) and len(stats.rendered) == 2
+
+
+def test_render_stats_account_for_every_share(pool):
+    prepared = prepare(busy_scene(), settings(tile_size=6))
+    tiles = list(pool.render(prepared, lambda: False, 2))
+    stats = pool.last_stats
+    assert len(tiles) == len(prepared.tiles()) and stats.workers == 2 and sorted(stats.builds) == sorted(pool.pids)
+    rendered = [share for shares in stats.rendered.values() for share in shares]
+    assert len(rendered) == stats.shares and sum(share[1] for share in rendered) == 24 * 18
+    assert sorted({share[0] for share in rendered}) == list(range(len(tiles)))
+    for _, _, started, ended, cpu in rendered:
+        assert stats.started <= started <= ended <= stats.ended and cpu >= 0
+    for started, ended, cpu in stats.builds.values():
+        assert stats.started <= started <= ended <= stats.ended
+    assert stats.pickling > 0 and stats.parent_seconds > 0
+    list(pool.render(prepared, lambda: False, 2))  # the same scene again: not pickled, sent or rebuilt
+    assert pool.last_stats.pickling == 0 and pool.last_stats.builds == {}
