@@ -14,9 +14,10 @@ one per worker, started once): Blender as a Python module must run on its proces
 thread (bpy crashes when it renders from a Dask worker thread).  The child receives one
 :class:`headless.RenderSpec` per task (as JSON) and renders it with the same code as
 ``python -m restframe_addon render`` (it opens the .blend afresh), with the worker's own
-interpreter and ``sys.path``, so a worker must be able to ``import bpy`` and
-``import restframe_addon``; the client checks that on every worker before sending work and
-reports the ones that cannot.
+interpreter and ``sys.path`` and as many cores as Dask gives the worker (its thread count: the
+child's tile workers do not oversubscribe a machine where Dask runs a worker per core), so a
+worker must be able to ``import bpy`` and ``import restframe_addon``; the client checks that
+on every worker before sending work and reports the ones that cannot.
 
 A result carries the engine's proof that every tile was rendered; the client writes nothing
 else.  A child stopped by SIGINT or SIGTERM (Ctrl-C on the worker's terminal) writes
@@ -83,9 +84,10 @@ class Task:
     percentage: int | None = None
     region: tuple[int, int, int, int] | None = None
 
-    def render_spec(self, blend: str, output: str) -> headless.RenderSpec:
+    def render_spec(self, blend: str, output: str, threads: int | None = None) -> headless.RenderSpec:
         return headless.RenderSpec(blend=blend, output=output, frame=self.frame, scene=self.scene,
-                                   samples=self.samples, percentage=self.percentage, region=self.region)
+                                   samples=self.samples, percentage=self.percentage, region=self.region,
+                                   threads=threads)
 
 
 def job_regions(job: Job) -> list[tuple[int, int, int, int] | None]:
@@ -207,6 +209,18 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child before e
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
     except Exception:
         pass
+
+
+def dask_cores() -> int | None:
+    """The cores Dask gives this worker process (its thread count; one task renders at a time
+    here), so its render child starts that many tile workers, not one per core of the machine
+    where Dask already runs a worker per core; None outside a Dask worker."""
+    try:
+        from distributed import get_worker
+
+        return max(int(get_worker().state.nthreads), 1)
+    except (ImportError, ValueError, AttributeError):
+        return None
 
 
 def _local_blend(task: Task, bundle: dict | None) -> str:
@@ -375,6 +389,7 @@ def _serve() -> int:
 
         import restframe_addon
         import restframe_addon.engine  # noqa: F401  (the core and embreex)
+        from restframe_addon.core import workers
     except BaseException as error:
         answer({"error": f"{type(error).__name__}: {error}"})
         return 1
@@ -385,7 +400,8 @@ def _serve() -> int:
                 spec = headless.RenderSpec.from_json(json.loads(line)["render"])
                 try:
                     outcome = headless.render(spec)
-                    answer({"tiles": outcome.tiles, "total": outcome.total, "complete": outcome.complete})
+                    answer({"tiles": outcome.tiles, "total": outcome.total, "complete": outcome.complete,
+                            "tile_workers": len(workers.pool().pids)})
                 except headless.CommandError as error:
                     answer({"error": str(error)})
     except headless.Interrupted as interrupt:
@@ -397,7 +413,8 @@ def _serve() -> int:
 
 def render_task(task: Task, bundle: dict | None = None) -> dict:
     """Render one frame (or one region of it) in this worker's render server; return the file's
-    bytes with the engine's tile count as proof that it is complete.
+    bytes with the engine's tile count as proof that it is complete (and ``tile_workers``: the
+    tile worker processes the render child runs, as many as this worker's cores at most).
 
     Returns ``{"error": message}`` for RESTframe's own errors (bad scene: no use retrying) and
     raises :class:`TaskCrashed` when the render child died or was interrupted, so Dask retries
@@ -415,7 +432,7 @@ def render_task(task: Task, bundle: dict | None = None) -> dict:
             if "ready" not in server.hello:
                 raise TaskCrashed(f"the render child on {where} cannot start: "
                                   f"{server.hello.get('error') or server.hello.get('dead')}")
-            answer = server.request(task.render_spec(blend, out))
+            answer = server.request(task.render_spec(blend, out, dask_cores()))
             if "interrupted" in answer:  # the child is on its way out: the next task starts a new one
                 _forget_server()
         if "dead" in answer or "interrupted" in answer:
@@ -433,7 +450,8 @@ def render_task(task: Task, bundle: dict | None = None) -> dict:
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
     return {"data": data, "host": where, "seconds": time.monotonic() - started,
-            "tiles": answer["tiles"], "total": answer["total"], "complete": True}
+            "tiles": answer["tiles"], "total": answer["total"], "complete": True,
+            "tile_workers": answer.get("tile_workers")}
 
 
 def is_complete(result: dict) -> bool:

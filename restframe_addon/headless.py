@@ -76,6 +76,7 @@ class RenderSpec:
     samples: int | None = None
     percentage: int | None = None
     region: tuple[int, int, int, int] | None = None  # pixel rectangle, X1/Y1 exclusive
+    threads: int | None = None  # cores the render may use (tile worker processes or threads); None: the scene's setting
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -235,11 +236,15 @@ def _blender_message(error: RuntimeError) -> str:
     return message[len("Error: "):] if message.startswith("Error: ") else message
 
 
-def apply_overrides(scene, samples: int | None = None, percentage: int | None = None) -> None:
+def apply_overrides(scene, samples: int | None = None, percentage: int | None = None,
+                    threads: int | None = None) -> None:
     if samples is not None:
         scene.restframe.samples = samples
     if percentage is not None:
         scene.render.resolution_percentage = percentage
+    if threads is not None:
+        scene.render.threads_mode = 'FIXED'
+        scene.render.threads = threads
 
 
 def configure_output(scene, out: str) -> str:
@@ -327,7 +332,7 @@ def render_frame(scene, frame: int, path: str):
 def render(spec: RenderSpec):
     """Open ``spec.blend`` afresh, render the frame (or region) and write ``spec.output``."""
     scene = open_blend(spec.blend, spec.scene)
-    apply_overrides(scene, spec.samples, spec.percentage)
+    apply_overrides(scene, spec.samples, spec.percentage, spec.threads)
     configure_output(scene, spec.output)
     if spec.region is not None:
         set_region(scene, spec.region)

@@ -378,3 +378,15 @@ def test_regions_fill_the_files_render_border_as_one_render_does(tiny_blend, clu
     shape = (18, 16) if crop == "crop" else (24, 32)  # the border: x 6..22, y 3..21 (Blender truncates)
     assert exr_channels(tmp_path / "whole.exr")["ViewLayer.Combined/ViewLayer.Combined.R"].shape == shape
     assert_same_exr(tmp_path / "regions.exr", tmp_path / "whole.exr")
+
+
+def test_a_render_child_runs_as_many_tile_workers_as_its_dask_worker_has_threads(tiny_blend, cluster):
+    """The cluster's workers have one thread each: a child starting a tile worker per core of the
+    machine would run cores x cores render processes."""
+    from restframe_addon import distributed
+
+    client = cluster[1]
+    task = distributed.Task(blend=str(tiny_blend), copy="unused", scene="", frame=1, ext=".png")
+    result = client.submit(distributed.render_task, task, pure=False).result(timeout=240)
+    assert distributed.is_complete(result) and result["tile_workers"] == 1
+    assert distributed.dask_cores() is None  # not in a Dask worker
