@@ -155,7 +155,7 @@ class RenderStats:
     workers: int = 0
     shares: int = 0  # work units dealt (tiles, or bands of their rows)
     pickling: float = 0.0  # this process pickling the scene (0: the scene was sent before)
-    sending: float = 0.0  # writing the scene to the workers
+    sending: float = 0.0  # writing the scene's file and telling the workers (CPU)
     loop_cpu: float = 0.0  # the render loop (dealing, receiving, joining bands), this thread
     receiving_cpu: float = 0.0  # the reader threads unpickling the workers' results
     caller: float = 0.0  # wall time the caller spent between tiles (the engine: streaming a tile into Blender's result)
@@ -225,7 +225,9 @@ class _Worker:
             inbox.put((self, message))
 
     def close(self, wait: float = 1.0):
-        """EOF on its stdin ends the worker; kill it if it has not ended after ``wait`` seconds."""
+        """"exit" and EOF on its stdin end the worker; kill it if it has not ended after ``wait``
+        seconds.  (EOF alone means its parent died: it then removes the scene's file.)"""
+        self.send(("exit",))
         self.alive = False
         try:
             self.process.stdin.close()
@@ -294,11 +296,11 @@ class WorkerPool:
         for worker in self._workers:
             worker.dealt = {}
         receiving = {worker: worker.receiving_cpu for worker in workers}
-        sending = time.monotonic()
+        sending = time.thread_time()
         for worker in workers:
             if worker.scene_id != scene_id:
                 worker.scene_id = scene_id if worker.send(("scene", scene_id, self._scene_file)) else None
-        stats.sending += time.monotonic() - sending
+        stats.sending += time.thread_time() - sending
         cpu = time.thread_time()
         shares = share_out(rects, len(workers))
         stats.workers, stats.shares = len(workers), len(shares)
@@ -356,13 +358,13 @@ class WorkerPool:
             pickling = time.thread_time()
             payload = pickle.dumps(prepared, protocol=pickle.HIGHEST_PROTOCOL)
             stats.pickling = time.thread_time() - pickling
-            writing = time.monotonic()
+            writing = time.thread_time()
             self._forget_scene()
             descriptor, self._scene_file = tempfile.mkstemp(prefix=f"restframe-scene-{os.getpid()}-", suffix=".pickle")
             self._scene_file_removal = weakref.finalize(self, _remove, self._scene_file)
             with open(descriptor, "wb") as scene_file:
                 scene_file.write(payload)
-            stats.sending = time.monotonic() - writing
+            stats.sending = time.thread_time() - writing
             self._scene_bytes = len(payload)
             self._sent_scene = (weakref.ref(prepared), next(self._scene_ids))
         return self._sent_scene[1]
@@ -507,7 +509,7 @@ def serve(commands, results, parent_pid: int):
     cancelled = [0]  # renders up to this job were cancelled (Esc)
     scene_file = [None]  # the file of the last scene sent: removed here if the parent dies without doing it
 
-    def leave():
+    def orphaned():
         if scene_file[0] is not None:
             _remove(scene_file[0])
         os._exit(0)
@@ -516,8 +518,10 @@ def serve(commands, results, parent_pid: int):
         while True:
             try:
                 message = pickle.load(commands)
-            except Exception:  # EOF: the parent closed the pipe or died
-                leave()
+            except Exception:  # EOF without "exit": the parent died
+                orphaned()
+            if message[0] == "exit":
+                os._exit(0)
             if message[0] == "scene":
                 scene_file[0] = message[2]
             if message[0] == "cancel":
@@ -527,7 +531,7 @@ def serve(commands, results, parent_pid: int):
     def watch_parent():
         while _process_alive(parent_pid):
             time.sleep(_WATCHDOG)
-        leave()
+        orphaned()
 
     def send(message):
         try:

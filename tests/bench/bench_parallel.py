@@ -90,10 +90,11 @@ def balance(stats) -> list[dict]:
 
 
 def serial_seconds(stats, rebuild: float, streaming_per_tile: float, tiles: int) -> dict:
-    """The render's serial work, as measured: what no added core shortens.  This process's loop
-    and unpickling run beside the workers but are counted whole (an upper bound: on a machine
-    whose every core runs a worker they take a core's time)."""
-    return {"pickling": stats.pickling, "sending": stats.sending, "rebuild in a worker (cold)": rebuild,
+    """The render's serial work, as measured (CPU seconds, which the machine's load does not
+    inflate): what no added core shortens.  This process's loop and unpickling run beside the
+    workers but are counted whole (an upper bound: on a machine whose every core runs a worker
+    they take a core's time)."""
+    return {"pickling": stats.pickling, "sending": stats.sending, "rebuild in a worker": rebuild,
             "parent loop": stats.loop_cpu, "unpickling results": stats.receiving_cpu,
             "streaming into Blender's result": streaming_per_tile * tiles}
 
@@ -110,7 +111,10 @@ def engine_streaming(blend, resolution, samples, tile_size) -> tuple[float, int]
     from restframe_addon.core import workers
 
     export_blend(blend, resolution, samples, tile_size)
-    bpy.context.scene.restframe.parallelism = 'PROCESSES'
+    scene = bpy.context.scene
+    if resolution is not None:
+        (scene.render.resolution_x, scene.render.resolution_y), scene.render.resolution_percentage = resolution, 100
+    scene.restframe.parallelism = 'PROCESSES'
     bpy.ops.render.render(write_still=False)
     stats = workers.pool().last_stats
     return stats.caller, len({share[0] for shares in stats.rendered.values() for share in shares})
@@ -141,7 +145,7 @@ def main():
     for name, (blend, resolution, samples, tile_size) in SCENES.items():
         if args.quick:
             resolution, samples = (96, 54), 1
-        streaming, streamed = engine_streaming(blend, resolution, samples, tile_size)
+        streaming, streamed = engine_streaming(blend, resolution, samples, tile_size)  # warms the session pool
         core_scene, settings = export_blend(blend, resolution, samples, tile_size)
         t0 = time.perf_counter()
         prepared = prepare(core_scene, settings)
@@ -149,9 +153,9 @@ def main():
         t0 = time.perf_counter()
         data = pickle.dumps(prepared)
         pickling = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        pickle.loads(data)
-        rebuild = time.perf_counter() - t0
+        t0 = time.thread_time()
+        pickle.loads(data)  # no geometry cache here: what a worker pays for a scene it has not built before
+        rebuild = time.thread_time() - t0
         payload = len(data)
 
         def threads(count, prepared=prepared):
@@ -227,28 +231,36 @@ def main():
                   f"| {row['idle']:.2f} | {row['first']:.3f} | {row['last']:.3f} |")
         ends = [row["last"] for row in rows]
         work_one, work_two = sum(row["busy"] for row in balance(one)), sum(row["busy"] for row in rows)
+        cpu_one, cpu_two = sum(row["cpu"] for row in balance(one)), sum(row["cpu"] for row in rows)
         wall_one, wall_two = one.ended - one.started, two.ended - two.started
         print(f"\n- imbalance: the two workers' last shares end {max(ends) - min(ends):.3f} s apart "
               f"({(max(ends) - min(ends)) / wall_two:.1%} of the render); both workers' busy time together "
-              f"{work_two:.2f} s against one worker's {work_one:.2f} s ({work_two / work_one:.2f}x)")
+              f"{work_two:.2f} s against one worker's {work_one:.2f} s ({work_two / work_one:.2f}x), their CPU "
+              f"{cpu_two:.2f} s against {cpu_one:.2f} s ({cpu_two / cpu_one:.2f}x: what the bands and a second "
+              f"worker cost; busy time above CPU time is time waiting for a core)")
         print(f"- processes x2 against half of processes x1 ({wall_one:.2f} / 2 s, fastest runs): {wall_two - wall_one / 2:+.3f} s "
               f"= before the first share {min(row['first'] for row in rows) - min(row['first'] for row in balance(one)):+.3f} s, "
               f"extra busy per worker {work_two / 2 - work_one / 2:+.3f} s, idle at the end {(max(ends) - min(ends)) / 2:+.3f} s, "
               f"after the last share {(wall_two - max(ends)) - (wall_one - max(row['last'] for row in balance(one))):+.3f} s")
-        serial = serial_seconds(one, rebuild, streaming / streamed if streamed else 0.0, tiles)
-        total = sum(serial.values())
-        warm = max((end - start for start, end, _ in one.builds.values()), default=0.0)
-        print(f"- serial work (processes x1, fastest run; streaming measured in one F12 through the engine: "
+        streaming_per_tile = streaming / streamed if streamed else 0.0
+        warm = max((cpu for _, _, cpu in one.builds.values()), default=0.0)
+        print(f"- serial work, CPU s (processes x1, fastest run; the streaming from one F12 through the engine, "
               f"{streaming * 1e3:.1f} ms for {streamed} tiles): "
-              + ", ".join(f"{name} {value * 1e3:.1f} ms" for name, value in serial.items())
-              + f"; total {total * 1e3:.1f} ms against {work_one:.2f} s of rendering in the worker (the warm "
-              f"worker, its geometry cached, rebuilt the scene in {warm * 1e3:.1f} ms)")
-        print(f"- serial share {total / (total + work_one):.2%}: Amdahl {amdahl(total, work_one, 8):.1f}x on 8 cores, "
-              f"{amdahl(total, work_one, 16):.1f}x on 16 (shares: {two.shares} for 2 workers, "
-              f"{len(workers.share_out(prepared.tiles(), 8))} for 8, {len(workers.share_out(prepared.tiles(), 16))} for 16)")
-        print(f"- an F12 first prepares the scene in this process ({preparing:.2f} s: rest frames and pre-passes, "
-              f"the same for threads); counted as serial too: {amdahl(total + preparing, work_one, 8):.1f}x on 8 cores, "
-              f"{amdahl(total + preparing, work_one, 16):.1f}x on 16")
+              + ", ".join(f"{name} {value * 1e3:.1f} ms" for name, value in
+                          serial_seconds(one, rebuild, streaming_per_tile, tiles).items())
+              + f" (cold: a scene the worker has not built; {warm * 1e3:.1f} ms warm, its geometry cached, "
+              f"as for the frames of an animation); rendering in the worker {cpu_one:.2f} CPU s")
+        print("\n| serial share and Amdahl projection | serial ms | share | 8 cores | 16 cores |")
+        print("|---|---|---|---|---|")
+        for label, rebuilt, extra in (("cold rebuild (a first F12)", rebuild, 0.0),
+                                      ("warm rebuild (re-render, animation frames)", warm, 0.0),
+                                      (f"cold, and this process preparing the scene first ({preparing * 1e3:.0f} ms, "
+                                       f"the same for threads)", rebuild, preparing)):
+            total = sum(serial_seconds(one, rebuilt, streaming_per_tile, tiles).values()) + extra
+            print(f"| {label} | {total * 1e3:.1f} | {total / (total + cpu_one):.2%} | {amdahl(total, cpu_one, 8):.1f}x "
+                  f"| {amdahl(total, cpu_one, 16):.1f}x |")
+        print(f"\nShares dealt: {two.shares} for 2 workers, {len(workers.share_out(prepared.tiles(), 8))} for 8, "
+              f"{len(workers.share_out(prepared.tiles(), 16))} for 16 ({tiles} tiles).\n")
         print(f"- peak RSS of the tuned workers so far: "
               f"{', '.join(f'{peak_rss_mb(pid):.0f} MB' for pid in tuned.pids)}\n")
     tuned.close()
