@@ -309,3 +309,11 @@ def test_render_stats_account_for_every_share(pool):
     assert stats.pickling > 0 and stats.parent_seconds > 0
     list(pool.render(prepared, lambda: False, 2))  # the same scene again: not pickled, sent or rebuilt
     assert pool.last_stats.pickling == 0 and pool.last_stats.builds == {}
+
+
+def test_two_tiles_go_to_two_workers(pool):
+    """The first round deals one share to every worker (dealing two to the first would leave the
+    second idle)."""
+    prepared = prepare(busy_scene(), settings(resolution=(24, 12), tile_size=12))
+    assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
+    assert sorted(len(shares) for shares in pool.last_stats.rendered.values()) == [1, 1]
