@@ -156,7 +156,8 @@ class RenderStats:
     shares: int = 0  # work units dealt (tiles, or bands of their rows)
     pickling: float = 0.0  # this process pickling the scene (0: the scene was sent before)
     sending: float = 0.0  # writing the scene's file and telling the workers (CPU)
-    loop_cpu: float = 0.0  # the render loop (dealing, receiving, joining bands), this thread
+    loop_cpu: float = 0.0  # the render loop handling messages (dealing, receiving, joining bands), this thread
+    polling_cpu: float = 0.0  # its checks for Esc while no message came (every _POLL s: it grows with the wall time)
     receiving_cpu: float = 0.0  # the reader threads unpickling the workers' results
     caller: float = 0.0  # wall time the caller spent between tiles (the engine: streaming a tile into Blender's result)
     builds: dict = dataclasses.field(default_factory=dict)  # worker pid -> (start, end, cpu) of rebuilding the scene
@@ -310,6 +311,7 @@ class WorkerPool:
         done = set()  # tiles yielded
         try:
             while len(done) < len(rects):
+                iteration = time.thread_time()
                 if should_stop():
                     return
                 self._deal(workers, todo, job, scene_id, rects)
@@ -325,6 +327,7 @@ class WorkerPool:
                     worker, message = self._inbox.get(timeout=_POLL)
                 except queue.Empty:
                     self._stop_stuck(workers)
+                    stats.polling_cpu += time.thread_time() - iteration
                     continue
                 received = self._receive(worker, message, job, todo, scene_id, stats)
                 if received is None:
@@ -346,7 +349,7 @@ class WorkerPool:
             if len(done) < len(rects):  # Esc, an error, or the caller stopped iterating: free the workers at once
                 for worker in workers:
                     worker.send(("cancel", job))
-            stats.loop_cpu += time.thread_time() - cpu
+            stats.loop_cpu += time.thread_time() - cpu - stats.polling_cpu
             stats.receiving_cpu = sum(worker.receiving_cpu - before for worker, before in receiving.items())
             stats.ended = time.monotonic()
 

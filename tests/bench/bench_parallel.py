@@ -272,7 +272,9 @@ def main():
               + ", ".join(f"{name} {value * 1e3:.1f} ms" for name, value in
                           serial_seconds(one, rebuild, streaming_per_tile, tiles).items())
               + f" (cold: a scene the worker has not built; {warm * 1e3:.1f} ms warm, its geometry cached, "
-              f"as for the frames of an animation); rendering in the worker {cpu_one:.2f} CPU s")
+              f"as for the frames of an animation); rendering in the worker {cpu_one:.2f} CPU s. Not counted: "
+              f"the loop's checks for Esc between messages, {one.polling_cpu * 1e3:.1f} ms (every 50 ms of wall time, "
+              f"so they shrink with the render's wall time)")
         print("\n| serial share and Amdahl projection | serial ms | share | 8 cores | 16 cores |")
         print("|---|---|---|---|---|")
         for label, rebuilt, extra in (("cold rebuild (a first F12)", rebuild, 0.0),
