@@ -38,6 +38,7 @@ import itertools
 import os
 import pickle
 import queue
+import signal
 import subprocess
 import sys
 import tempfile
@@ -67,7 +68,7 @@ _ONE_BLAS_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NU
 
 _TILES_IN_FLIGHT = 2  # shares per worker: one rendering, one waiting, so a worker never idles between them
 _SHARES_PER_WORKER = 4  # guided dealing: a share is about this fraction of a worker's part of what is left
-_MIN_SHARE_PIXELS = 1024  # smaller bands would cost more in per-share overhead than they win in balance
+_MIN_SHARE_PIXELS = 8192  # smaller bands cost more than they win: a render_tile call costs 0.2-3.5 ms whatever its size
 _WORKER_MEMORY = 400 << 20  # bytes a worker needs besides its scene (interpreter, numpy, embree, tile batches)
 _SCENE_MEMORY_FACTOR = 6  # a worker's rebuilt scene (frames, BVHs, caches) against its pickled size
 _START_TIMEOUT = 120.0  # seconds a starting worker may take to say it is ready
@@ -516,6 +517,18 @@ def serve(commands, results, parent_pid: int):
         if scene_file[0] is not None:
             _remove(scene_file[0])
         os._exit(0)
+
+    def terminated(signum, frame):
+        """SIGTERM, often to the whole process group: if the parent goes too (a plain Python
+        parent dies of it without removing anything), remove the scene's file for it."""
+        deadline = time.monotonic() + 1.0
+        while time.monotonic() < deadline:
+            if not _process_alive(parent_pid):
+                orphaned()
+            time.sleep(0.02)
+        os._exit(0)
+
+    signal.signal(signal.SIGTERM, terminated)
 
     def read():
         while True:

@@ -225,6 +225,20 @@ def test_workers_end_with_their_parent(tmp_path):
         time.sleep(0.1)
     assert not any(_alive(pid) for pid in pids)
     assert not _scene_files(parent.pid)
+    # SIGTERM to the whole process group: the parent dies of it at once, the workers remove its file
+    group = subprocess.Popen([sys.executable, str(script), "orphan"], stdout=subprocess.PIPE, text=True,
+                             start_new_session=True)
+    try:
+        pids = [int(pid) for pid in group.stdout.readline().split()]
+        assert group.stdout.readline().split() == [str(group.pid), "True"]
+    finally:
+        os.killpg(group.pid, signal.SIGTERM)
+        group.wait()
+    for _ in range(100):
+        if not any(_alive(pid) for pid in pids):
+            break
+        time.sleep(0.1)
+    assert not any(_alive(pid) for pid in pids) and not _scene_files(group.pid)
 
 
 def _scene_files(pid):
