@@ -284,6 +284,15 @@ def main():
             total = sum(serial_seconds(one, rebuilt, streaming_per_tile, tiles).values()) + extra
             print(f"| {label} | {total * 1e3:.1f} | {total / (total + cpu_one):.2%} | {amdahl(total, cpu_one, 8):.1f}x "
                   f"| {amdahl(total, cpu_one, 16):.1f}x |")
+        # the parent's per-tile work overlaps the workers' (it receives and streams tile k while they
+        # render k+1...): only the last tile's is on the critical path, the rest takes its share of the cores
+        per_tile = (one.loop_cpu + one.receiving_cpu) / tiles + streaming_per_tile
+        for label, rebuilt in (("cold rebuild, the parent's per-tile work overlapping the workers'", rebuild),
+                               ("warm rebuild, the parent's per-tile work overlapping the workers'", warm)):
+            serial = one.pickling + one.sending + rebuilt + per_tile
+            parallel = cpu_one + per_tile * (tiles - 1)
+            print(f"| {label} | {serial * 1e3:.1f} | {serial / (serial + parallel):.2%} "
+                  f"| {amdahl(serial, parallel, 8):.1f}x | {amdahl(serial, parallel, 16):.1f}x |")
         print(f"\nShares dealt: {two.shares} for 2 workers, {len(workers.share_out(prepared.tiles(), 8))} for 8, "
               f"{len(workers.share_out(prepared.tiles(), 16))} for 16 ({tiles} tiles).\n")
         print(f"- peak RSS of the tuned workers so far: "
