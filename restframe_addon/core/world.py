@@ -82,34 +82,41 @@ def _polar(z, phi):
     return out
 
 
-def image_lookup(image, u, v, interpolation: str = "Linear"):
+def image_lookup(image, u, v, interpolation: str = "Linear", channels: int | None = None):
     """Colours (n, C) of an (H, W, C) image at (u, v), repeating in both directions as Cycles'
-    environment lookups: bilinear between pixel centres, or the nearest pixel (Closest).
-    Gathers and blends one channel at a time (flat indices; see :mod:`.rows`)."""
-    h, w, channels = image.shape
+    environment lookups: bilinear between pixel centres, or the nearest pixel (Closest);
+    ``channels``: only the first so many.  Gathers and blends one channel at a time, from
+    flat indices into the pixels as they lie (no copy of a contiguous image; see :mod:`.rows`)."""
+    h, w, stored = image.shape
+    channels = stored if channels is None else min(channels, stored)
+    pixels = image.reshape(h * w, stored)
     out = np.empty((len(u), channels), dtype=np.result_type(image, np.float64))
     if interpolation == "Closest":
         index = (np.floor(v * h).astype(np.int64) % h) * w + np.floor(u * w).astype(np.int64) % w
         for c in range(channels):
-            out[:, c] = image[..., c].ravel()[index]
+            out[:, c] = pixels[:, c][index]
         return out
     x = u * w - 0.5
     y = v * h - 0.5
     x0 = np.floor(x)
     y0 = np.floor(y)
     fx, fy = x - x0, y - y0
+    gx, gy = 1 - fx, 1 - fy
     x0 = x0.astype(np.int64) % w
     y0 = y0.astype(np.int64) % h
-    x1 = (x0 + 1) % w
-    row0, row1 = y0 * w, ((y0 + 1) % h) * w
+    x1 = x0 + 1
+    x1[x1 == w] = 0
+    row0 = y0 * w
+    y0 += 1
+    y0[y0 == h] = 0
+    row1 = y0 * w
     corners = (row0 + x0, row0 + x1, row1 + x0, row1 + x1)
-    weights = ((1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy)
+    weights = (gx * gy, fx * gy, gx * fy, fx * fy)
     for c in range(channels):
-        plane = image[..., c].ravel()
-        total = weights[0] * plane[corners[0]]
+        plane, column = pixels[:, c], out[:, c]
+        np.multiply(weights[0], plane[corners[0]], out=column)
         for corner, weight in zip(corners[1:], weights[1:]):
-            total += weight * plane[corner]
-        out[:, c] = total
+            column += weight * plane[corner]
     return out
 
 
