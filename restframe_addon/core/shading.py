@@ -48,6 +48,9 @@ PASS_ALPHA_THRESHOLD = 0.5
 # sampler dimensions of the cut-out decisions: from here, 1000 per (bounce depth, ray type) and
 # (bounce depth, light), one more per surface passed (at most tracer._MAX_PASS_THROUGH < 1000)
 _CUTOUT_DIMENSION = 1_000_000
+# Direct Light shades the hits in a lamp's shadow too (with no light), rather than gathering the
+# others, unless more than 1 in this many are in shadow (a gather costs about 1/8 of the shading)
+_SHADE_IN_SHADOW = 8
 
 
 class MaterialTable:
@@ -70,6 +73,7 @@ class MaterialTable:
         self.specular_scale = 2.0 * np.clip([m.specular_ior_level for m in materials], 0.0, None)
         self.transmission = np.clip([m.transmission for m in materials], 0.0, 1.0)
         self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
+        self.emits = np.any(self.emission != 0.0, axis=1)
         # images kept contiguous: looked up from flat indices without a copy (world.image_lookup)
         self.textures = [_contiguous(m.base_color_texture) for m in materials]
         self.closest = [m.base_color_interpolation == "Closest" for m in materials]
@@ -117,7 +121,7 @@ class MaterialTable:
         one = _only_material(index) if uv is not None else None
         if one is not None and self.textures[one] is not None:  # one textured material: no gathers
             return self._texture_color(one, uv[:, 0], uv[:, 1])
-        color = self.base[index]
+        color = np.take(self.base, index, axis=0)
         if uv is None:
             return color
         for m, texture in enumerate(self.textures):
@@ -362,20 +366,20 @@ class Shader:
         if held is not None:
             values[held] = 0.0
         for k in frames_hit(hits):
-            sel = np.flatnonzero(hits.frame == k if held is None else (hits.frame == k) & ~held)
-            if len(sel) == 0:
+            sel = _selection(hits.frame == k if held is None else (hits.frame == k) & ~held)
+            if sel is None:
                 continue
             fmap = self.frames.map(src, int(k))
-            d_k, w = hits.d_frame[sel], hits.w[sel]
+            d_k, w = _take(hits.d_frame, sel), _take(hits.w, sel)
             tau_hit = hit_times(hits, sel)
-            prim, u, v = hits.prim[sel], hits.u[sel], hits.v[sel]
+            prim, u, v = _take(hits.prim, sel), _take(hits.u, sel), _take(hits.v, sel)
             frame = self.frames.frames[k]
             if fmap.is_identity and frame.spin is None:  # at rest with the viewer: D = 1
-                values[sel] = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, pixel[sel], sample[sel],
-                                                  _rows(lam, sel), cache)
+                values[sel] = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, _take(pixel, sel),
+                                                  _take(sample, sel), _rows(lam, sel), cache)
                 continue
             doppler = hit_doppler(frame, prim, u, v, tau_hit, d_k, w)
-            local = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, pixel[sel], sample[sel],
+            local = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, _take(pixel, sel), _take(sample, sel),
                                         self.colour.shift(_rows(lam, sel), doppler), cache)
             values[sel] = rows.scale(local, self.searchlight_power(doppler, 4))
         return values, hits
@@ -451,11 +455,15 @@ class Shader:
         position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau)
         uv = hit_uv(frame, prim, u, v)
         base = self.colour.base_color(mat, uv, lam)
-        values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
-        if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
-            values *= self.materials.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
-        if self.lights:
-            values += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
+        one = _only_material(mat)
+        if self.lights and one is not None and not self.materials.emits[one]:  # the direct light alone
+            values = self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
+        else:
+            values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
+            if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
+                values *= self.materials.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
+            if self.lights:
+                values += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
         if self.materials.traces_secondary and depth < self.max_bounces:
             values += self._secondary(k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam,
                                       cache)
@@ -536,18 +544,27 @@ class Shader:
             sel = _selection((cos_n > 0.0) & (rows.dot(ng, e_k) > 0.0) & (strength > 0.0))
             if sel is None:
                 continue
-            origin = position[sel] + eps * ng[sel]
-            reach = s_max[sel] - 2.0 * eps if np.ndim(s_max) else s_max  # sunlight: unbounded
-            blocked = occluded(self.frames, k, tau[sel], origin, e_k[sel], eps, reach, cache,
-                               see_through=self.cutouts(pixel[sel], sample[sel], _cutout_dimension(depth, 8 + index)))
-            sel = _selection(~blocked, sel)
-            if sel is None:
+            e_sel = _take(e_k, sel)
+            tau_sel, pixel_sel, sample_sel = _take(tau, sel), _take(pixel, sel), _take(sample, sel)
+            origin = _take(position, sel) + eps * _take(ng, sel)
+            reach = _take(s_max, sel) - 2.0 * eps if np.ndim(s_max) else s_max  # sunlight: unbounded
+            blocked = occluded(self.frames, k, tau_sel, origin, e_sel, eps, reach, cache,
+                               see_through=self.cutouts(pixel_sel, sample_sel, _cutout_dimension(depth, 8 + index)))
+            weight = _take(strength, sel) * _take(cos_n, sel)
+            shadowed = np.count_nonzero(blocked)
+            if shadowed == len(blocked):
                 continue
+            if shadowed * _SHADE_IN_SHADOW > len(blocked):  # many in shadow: shade only the others
+                lit = np.flatnonzero(~blocked)
+                e_sel, weight = np.take(e_sel, lit, axis=0), np.take(weight, lit)
+                sel = lit if isinstance(sel, slice) else np.take(sel, lit)
+            elif shadowed:  # a few: cheaper to shade them too, with no light
+                weight[blocked] = 0.0
             part = None if lobes is None else lobes.take(sel)
-            f = self.brdf(ns[sel], view[sel], e_k[sel], base[sel], mat[sel], part)
-            emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(f),
-                                        None if clock is None else clock[sel])
-            f = _weighted_product(f, emitted, strength[sel] * cos_n[sel])
+            f = self.brdf(_take(ns, sel), _take(view, sel), e_sel, _take(base, sel), _take(mat, sel), part)
+            emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), _take(doppler, sel)), len(f),
+                                        None if clock is None else _take(clock, sel))
+            f = _weighted_product(f, emitted, weight)
             if total is None and isinstance(sel, slice):
                 total = f
             else:
@@ -697,7 +714,7 @@ def hit_uv(frame, prim, u, v):
     corner_uvs = frame.geometry.corner_uvs
     if corner_uvs is None:
         return None
-    cuv = corner_uvs[prim]
+    cuv = np.take(corner_uvs, prim, axis=0)
     first = 1.0 - u - v  # the barycentric weight of the first corner
     uv = np.empty((len(prim), 2), dtype=np.result_type(first, cuv))
     for c in range(2):  # column by column (see rows)
@@ -730,7 +747,13 @@ def uv_tangents(frame, prim, tau=None):
 
 def _rows(lam, index):
     """The wavelengths of some rays (None in RGB mode)."""
-    return None if lam is None else lam[index]
+    return None if lam is None else _take(lam, index)
+
+
+def _take(a, sel):
+    """Rows ``sel`` (a slice or indices) of an array: a view, or np.take (several times faster
+    than fancy indexing of (n, 3) rows)."""
+    return a[sel] if isinstance(sel, slice) else np.take(a, sel, axis=0)
 
 
 def _spot_falloff(cos_angle, spot_size, blend):

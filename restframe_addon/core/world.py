@@ -85,16 +85,17 @@ def _polar(z, phi):
 def image_lookup(image, u, v, interpolation: str = "Linear", channels: int | None = None):
     """Colours (n, C) of an (H, W, C) image at (u, v), repeating in both directions as Cycles'
     environment lookups: bilinear between pixel centres, or the nearest pixel (Closest);
-    ``channels``: only the first so many.  Gathers and blends one channel at a time, from
-    flat indices into the pixels as they lie (no copy of a contiguous image; see :mod:`.rows`)."""
+    ``channels``: only the first so many.  Gathers whole pixels (np.take of rows, no copy of a
+    contiguous image) and blends one channel at a time (see :mod:`.rows`)."""
     h, w, stored = image.shape
     channels = stored if channels is None else min(channels, stored)
     pixels = image.reshape(h * w, stored)
     out = np.empty((len(u), channels), dtype=np.result_type(image, np.float64))
     if interpolation == "Closest":
-        index = (np.floor(v * h).astype(np.int64) % h) * w + np.floor(u * w).astype(np.int64) % w
+        index = _wrap(np.floor(v * h).astype(np.int64), h) * w + _wrap(np.floor(u * w).astype(np.int64), w)
+        found = np.take(pixels, index, axis=0)
         for c in range(channels):
-            out[:, c] = pixels[:, c][index]
+            out[:, c] = found[:, c]
         return out
     x = u * w - 0.5
     y = v * h - 0.5
@@ -102,8 +103,8 @@ def image_lookup(image, u, v, interpolation: str = "Linear", channels: int | Non
     y0 = np.floor(y)
     fx, fy = x - x0, y - y0
     gx, gy = 1 - fx, 1 - fy
-    x0 = x0.astype(np.int64) % w
-    y0 = y0.astype(np.int64) % h
+    x0 = _wrap(x0.astype(np.int64), w)
+    y0 = _wrap(y0.astype(np.int64), h)
     x1 = x0 + 1
     x1[x1 == w] = 0
     row0 = y0 * w
@@ -112,12 +113,21 @@ def image_lookup(image, u, v, interpolation: str = "Linear", channels: int | Non
     row1 = y0 * w
     corners = (row0 + x0, row0 + x1, row1 + x0, row1 + x1)
     weights = (gx * gy, fx * gy, gx * fy, fx * fy)
-    for c in range(channels):
-        plane, column = pixels[:, c], out[:, c]
-        np.multiply(weights[0], plane[corners[0]], out=column)
-        for corner, weight in zip(corners[1:], weights[1:]):
-            column += weight * plane[corner]
+    for i, (corner, weight) in enumerate(zip(corners, weights)):
+        found = np.take(pixels, corner, axis=0)
+        for c in range(channels):
+            if i == 0:
+                np.multiply(weight, found[:, c], out=out[:, c])
+            else:
+                out[:, c] += weight * found[:, c]
     return out
+
+
+def _wrap(index, size: int):
+    """``index % size`` (repeat), by a bit mask when size is a power of two (as fast as an add)."""
+    if size & (size - 1) == 0:
+        return index & (size - 1)
+    return index % size
 
 
 # ---------------------------------------------------------------------------- worlds
