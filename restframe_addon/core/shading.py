@@ -565,12 +565,13 @@ class Shader:
             emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), _take(doppler, sel)), len(f),
                                         None if clock is None else _take(clock, sel))
             f = _weighted_product(f, emitted, weight)
-            if total is None and isinstance(sel, slice):
+            if total is not None:
+                total[sel] += f
+            elif isinstance(sel, slice):
                 total = f
             else:
-                if total is None:
-                    total = np.zeros_like(base)
-                total[sel] += f
+                total = np.zeros_like(base)
+                total[sel] = f
         return np.zeros_like(base) if total is None else total
 
     def _incident(self, pl: PreparedLight, k, tau, position, xi1, xi2):

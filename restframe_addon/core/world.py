@@ -125,7 +125,7 @@ def image_lookup(image, u, v, interpolation: str = "Linear", channels: int | Non
 
 def _wrap(index, size: int):
     """``index % size`` (repeat), by a bit mask when size is a power of two (as fast as an add)."""
-    if size & (size - 1) == 0:
+    if (size & (size - 1)) == 0:
         return index & (size - 1)
     return index % size
 
