@@ -216,3 +216,26 @@ def test_segment_box_test_handles_axis_parallel_segments_on_faces():
                        [0.5, 0.5, -1.0]])   # too short to reach
     direction = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 3.0], [0.0, 0.0, 0.9]])
     np.testing.assert_array_equal(_segments_meet_boxes(origin, direction, 1.0, lo, hi), [True, False, True, False])
+
+
+def test_cone_and_disc_sample_angles_in_float32_change_images_by_under_a_millionth(monkeypatch):
+    """The angles about a cone's axis (a sun with an angle) and a disc's centre (a soft point lamp,
+    a disc area lamp) are taken in float32 (``shading.UNIT_CIRCLE_DTYPE``): against the float64
+    trigonometry they replaced (the same code with float64), every pixel agrees to 1e-6 relative,
+    on a rough glossy floor seen from a camera at 0.5c."""
+    from restframe_addon.core import shading
+
+    lights = [Light("sun", "SUN", (0, 0, 5.0), matrix=rotation_x(math.radians(30)), power=3.0, sun_angle=0.3),
+              Light("soft", "POINT", (1.0, 0.5, 1.5), power=300.0, radius=0.4),
+              Light("disc", "AREA", (-1.0, 0.0, 1.0), power=200.0, area_size=(0.6, 0.6), area_shape="DISK")]
+    camera = look_at_camera((0.0, -3.0, 2.0), (0, 0, 0), fov_half_tan=0.6, velocity=Velocity((0.0, 0.5, 0.0)))
+    floor = quad((0, 0, 0), (1e3, 1e3))
+    plastic = Material("plastic", base_color=(0.6, 0.5, 0.4), roughness=0.4)
+    scene = Scene(camera=camera, meshes=[Mesh("floor", *floor)], lights=lights, materials=[plastic],
+                  world_color=BLACK)
+    fast = render_image(scene, settings((24, 24), samples=8))["Combined"]
+    monkeypatch.setattr(shading, "UNIT_CIRCLE_DTYPE", np.float64)
+    reference = render_image(scene, settings((24, 24), samples=8))["Combined"]
+    assert np.all(reference[..., 0] > 0.0)
+    assert not np.array_equal(fast, reference)  # the trade is exercised
+    np.testing.assert_allclose(fast, reference, rtol=1e-6, atol=0.0)
