@@ -546,7 +546,8 @@ class Shader:
                 continue
             e_sel = _take(e_k, sel)
             tau_sel, pixel_sel, sample_sel = _take(tau, sel), _take(pixel, sel), _take(sample, sel)
-            origin = _take(position, sel) + eps * _take(ng, sel)
+            origin = np.multiply(_take(ng, sel), eps)
+            origin += _take(position, sel)
             reach = _take(s_max, sel) - 2.0 * eps if np.ndim(s_max) else s_max  # sunlight: unbounded
             blocked = occluded(self.frames, k, tau_sel, origin, e_sel, eps, reach, cache,
                                see_through=self.cutouts(pixel_sel, sample_sel, _cutout_dimension(depth, 8 + index)))
@@ -600,7 +601,8 @@ class Shader:
                 tau_j, x_j = self.frames.map(k, pl.frame).events(tau, position)
                 clock = tau_j - (pl.position - x_j) @ z_axis + pl.clock_offset
             if to_surface.is_identity:  # at rest with the surface: D = 1, so D^p = 1
-                return e_j, np.ones(n), np.ones(n), np.inf, clock
+                one = np.broadcast_to(1.0, (n,))
+                return e_j, one, one, np.inf, clock
             e_k, doppler = to_surface.rays(e_j)
             return e_k, self.searchlight_power(doppler, 2), doppler, np.inf, clock
         if light.trajectory is None:
@@ -716,13 +718,15 @@ def hit_uv(frame, prim, u, v):
     if corner_uvs is None:
         return None
     cuv = np.take(corner_uvs, prim, axis=0)
-    first = 1.0 - u - v  # the barycentric weight of the first corner
+    first = 1.0 - u  # the barycentric weight of the first corner
+    first -= v
     uv = np.empty((len(prim), 2), dtype=np.result_type(first, cuv))
-    for c in range(2):  # column by column (see rows)
+    term = np.empty(len(prim), dtype=uv.dtype)
+    for c in range(2):  # column by column (see rows), in place (temporaries cost page faults)
         column = uv[:, c]
         np.multiply(first, cuv[:, 0, c], out=column)
-        column += u * cuv[:, 1, c]
-        column += v * cuv[:, 2, c]
+        column += np.multiply(u, cuv[:, 1, c], out=term)
+        column += np.multiply(v, cuv[:, 2, c], out=term)
     return uv
 
 
@@ -790,10 +794,15 @@ def _disc_sample(axis, radius, xi1, xi2):
 def _cone_sample(axis, half_angle, xi1, xi2):
     """Directions uniform in the cone about one unit axis (3,): its basis is worked out once."""
     t1, t2 = (t[0] for t in _orthonormal_basis(axis[None, :]))
-    cos_t = 1.0 - xi1 * (1.0 - np.cos(half_angle))
-    sin_t = np.sqrt(np.maximum(1.0 - cos_t**2, 0.0))
+    cos_t = xi1 * (1.0 - np.cos(half_angle))  # in place from here: temporaries cost page faults
+    np.subtract(1.0, cos_t, out=cos_t)
+    sin_t = cos_t * cos_t
+    np.subtract(1.0, sin_t, out=sin_t)
+    np.sqrt(np.maximum(sin_t, 0.0, out=sin_t), out=sin_t)
     cos_phi, sin_phi = unit_circle(xi2)
-    return _combine(sin_t * cos_phi, t1, sin_t * sin_phi, t2, cos_t, axis)
+    cos_phi *= sin_t
+    sin_phi *= sin_t
+    return _combine(cos_phi, t1, sin_phi, t2, cos_t, axis)
 
 
 # float32 trigonometry is 15x faster than float64 in numpy; a sample's angle about a cone's axis
@@ -804,19 +813,20 @@ UNIT_CIRCLE_DTYPE = np.float32
 def unit_circle(xi):
     """(cos, sin) (float64 arrays) of the angles 2 pi xi, computed to float32 precision
     (:data:`UNIT_CIRCLE_DTYPE`): they orient the random offsets of cone and disc samples."""
-    phi = (2.0 * np.pi * xi).astype(UNIT_CIRCLE_DTYPE)
-    return np.cos(phi).astype(np.float64), np.sin(phi).astype(np.float64)
+    phi = np.multiply(2.0 * np.pi, xi, out=np.empty(len(xi), UNIT_CIRCLE_DTYPE))
+    return np.cos(phi, out=np.empty(len(xi))), np.sin(phi, out=np.empty(len(xi)))
 
 
 def _combine(*weights_and_vectors):
     """Rows ``a t1 + b t2 (+ c t3)`` of (n,) weights and (n, 3) or (3,) vectors, summed in that order."""
     pairs = list(zip(weights_and_vectors[::2], weights_and_vectors[1::2]))
     out = np.empty((len(pairs[0][0]), 3))
+    term = np.empty(len(out))
     for c in range(3):
         column = out[:, c]
         np.multiply(pairs[0][0], pairs[0][1][..., c], out=column)
         for weight, vector in pairs[1:]:
-            column += weight * vector[..., c]
+            column += np.multiply(weight, vector[..., c], out=term)
     return out
 
 
