@@ -299,6 +299,8 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
             col.label(text=f"Rapidity = {rapidity:.6g}")
             if observer_or_lamp:
                 _draw_clock(col, obj, context.scene, speed=False)
+        if motion_query.rides_with_parent(obj):
+            box.label(text=f"Rides with its parent '{obj.parent.name}' (no motion of its own)", icon='LINKED')
         if not rf.is_moving:
             return
         if obj.type == 'CAMERA':

@@ -151,6 +151,17 @@ def test_object_panel_on_a_child_of_a_moving_parent(scene):
     assert any("'Ship'" in text for text in labels)
 
 
+def test_object_panel_of_a_camera_riding_with_its_parent(scene):
+    ship = add_plane(scene, "Ship", velocity=(0.5, 0.0, 0.0))
+    camera = add_camera(scene)
+    camera.parent = ship
+    labels = draw(ui.RESTFRAME_OBJECT_PT_motion, context_for(scene, camera))["labels"]
+    assert any("Rides with its parent 'Ship'" in text for text in labels)
+    camera.restframe.velocity = (0.0, 0.2, 0.0)  # motion of its own: its own assembly
+    labels = draw(ui.RESTFRAME_OBJECT_PT_motion, context_for(scene, camera))["labels"]
+    assert not any("'Ship'" in text for text in labels)
+
+
 @pytest.mark.parametrize("kind", ['POINT', 'SPOT', 'SUN', 'AREA'])
 def test_light_panel(scene, kind):
     light = bpy.data.objects.new("L", bpy.data.lights.new("L", kind))
