@@ -137,6 +137,9 @@ class RESTFRAME_RENDER_PT_doppler(RestframeButtonsPanel, Panel):
         row.prop(rf, "doppler_range", index=0, text="Black")
         row.prop(rf, "doppler_range", index=1, text="White")
         sub.prop(rf, "doppler_levels")
+        levels_error = validation.doppler_levels_error(rf.doppler_levels)
+        if levels_error is not None and rf.doppler_mode == 'FACTOR':
+            sub.label(text=levels_error, icon='ERROR')
 
 
 class RESTFRAME_RENDER_PT_motion_blur(RestframeButtonsPanel, Panel):

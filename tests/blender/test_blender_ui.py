@@ -74,6 +74,15 @@ def test_render_panels_draw_every_setting(scene):
     assert "Frame 25: t = 1 s, c\u00b7t = 10" in labels
 
 
+def test_doppler_panel_flags_a_single_factor_level(scene):
+    scene.restframe.doppler_mode, scene.restframe.doppler_levels = 'FACTOR', 1
+    labels = draw(ui.RESTFRAME_RENDER_PT_doppler, context_for(scene)).get("labels", [])
+    assert any("Levels must be 0 (continuous) or at least 2, not 1" in text for text in labels)
+    scene.restframe.doppler_levels = 2
+    assert not any("Levels" in text for text in draw(ui.RESTFRAME_RENDER_PT_doppler, context_for(scene)).get(
+        "labels", []))
+
+
 def test_every_toggle_of_the_passes_panel_adds_passes_the_render_delivers(scene):
     """Each switch the Passes panel shows turns on more passes of the render result (the ones the
     engine fills besides its own, which are always there): Blender's Depth, Normal and Object Index,
