@@ -266,7 +266,11 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
         col.prop(rf, "motion")
         if rf.is_animated:
             box = layout.box()
-            box.label(text="World line: the keyframed location (own keys, parents static)", icon='ANIM')
+            root = motion_query.assembly_root(obj)
+            if root != obj:
+                box.label(text=f"World line: that of its parent '{root.name}' (the same Motion)", icon='LINKED')
+            else:
+                box.label(text="World line: the keyframed location (own keys, parents static)", icon='ANIM')
             if not motion_query.has_animated_location(obj):
                 box.label(text="The location has no keyframes: the object stays at rest", icon='INFO')
             if obj.type == 'LIGHT' and obj.data.type == 'SUN':

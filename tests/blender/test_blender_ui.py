@@ -169,6 +169,9 @@ def test_object_panel_of_a_camera_riding_with_its_parent(scene):
     camera.restframe.velocity = (0.0, 0.2, 0.0)  # motion of its own: its own assembly
     labels = draw(ui.RESTFRAME_OBJECT_PT_motion, context_for(scene, camera))["labels"]
     assert not any("'Ship'" in text for text in labels)
+    ship.restframe.motion = camera.restframe.motion = 'ANIMATION'  # the same Motion: the ship's world line
+    labels = draw(ui.RESTFRAME_OBJECT_PT_motion, context_for(scene, camera))["labels"]
+    assert any("World line: that of its parent 'Ship'" in text for text in labels)
 
 
 @pytest.mark.parametrize("kind", ['POINT', 'SPOT', 'SUN', 'AREA'])
