@@ -114,3 +114,12 @@ def test_a_riding_camera_sits_at_its_lorentz_contracted_offset_from_the_pivot(sc
     assert exported.camera.matrix[:3, 3] == pytest.approx(expected, abs=1e-12)
     assert exported.camera.velocity.beta == pytest.approx((beta, 0.0, 0.0), abs=1e-15)
     assert camera.restframe.proper_time == pytest.approx((FRAME - 1) / FPS / gamma, rel=1e-6)
+
+
+def test_a_camera_riding_a_spinning_ship_takes_its_velocity_and_says_it_does_not_spin(scene):
+    ship, camera = ship_scene(scene, 'CONSTANT', None)
+    ship.restframe.angular_velocity = (0.0, 0.0, 0.1)
+    ship.update_tag()
+    exported, _, warnings = export_now(scene)
+    assert exported.camera.velocity.beta == pytest.approx((float(np.float32(BETA)), 0.0, 0.0), abs=1e-15)
+    assert "Camera: the camera does not spin with 'Ship' (it takes its velocity only)" in warnings
