@@ -239,3 +239,35 @@ def test_cone_and_disc_sample_angles_in_float32_change_images_by_under_a_million
     assert np.all(reference[..., 0] > 0.0)
     assert not np.array_equal(fast, reference)  # the trade is exercised
     np.testing.assert_allclose(fast, reference, rtol=1e-6, atol=0.0)
+
+
+def test_one_material_shades_bit_for_bit_as_gathered_per_hit():
+    """Direct Light's BSDF for a batch of hits on one material (its constants as 1-element arrays,
+    a dielectric's F0 as one grey column) is bit for bit the value with the constants gathered per
+    hit (hits on several materials), for a glossy dielectric, a rough metal and a Lambert surface."""
+    from restframe_addon.core.prepared import prepare
+
+    materials = [Material("plastic", base_color=(0.6, 0.5, 0.4), roughness=0.4),
+                 Material("metal", base_color=(0.9, 0.6, 0.3), metallic=1.0, roughness=0.5),
+                 WHITE_LAMBERT]
+    camera = look_at_camera((0.0, -3.0, 2.0), (0, 0, 0))
+    scene = Scene(camera=camera, meshes=[Mesh("floor", *quad((0, 0, 0), (10.0, 10.0)))], materials=materials,
+                  lights=[Light("lamp", "POINT", (0, 0, 2.0), power=100.0)], world_color=BLACK)
+    shader = prepare(scene, settings()).shader
+    rng = np.random.default_rng(7)
+    n = 300
+    ns = np.tile([0.0, 0.0, 1.0], (n, 1))
+    view, light = (rows_normalized(rng.normal(size=(n, 3)) + [0.0, 0.0, 2.0]) for _ in range(2))
+    base = rng.random((n, 3))
+    mixed = np.arange(n) % 3
+    together = shader.brdf(ns, view, light, base, mixed)
+    for m in range(3):
+        alone = np.flatnonzero(mixed == m)
+        value = shader.brdf(ns[alone], view[alone], light[alone], base[alone], np.full(len(alone), m))
+        assert np.array_equal(value, together[alone]), materials[m].name
+        diffuse = base[alone] * (1.0 - materials[m].metallic) / np.pi
+        assert np.any(value > diffuse * (1.0 + 1e-9)) == (m < 2)  # the glossy ones have their GGX lobe
+
+
+def rows_normalized(a):
+    return a / np.linalg.norm(a, axis=1, keepdims=True)
