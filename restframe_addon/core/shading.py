@@ -844,6 +844,8 @@ def _only_material(mat):
 def _selection(mask, within=slice(None)):
     """The hits of ``within`` (a slice of all, or indices) where ``mask`` holds: the slice itself
     while that is all of them (views instead of gathers), None when none."""
+    if not len(mask):
+        return None
     if mask.all():
         return within
     index = np.flatnonzero(mask)
