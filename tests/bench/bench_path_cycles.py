@@ -183,11 +183,42 @@ def run(ctx: Context) -> Section:
         sec.add(f"![Path Tracing against Cycles: error against run time]({ctx.plot_prefix}/path_cycles.png)")
         sec.add("")
     plt.close(fig)
+    denoise_section(ctx, sec)
     judged = [n for n in sweep if n >= ctx.pick(64, 1)]  # (at few samples the set-up time dominates)
     sec.goals.append(Goal("Path Tracing: time to equal noise / Cycles' at rest (Cornell box, 2 threads)",
                           f"<= {GOAL:g}", ", ".join(f"{ratios[n]:.2f} at {n} spp" for n in judged),
                           max(ratios[n] for n in judged) <= GOAL))
     return sec
+
+
+def denoise_section(ctx: Context, sec: Section) -> None:
+    """Blender's Denoise node on 16-sample renders of both engines (tests/bench/measure_denoise.py)."""
+    size, samples, reference = ctx.pick(128, 16), ctx.pick(16, 4), ctx.pick(1024, 16)
+    scenes = ctx.pick("cornell,hdri,default", "cornell")
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "denoise.json"
+        done = subprocess.run([sys.executable, str(Path(__file__).with_name("measure_denoise.py")), "--size", str(size),
+                               "--samples", str(samples), "--reference", str(reference), "--scenes", scenes,
+                               "--json", str(out)], capture_output=True, text=True, cwd=ROOT, timeout=7200)
+        if done.returncode != 0:
+            raise RuntimeError(f"measure_denoise.py failed:\n{done.stderr[-3000:]}")
+        rows = json.loads(out.read_text())
+    sec.add(f"### Denoising ({samples} samples against {reference}, {size}x{size} px)")
+    sec.add("")
+    sec.add("Blender's Denoise node (OpenImageDenoise, quality High, HDR) fed by each engine's own Denoising "
+            "Albedo and Normal passes, each Prefilter setting, and the image alone; RMSE against the engine's own "
+            f"{reference}-sample render, gain = raw RMSE / denoised RMSE. Scenes of "
+            "`tests/blender/test_blender_path.py`: the Cornell box, the glossy and metal balls under the synthetic "
+            "HDRI, Blender's default scene (its cube's Principled material).")
+    sec.add("")
+    sec.table(["scene", "engine", "render", "RMSE", "gain"],
+              [[r["scene"], r["engine"], r["render"], r["error"], r["gain"]] for r in rows])
+    best = {(r["scene"], r["engine"]): r["gain"] for r in rows if r["render"].endswith("Accurate")}
+    for (scene, engine), gain in best.items():
+        sec.number(f"denoise_gain_{scene}_{engine.lower()}", gain)
+    sec.goals.append(Goal(f"Denoise node: {samples}-sample Cornell box to a {reference}-sample reference, "
+                          f"{size}x{size} px", ">= 3x closer", f"{best[('cornell', 'RESTFRAME')]:.2f}x "
+                          f"(Cycles' own: {best[('cornell', 'CYCLES')]:.2f}x)", best[("cornell", "RESTFRAME")] >= 3.0))
 
 
 def main(argv=None) -> None:

@@ -1,18 +1,20 @@
 """Blender's Denoise node (OpenImageDenoise) on low-sample renders: RMSE to a high-sample reference.
 
     tools/dev.sh tests/bench/measure_denoise.py [--size 64] [--samples 16] [--reference 1024]
-        [--scenes cornell,default,hdri] [--engines RESTFRAME,CYCLES]
+        [--scenes cornell,default,hdri] [--engines RESTFRAME,CYCLES] [--json OUT]
 
 For each scene (the Cornell box, Blender's default startup scene and the glossy/metal HDRI scene of
 tests/blender/test_blender_path.py) and each engine, the raw SAMPLES render and the same render
 through the compositor's Denoise node (with the engine's Denoising Albedo and Normal passes, each
 Prefilter setting; and with the image alone) are compared with the engine's own REFERENCE render:
 gain = RMSE(raw) / RMSE(denoised).  Cycles beside RESTframe tells what the passes are worth.
+Section 7 of the benchmark suite runs it (``--json``: the rows for the report).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
 import time
@@ -95,6 +97,7 @@ def main():
     parser.add_argument("--reference", type=int, default=1024)
     parser.add_argument("--scenes", default="cornell,default,hdri")
     parser.add_argument("--engines", default="RESTFRAME,CYCLES")
+    parser.add_argument("--json", help="also write the rows here")
     args = parser.parse_args()
     import bpy
 
@@ -105,12 +108,16 @@ def main():
     print(f"{args.size}x{args.size} px, {args.samples} samples against {args.reference}; Blender {bpy.app.version_string}")
     print("| scene | engine | render | RMSE to reference | gain |")
     print("| --- | --- | --- | --- | --- |")
+    table = []
     for name in args.scenes.split(","):
         for engine in args.engines.split(","):
             rows, seconds, mean = measure(name, engine, args.size, args.samples, args.reference, folder)
             for label, error, gain in rows:
                 print(f"| {name} | {engine} | {label} | {error:.4g} | {gain:.2f} |", flush=True)
-            print(f"(reference {seconds:.0f} s, mean {mean:.3g})", file=sys.stderr, flush=True)
+                table.append(dict(scene=name, engine=engine, render=label, error=error, gain=gain))
+            print(f"({name}, {engine}: reference {seconds:.0f} s, mean {mean:.3g})", file=sys.stderr, flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(table))
 
 
 if __name__ == "__main__":
