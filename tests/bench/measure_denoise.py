@@ -80,7 +80,10 @@ def measure(name, engine, size, samples, reference_samples, folder):
     rmse = lambda image: float(np.sqrt(np.mean((image - reference) ** 2)))  # noqa: E731
     rows = [("raw", rmse(raw), 1.0)]
     for label, prefilter, auxiliary in VARIANTS:
-        node.inputs["Prefilter"].default_value = prefilter
+        if "Prefilter" in node.inputs:  # a menu socket from Blender 5.0, a property before
+            node.inputs["Prefilter"].default_value = prefilter
+        else:
+            node.prefilter = prefilter.upper()
         if not auxiliary:
             for socket in ("Albedo", "Normal"):
                 for link in list(node.inputs[socket].links):
