@@ -99,17 +99,27 @@ class Geometry:
     tri_holdout: np.ndarray | None = None  # (M,) bool: holdout triangles; None: none
     radius: float = 0.0  # distance from the local origin (a moving body's pivot) to its farthest used vertex
     extent: float = field(init=False)  # the longest side of the bounds
-    face_normals: np.ndarray = field(init=False)  # unit geometric normal of every triangle (0 for degenerate ones)
 
     def __post_init__(self):
         self.extent = float(np.max(self.hi - self.lo))
-        p0, p1, p2 = (self.vertices[self.triangles[:, j]] for j in range(3))  # no (n, 3, 3) array: 2x faster
-        self.face_normals = rows.normalized(rows.cross(p1 - p0, p2 - p0))
         for array in (self.vertices, self.triangles, self.tri_material, self.tri_object_index, self.tri_clock,
                       self.corner_normals, self.corner_uvs, self.lo, self.hi, self.anchor, self.piece_start,
-                      self.clusters, self.face_normals, self.tri_visibility, self.tri_holdout):
+                      self.clusters, self.tri_visibility, self.tri_holdout):
             if array is not None:
                 array.flags.writeable = False  # shared by every render thread
+
+    def face_normals(self, prim) -> np.ndarray:
+        """Unit geometric normals of the triangles ``prim`` (0 for degenerate ones), worked out
+        for the hits that need them: a pass over every triangle at build time cost a third of
+        the BVH build, for a mesh whose hits are a fraction of its triangles."""
+        corners = self.triangles[prim]
+        p0 = self.vertices[corners[:, 0]]
+        return triangle_normals(self.vertices[corners[:, 1]] - p0, self.vertices[corners[:, 2]] - p0)
+
+
+def triangle_normals(edge1, edge2) -> np.ndarray:
+    """Unit normals (n, 3) of triangles from their two edges out of the first corner (0 for degenerate ones)."""
+    return rows.normalized(rows.cross(edge1, edge2))
 
 
 @dataclass(frozen=True)

@@ -135,7 +135,7 @@ def test_the_frame_set_is_read_only_and_rendering_changes_nothing_in_it():
             assert not value.flags.writeable, name
     for k in frames.geometry:
         geometry = frames.frames[k].geometry
-        assert not geometry.vertices.flags.writeable and not geometry.face_normals.flags.writeable
+        assert not geometry.vertices.flags.writeable and not geometry.triangles.flags.writeable
     with pytest.raises(Exception):
         prepared.exposure = 2.0
 
