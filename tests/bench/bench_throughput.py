@@ -375,3 +375,28 @@ def run(ctx) -> Section:
                           f"{e['export_s']:.2f} s, {e['export_peak_mb']:.0f} MB peak; prepare {e['prepare_s']:.2f} s; "
                           f"peak RSS {e['rss_render_mb']:.0f} MB", None))
     return sec
+
+
+def bars_spread(runs: int, repeats: int, res=(256, 192)) -> list[dict]:
+    """The 11x11 bars study alone, ``runs`` times over (each the min of ``repeats`` interleaved
+    repeats): how stable the 11-frames / 1-frame ratios are on a shared machine."""
+    studies = []
+    for _ in range(runs):
+        t, _, _ = frames_study(res, repeats)
+        studies.append({"render": t["render 11 frames"] / t["render 1 frame"],
+                        "trace": t["trace 11 frames"] / t["trace 1 frame"], **t})
+    return studies
+
+
+if __name__ == "__main__":  # the 11x11 bars alone: python bench_throughput.py --bars [RUNS] [REPEATS]
+    import time
+
+    if sys.argv[1:2] != ["--bars"]:
+        raise SystemExit("usage: bench_throughput.py --bars [RUNS] [REPEATS] (the whole section runs from run.py)")
+    runs, repeats = (int(a) for a in (sys.argv[2:] + ["5", "5"][len(sys.argv[2:]):])[:2])
+    print(f"# 11x11 bars, 11 frames / 1 frame: {runs} runs, each the min of {repeats} interleaved repeats; "
+          f"{time.strftime('%H:%M:%S')} UTC, load {os.getloadavg()[0]:.2f}")
+    for s in bars_spread(runs, repeats):
+        print(f"render {s['render']:.2f} ({s['render 11 frames']:.3f} / {s['render 1 frame']:.3f} s), "
+              f"visibility {s['trace']:.2f} ({s['trace 11 frames']:.3f} / {s['trace 1 frame']:.3f} s)")
+    print(f"load at the end {os.getloadavg()[0]:.2f}")
