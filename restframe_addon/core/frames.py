@@ -634,15 +634,16 @@ def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) ->
 
     if should_stop():
         return None
+    threaded = n > _CHUNK  # a small mesh's steps take less than handing them to a thread
     _side_by_side(triangle_bounds, [(start, min(start + _CHUNK, n)) for start in range(0, n, _CHUNK)])
     groups = [np.arange(n)]
     for _ in range(depth):
         if should_stop():
             return None
-        groups = [half for split in _side_by_side(halves, _with_starts(groups)) for half in split]
+        groups = [half for split in _side_by_side(halves, _with_starts(groups), threaded) for half in split]
     if should_stop():
         return None
-    return np.array(_side_by_side(box, _with_starts(groups)))
+    return np.array(_side_by_side(box, _with_starts(groups), threaded))
 
 
 _CHUNK = 2**16  # triangles per task of the culling clusters' first pass
@@ -657,11 +658,11 @@ _POOL: ThreadPoolExecutor | None = None  # the build's threads, one per core
 _POOL_LOCK = threading.Lock()
 
 
-def _side_by_side(work: Callable, arguments: list[tuple]) -> list:
+def _side_by_side(work: Callable, arguments: list[tuple], threaded: bool = True) -> list:
     """``[work(*a) for a in arguments]``, computed on the build's threads (in the calling
-    thread where there is one task or one core)."""
+    thread where there is one task or one core, or not ``threaded``)."""
     global _POOL
-    if len(arguments) < 2 or (os.cpu_count() or 1) < 2:
+    if not threaded or len(arguments) < 2 or (os.cpu_count() or 1) < 2:
         return [work(*a) for a in arguments]
     with _POOL_LOCK:
         if _POOL is None:
