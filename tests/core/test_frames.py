@@ -216,8 +216,11 @@ def plain_clusters(vertices, triangles, depth=4):
     return np.array(spheres)
 
 
+@pytest.mark.parametrize("chunk", [frames._CHUNK, 700], ids=["one thread", "threads"])
 @pytest.mark.parametrize("mesh", ["sphere", "grid", "random", "random with ties", "few"])
-def test_culling_clusters_hold_every_triangle_and_match_the_plain_computation(mesh):
+def test_culling_clusters_hold_every_triangle_and_match_the_plain_computation(mesh, chunk, monkeypatch):
+    """On the calling thread (these meshes are small) and, in chunks of 700 triangles, on the build's threads."""
+    monkeypatch.setattr(frames, "_CHUNK", chunk)
     rng = np.random.default_rng(2)
     if mesh == "sphere":
         vertices, triangles = shuffled_sphere()
