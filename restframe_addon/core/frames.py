@@ -382,8 +382,12 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
     by_key: dict[tuple, RestFrame] = {}
     warnings: list[str] = []
 
+    boosts: dict[tuple, Boost] = {}  # by velocity key: checked and worked out (in exact arithmetic) once, not per object
+
     def shared_frame(velocity: Velocity, name: str) -> RestFrame:
-        boost = Boost.from_velocity(velocity.beta, velocity.lorentz_factor, name=name)
+        boost = boosts.get(velocity.key)
+        if boost is None:
+            boost = boosts[velocity.key] = Boost.from_velocity(velocity.beta, velocity.lorentz_factor, name=name)
         key = REST.key if boost.is_identity else velocity.key
         frame = by_key.get(key)
         if frame is None:
