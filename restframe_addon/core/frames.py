@@ -598,8 +598,8 @@ def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) ->
 
     Worked on one coordinate at a time (numpy is slow along a length-3 axis): a group's box is
     the box of its triangles' own boxes.  The triangles go in chunks, and the groups of each
-    split side by side, to the build's threads (numpy lets go of the GIL on long arrays); each
-    gathers into its own stretch of one scratch array (fresh arrays this size cost more in page
+    split and the groups' lower and upper bounds side by side, to the build's threads (numpy
+    lets go of the GIL on long arrays); each gathers into its own stretch of one scratch array (fresh arrays this size cost more in page
     faults than the arithmetic).  The triangles' indices are valid, so ``take`` has nothing to clip.
     """
     n = len(triangles)
@@ -629,12 +629,10 @@ def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) ->
         order = np.argpartition(c[axis], len(group) // 2)
         return [group[order[: len(group) // 2]], group[order[len(group) // 2:]]]
 
-    def box(group: np.ndarray, at: int) -> list[float]:
-        """The group's bounding sphere: centre and radius of its triangles' box."""
-        out = scratch[0, at:at + len(group)]
-        lo = np.array([np.take(bound, group, out=out, mode="clip").min() for bound in tri_lo])
-        hi = np.array([np.take(bound, group, out=out, mode="clip").max() for bound in tri_hi])
-        return [*(0.5 * (lo + hi)), 0.5 * float(np.linalg.norm(hi - lo))]
+    def boxes(reduce, bounds, out) -> list[np.ndarray]:
+        """Per axis, every group's ``reduce`` (min or max) of its triangles' ``bounds``: their
+        triangles in a row (gathered into ``out``), reduced group by group."""
+        return [reduce.reduceat(np.take(bound, in_groups, out=out, mode="clip"), starts) for bound in bounds]
 
     if should_stop():
         return None
@@ -647,7 +645,11 @@ def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) ->
         groups = [half for split in _side_by_side(halves, _with_starts(groups), threaded) for half in split]
     if should_stop():
         return None
-    return np.array(_side_by_side(box, _with_starts(groups), threaded))
+    in_groups = np.concatenate(groups)
+    starts = np.cumsum([0] + [len(group) for group in groups[:-1]])
+    lo, hi = (np.column_stack(b) for b in _side_by_side(
+        boxes, [(np.minimum, tri_lo, scratch[0]), (np.maximum, tri_hi, scratch[1])], threaded))
+    return np.array([[*(0.5 * (l + h)), 0.5 * float(np.linalg.norm(h - l))] for l, h in zip(lo, hi)])
 
 
 _CHUNK = 2**16  # triangles per task of the culling clusters' first pass
