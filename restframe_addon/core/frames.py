@@ -59,8 +59,10 @@ class FrameMap:
 
     def rays(self, d):
         """(d', w): mapped backward directions and the path-length ratio s'/s (= 1/D)."""
-        w = np.ones(np.shape(d)[:-1])
-        for boost in self.steps:
+        if not self.steps:
+            return d, np.ones(np.shape(d)[:-1])
+        d, w = self.steps[0].rays(d)
+        for boost in self.steps[1:]:
             d, step_w = boost.rays(d)
             w = w * step_w
         return d, w
