@@ -26,7 +26,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from . import rows
-from .frames import FrameSet, RestFrame
+from .frames import FrameSet, RestFrame, triangle_normals
 from .scene import RAY_SHADOW
 
 _PAD = 1e-4  # bounds padding, relative to the frame's extent: float32 geometry may sit just outside
@@ -624,9 +624,9 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None):
     p0 = geometry.vertices[corners[:, 0]]
     u = np.asarray(u, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)
-    position = rows.add_scaled(rows.add_scaled(p0, u, geometry.vertices[corners[:, 1]] - p0), v,
-                               geometry.vertices[corners[:, 2]] - p0)
-    ng = geometry.face_normals[prim]
+    edge1, edge2 = geometry.vertices[corners[:, 1]] - p0, geometry.vertices[corners[:, 2]] - p0
+    position = rows.add_scaled(rows.add_scaled(p0, u, edge1), v, edge2)
+    ng = triangle_normals(edge1, edge2)  # Geometry.face_normals, from the edges at hand
     if geometry.corner_normals is None:
         ns = ng
     else:

@@ -8,48 +8,17 @@ from types import MappingProxyType
 
 import numpy as np
 import pytest
-from shapes import box, look_at_camera, quad, uv_sphere
+from scenes import busy_scene
 
 from restframe_addon.core import prepared as prepared_module
 from restframe_addon.core import render
 from restframe_addon.core.lorentz import Boost
-from restframe_addon.core.motion import Trajectory
 from restframe_addon.core.passes import ALL_PASSES, DEFAULT_PASSES, EXTRA_PASSES, PASSES
 from restframe_addon.core.prepared import prepare
 from restframe_addon.core.render import render_image, render_tile, render_tiles
-from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity
+from restframe_addon.core.scene import RenderSettings, Velocity
 from restframe_addon.core.tracer import TraceCache, trace_nearest
 from restframe_addon.core.validation import check_velocity
-
-
-def busy_scene(camera_velocity=Velocity()):
-    """A moving box, a glass ball, a spinning mirror ball and an animated emitter over a floor,
-    lit by a soft lamp, a sun and a moving area light: every code path of a tile."""
-    floor, cube = quad((0.0, 0.0, -1.5), (30.0, 30.0)), box((-2.0, 6.0, 0.0), (1.5, 1.5, 1.5))
-    ball, spinner = uv_sphere((2.0, 7.0, 0.0), 1.0, 16, 8), uv_sphere((0.0, 9.0, 1.5), 1.2, 16, 8)
-    comet = uv_sphere((0.0, 0.0, 0.0), 0.6, 12, 6)
-    tau = np.linspace(-40.0, 10.0, 6)
-    path = np.stack([4.0 + 0.0 * tau, 8.0 + 0.3 * tau, 0.001 * (tau + 40.0) ** 1.5], axis=1)
-    meshes = [
-        Mesh("floor", *floor, object_index=1),
-        Mesh("cube", *cube, velocity=Velocity((0.6, 0.0, 0.0)), pivot=(-2.0, 6.0, 0.0),
-             material_indices=np.full(12, 1), object_index=2),
-        Mesh("ball", *ball, velocity=Velocity((0.0, -0.5, 0.2)), pivot=(2.0, 7.0, 0.0),
-             material_indices=np.full(len(ball[1]), 2), object_index=3),
-        Mesh("spinner", *spinner, pivot=(0.0, 9.0, 1.5), angular_velocity=(0.0, 0.0, 0.4),
-             material_indices=np.full(len(spinner[1]), 3), object_index=4),
-        Mesh("comet", *comet, trajectory=Trajectory(tau, path, name="comet"),
-             material_indices=np.full(len(comet[1]), 4), object_index=5),
-    ]
-    materials = [Material("floor", (0.7, 0.7, 0.7), roughness=0.8), Material("cube", (0.9, 0.3, 0.2), roughness=0.3),
-                 Material("glass", roughness=0.0, transmission=1.0, ior=1.45),
-                 Material("mirror", (0.9, 0.9, 0.9), metallic=1.0, roughness=0.0),
-                 Material("glow", emission=(0.5, 2.0, 0.5))]
-    lights = [Light("lamp", "POINT", (0.0, 2.0, 4.0), power=800.0, radius=0.3),
-              Light("sun", "SUN", (0.0, 0.0, 10.0), power=2.0, sun_angle=0.05),
-              Light("panel", "AREA", (3.0, 4.0, 3.0), power=300.0, velocity=Velocity((0.0, 0.3, 0.0)))]
-    return Scene(camera=look_at_camera((0.0, -2.0, 1.0), (0.0, 7.0, 0.0), velocity=camera_velocity), meshes=meshes,
-                 materials=materials, lights=lights, light_speed=1.0, tau_obs=9.0)
 
 
 def settings(**kw):
@@ -135,7 +104,7 @@ def test_the_frame_set_is_read_only_and_rendering_changes_nothing_in_it():
             assert not value.flags.writeable, name
     for k in frames.geometry:
         geometry = frames.frames[k].geometry
-        assert not geometry.vertices.flags.writeable and not geometry.face_normals.flags.writeable
+        assert not geometry.vertices.flags.writeable and not geometry.triangles.flags.writeable
     with pytest.raises(Exception):
         prepared.exposure = 2.0
 
@@ -185,3 +154,33 @@ def test_the_pass_table_keeps_its_public_names_and_order():
     assert list(DEFAULT_PASSES) == list(EXTRA_PASSES)[:6]  # the denoising data only when asked for
     assert list(ALL_PASSES) == ["Combined", *EXTRA_PASSES] and ALL_PASSES["Combined"] == 4
     assert (render.PASSES, render.EXTRA_PASSES, render.ALL_PASSES) == (PASSES, EXTRA_PASSES, ALL_PASSES)
+
+
+@pytest.mark.parametrize("threads, tile_size, resolution, expected_size", [
+    (1, 256, (255, 255), 256),  # one worker: the one tile
+    (2, 256, (255, 255), 128),  # two workers: halved to 4 tiles
+    (4, 256, (255, 255), 128),
+    (5, 256, (255, 255), 64),
+    (2, 16, (24, 18), 16),  # already 4 tiles
+    (8, 20, (24, 18), 10),  # halved (rounding up) to 9 tiles, then no further below 8 pixels
+    (3, 10, (10, 10), 10),  # not split below 8 pixels
+])
+def test_an_image_is_split_into_at_least_one_tile_per_worker(threads, tile_size, resolution, expected_size):
+    """Each worker renders whole tiles: with fewer tiles than workers the tile size is halved, and
+    the pixels stay the same."""
+    prepared = prepare(busy_scene(), settings(resolution=resolution, threads=threads, tile_size=tile_size))
+    width, height = resolution
+    expected = [(x, y, min(x + expected_size, width), min(y + expected_size, height))
+                for y in range(0, height, expected_size) for x in range(0, width, expected_size)]
+    assert prepared.tiles() == expected
+    covered = np.zeros((height, width), dtype=int)
+    for x0, y0, x1, y1 in prepared.tiles():
+        covered[y0:y1, x0:x1] += 1
+    assert (covered == 1).all()
+
+
+def test_split_tiles_give_the_pixels_of_one_tile():
+    scene = busy_scene(Velocity((0.0, 0.4, 0.0)))
+    one = render_image(scene, settings(resolution=(24, 18), threads=1, tile_size=32))
+    split = render_image(scene, settings(resolution=(24, 18), threads=4, tile_size=32))
+    assert_same_passes(one, split)
