@@ -56,11 +56,11 @@ class FrameMap:
 
     def rays(self, d):
         """(d', w): mapped backward directions and the path-length ratio s'/s (= 1/D)."""
-        w = np.ones(np.shape(d)[:-1])
+        w = None
         for boost in self.steps:
             d, step_w = boost.rays(d)
-            w = w * step_w
-        return d, w
+            w = step_w if w is None else w * step_w
+        return d, np.ones(np.shape(d)[:-1]) if w is None else w
 
 
 def shift_into_frame(boost: Boost, pivot) -> np.ndarray:
@@ -213,7 +213,7 @@ class RestFrame:
     def to_frame(self, x, d, tau=None):
         """Local geometry coordinates (points, directions) -> frame coordinates."""
         if self.spin is None:
-            return x + self.offset, d
+            return rows.add(x, self.offset), d
         pose = self.pose(tau)
         return np.einsum("nij,nj->ni", pose, x) + self.offset, np.einsum("nij,nj->ni", pose, d)
 

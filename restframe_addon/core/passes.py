@@ -79,10 +79,14 @@ def facing_normals(frame: RestFrame, prim, u, v, d_k, tau_hit=None):
     from the viewer falls back to the geometric one."""
     position, ng, ns = hit_geometry(frame, prim, u, v, tau_hit)
     back = rows.dot(ng, d_k) > 0.0
-    facing = np.where(back, -1.0, 1.0)
-    ng, ns = rows.scale(ng, facing), rows.scale(ns, facing)
+    for normals in (ng,) if ns is ng else (ng, ns):  # (hit_geometry's own arrays: turned in place)
+        for axis in range(3):
+            np.negative(normals[:, axis], out=normals[:, axis], where=back)
+    if ns is ng:
+        ns = ng.copy()
     away = rows.dot(ns, d_k) >= 0.0
-    ns[away] = ng[away]
+    if away.any():
+        ns[away] = rows.take(ng, away)
     return position, ng, ns, back
 
 
