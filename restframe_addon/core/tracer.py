@@ -547,31 +547,84 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
             break
         fmap = frames.map(src, k)
         frame = frames.frames[k]
-        if todo is None:
-            tau_k, origin, d_todo, lo, hi = tau0, x0, d, s_lo, s_hi
-        else:
-            tau_k, origin, d_todo, lo, hi = tau0[todo], rows.take(x0, todo), None, s_lo[todo], s_hi[todo]
+        rays = todo  # the rays to trace in frame k (None: all)
+        if not fmap.is_identity:
+            # before mapping them into the frame: only rays that pass the body's box can meet it
+            near = _near_body(frames, src, k, cache, *_rows_of(rays, tau0, x0, d, s_lo, s_hi))
+            if not near.all():
+                rays = np.flatnonzero(near) if rays is None else rays[near]
+                if len(rays) == 0:
+                    continue
+        tau_k, origin, d_rays, lo, hi = _rows_of(rays, tau0, x0, d, s_lo, s_hi)
         tau_k, origin = fmap.events(tau_k, origin)
         if reach is not None and reach.direction is not None:  # parallel rays (sunlight): map one
             dk, w = fmap.rays(reach.direction)
             dk, w = np.broadcast_to(dk, (len(lo), 3)), float(w)
         elif fmap.is_identity:
-            dk, w = d_todo if todo is None else rows.take(d, todo), None
+            dk, w = d_rays, None
         else:
-            dk, w = fmap.rays(d_todo if todo is None else rows.take(d, todo))
+            dk, w = fmap.rays(d_rays)
         if w is not None:  # (w = 1 leaves the path lengths as they are)
             lo, hi = lo * w, hi * w
         lo, hi = _ray_range(frame, tau_k, origin, dk, lo, hi)
         hit = _query(frame, tau_k, origin, dk, lo, hi, occlusion=True)
-        if todo is None:
-            if not hit.any():
-                continue
+        if not hit.any():
+            continue
+        if rays is None:
             blocked = hit
-            todo = np.flatnonzero(~hit)
         else:
-            blocked[todo[hit]] = True
-            todo = todo[~hit]
+            blocked[rays[hit]] = True
+        todo = np.flatnonzero(~blocked) if todo is None else todo[~blocked[todo]]
     return blocked
+
+
+def _rows_of(rays, tau0, x0, d, s_lo, s_hi):
+    """(tau0, x0, d, s_lo, s_hi) of the rays with indices ``rays`` (None: all, as they are)."""
+    if rays is None:
+        return tau0, x0, d, s_lo, s_hi
+    return tau0[rays], rows.take(x0, rays), rows.take(d, rays), s_lo[rays], s_hi[rays]
+
+
+def _near_body(frames: FrameSet, src: int, k: int, cache, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
+    """Which backward rays (source frame, ``s_lo <= s <= s_hi``) pass through the box that holds
+    frame k's body (``FrameSet.body_boxes``, widened as for :func:`_may_meet`): a mask.
+
+    Relative to the box's centre, moving with velocity v, the ray's event at path length s is
+    at ``x0 - X(tau0) + s (d + v)``: a slab test per ray.  Rays it rejects cannot meet the
+    frame's bounds either (their query would find nothing), so no ray's result changes.
+    """
+    slot = frames.geometry_slot[k]
+    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
+    t_a, x_a, velocity, half = (a[slot] for a in boxes)
+    n = len(d)
+    if n == 0:
+        return np.zeros(0, dtype=bool)
+    since = tau0 - t_a
+    # the rays meet the box where |s (d + v)| is about |x0 - X(tau0)|: coordinates up to this
+    scale = (1.0 + max(float(np.max(np.abs(x0[:, axis]))) for axis in range(3)) + float(np.max(np.abs(x_a)))
+             + float(np.max(np.abs(velocity))) * float(np.max(np.abs(since))))
+    widen = _widened(half[None, :], scale)[0]
+    enter, leave = np.array(s_lo, dtype=np.float64), np.array(s_hi, dtype=np.float64)
+    offset, e, t_a_, t_b, near = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for axis in range(3):
+            v = float(velocity[axis])
+            np.multiply(since, v, out=offset)  # the box centre's displacement at the ray's start
+            offset += x_a[axis]
+            np.subtract(x0[:, axis], offset, out=offset)
+            np.add(d[:, axis], v, out=e)
+            np.divide(np.subtract(-widen[axis], offset, out=t_a_), e, out=t_a_)
+            np.divide(np.subtract(widen[axis], offset, out=t_b), e, out=t_b)
+            # fmin/fmax ignore the NaN of 0 / 0 (a ray along a slab face)
+            np.fmax(enter, np.fmin(t_a_, t_b, out=near), out=enter)
+            np.fmin(leave, np.fmax(t_a_, t_b, out=near), out=leave)
+    return enter <= leave
+
+
+def _widened(half, scale: float) -> np.ndarray:
+    """Half-extents (m, 3) of body boxes widened for rounding: float32 geometry, float64 arithmetic
+    on coordinates up to ``scale``."""
+    return half * (1.0 + 2 * _PAD) + 2 * _PAD * half.max(axis=1, keepdims=True) + 1e-9 * scale
 
 
 @dataclass
@@ -624,7 +677,7 @@ def _may_meet(frames: FrameSet, src: int, ks, reach: Reach, cache: TraceCache | 
     boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
     t_a, x_a, velocity, half = (a[slots] for a in boxes)
     scale = 1.0 + float(np.max(np.abs(reach.hi))) + float(np.max(np.abs(reach.lo)))
-    widen = half * (1.0 + 2 * _PAD) + 2 * _PAD * half.max(axis=1, keepdims=True) + 1e-9 * scale
+    widen = _widened(half, scale)
     if reach.direction is None:
         start = x_a + velocity * (reach.earliest - t_a)[:, None]
         return _segments_meet_boxes(start, velocity * (reach.latest - reach.earliest), 1.0,
