@@ -68,8 +68,11 @@ MUTANTS = (
                   "FrameMap([Boost.from_velocity(compose_velocities(fa.beta, fb.beta)[0])])"),
             Patch(FRAMES, "from .lorentz import Boost\n", "from .lorentz import Boost, compose_velocities\n")),
            (T_OBSERVERS,)),
+    Mutant("shadow-cull-at-rest", "shadow rays culled against a moving body's box as if it stood still",
+           (Patch(TRACER, "np.add(d[:, axis], v, out=e)", "np.copyto(e, d[:, axis])"),),
+           ("tests/core/test_occlusion_culling.py",)),
     Mutant("doppler-chain-last-step", "Doppler factors along a chain of boosts not multiplied (last step only)",
-           (Patch(FRAMES, "w = w * step_w", "w = step_w"),),
+           (Patch(FRAMES, "w = step_w if w is None else w * step_w", "w = step_w"),),
            (T_OBSERVERS,)),
     Mutant("contraction-about-world-origin", "a moving body placed in its frame without the shift that keeps "
                                              "its pivot where the artist put it (contracted about the origin)",
@@ -173,7 +176,8 @@ MUTANTS = (
            (Patch(LORENTZ, "return self.gamma * (tau - self.b * nx), x_new", "return self.gamma * tau, x_new"),),
            (T_LORENTZ,)),
     Mutant("aberration-without-gamma", "the aberrated direction's perpendicular part not divided by gamma",
-           (Patch(LORENTZ, "inverse = 1.0 / (self.gamma * one_plus_bd)", "inverse = 1.0 / one_plus_bd"),),
+           (Patch(LORENTZ, "inverse = np.multiply(self.gamma, one_plus_bd, out=np.empty(shape))",
+                  "inverse = np.multiply(1.0, one_plus_bd, out=np.empty(shape))"),),
            (T_LORENTZ,)),
     Mutant("world-jacobian-inverted", "a world direction drawn in S given the density 1/D^2 instead of D^2 in "
                                       "the moving surface's frame",
