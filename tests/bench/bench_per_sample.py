@@ -11,7 +11,8 @@ Embree costs (goal <= 3). The breakdown times the render's stages with timers wr
 (exclusive times: embree inside the shadow rays is counted as embree).
 
 **Primary-ray floor**: a 261k-triangle UV sphere at (0.5, 0.2, 0) c, 1536x1536, one sample, no
-lights. **F12** = `prepare` + `render_tiles` (default passes); **raw** = Embree's build of the same
+lights. **F12** = `prepare` + `render_tiles` with the passes of a new Blender scene's view layer
+(Combined, Depth and RESTframe's own Doppler, Emission Time, Object Time); **raw** = Embree's build of the same
 float32 triangles (`bench_build.raw_build`, one geometry filled by memory copies) + `embree.run` of the
 same pixel-centre rays, already mapped into the sphere's frame and in float32
 (`bench_throughput.raw_batches`), on the same cores (goal <= 1.25).
@@ -33,6 +34,7 @@ from bench_parallel import cpu_seconds, export_blend
 from bench_throughput import raw_batches, raw_primary
 from restframe_addon.core import prepared as prepared_module
 from restframe_addon.core import sampling, shading
+from restframe_addon.core.passes import PASSES
 from restframe_addon.core.prepared import prepare
 from restframe_addon.core.render import render_tiles
 
@@ -299,7 +301,8 @@ def primary_floor(ctx: Context, sec: Section) -> None:
 
 
 def _settings(size: int, threads: int):
-    return settings((size, size), samples=1, threads=threads, parallelism="THREADS")
+    """An F12 of a new Blender scene's view layer: Combined, Depth and RESTframe's own passes."""
+    return settings((size, size), samples=1, threads=threads, parallelism="THREADS", passes=("Depth", *PASSES))
 
 
 def run(ctx: Context) -> Section:
