@@ -77,8 +77,13 @@ def stratified_offsets(pixel: np.ndarray, sample: np.ndarray, count: int):
     side = int(np.ceil(np.sqrt(count)))
     cells = side * side
     stratum = strata(pixel, sample, cells, 0)
-    jx, jy = uniforms(pixel, sample, (1, 2))
-    return (stratum % side + jx) / side, (stratum // side + jy) / side
+    row, column = np.divmod(stratum, side)
+    x, y = uniforms(pixel, sample, (1, 2))
+    x += column
+    y += row
+    x /= side
+    y /= side
+    return x, y
 
 
 def strata(pixel: np.ndarray, sample: np.ndarray, cells: int, dimension: int):
