@@ -37,7 +37,9 @@ SECTIONS = {
     "4": "bench_frugal",
     "5": "bench_cycles",
     "6": "bench_build",
-    "9": "bench_per_sample",  # after the hand-added 6 and 7 of docs/benchmarks.md and bench_build (renumbered elsewhere)
+    "7": "bench_path_cycles",
+    "8": "measure_lens",
+    "9": "bench_per_sample",
 }
 
 
