@@ -595,29 +595,29 @@ def _near_body(frames: FrameSet, src: int, k: int, cache, tau0, x0, d, s_lo, s_h
     """
     slot = frames.geometry_slot[k]
     boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
-    t_a, x_a, velocity, half = (a[slot] for a in boxes)
+    t_box, x_box, velocity, half = (a[slot] for a in boxes)
     n = len(d)
     if n == 0:
         return np.zeros(0, dtype=bool)
-    since = tau0 - t_a
+    since = tau0 - t_box
     # the rays meet the box where |s (d + v)| is about |x0 - X(tau0)|: coordinates up to this
-    scale = (1.0 + max(float(np.max(np.abs(x0[:, axis]))) for axis in range(3)) + float(np.max(np.abs(x_a)))
+    scale = (1.0 + max(float(np.max(np.abs(x0[:, axis]))) for axis in range(3)) + float(np.max(np.abs(x_box)))
              + float(np.max(np.abs(velocity))) * float(np.max(np.abs(since))))
     widen = _widened(half[None, :], scale)[0]
     enter, leave = np.array(s_lo, dtype=np.float64), np.array(s_hi, dtype=np.float64)
-    offset, e, t_a_, t_b, near = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    offset, e, t_a, t_b, near = (np.empty(n) for _ in range(5))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         for axis in range(3):
             v = float(velocity[axis])
             np.multiply(since, v, out=offset)  # the box centre's displacement at the ray's start
-            offset += x_a[axis]
+            offset += x_box[axis]
             np.subtract(x0[:, axis], offset, out=offset)
             np.add(d[:, axis], v, out=e)
-            np.divide(np.subtract(-widen[axis], offset, out=t_a_), e, out=t_a_)
+            np.divide(np.subtract(-widen[axis], offset, out=t_a), e, out=t_a)
             np.divide(np.subtract(widen[axis], offset, out=t_b), e, out=t_b)
             # fmin/fmax ignore the NaN of 0 / 0 (a ray along a slab face)
-            np.fmax(enter, np.fmin(t_a_, t_b, out=near), out=enter)
-            np.fmin(leave, np.fmax(t_a_, t_b, out=near), out=leave)
+            np.fmax(enter, np.fmin(t_a, t_b, out=near), out=enter)
+            np.fmin(leave, np.fmax(t_a, t_b, out=near), out=leave)
     return enter <= leave
 
 
