@@ -542,6 +542,7 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
     if reach is not None:
         candidates = [k for k, meets in zip(candidates, _may_meet(frames, src, candidates, reach, cache)) if meets]
     todo = None  # the rays not yet blocked: None while that is every ray (no gathers)
+    extent = None  # (largest |x0| coordinate, largest |tau0|) of the bundle, for the rounding margin of _near_body
     for k in candidates:
         if todo is not None and len(todo) == 0:
             break
@@ -550,7 +551,9 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         rays = todo  # the rays to trace in frame k (None: all)
         if not fmap.is_identity:
             # before mapping them into the frame: only rays that pass the body's box can meet it
-            near = _near_body(frames, src, k, cache, *_rows_of(rays, tau0, x0, d, s_lo, s_hi))
+            if extent is None:
+                extent = (max(float(np.max(np.abs(x0[:, axis]))) for axis in range(3)), float(np.max(np.abs(tau0))))
+            near = _near_body(frames, src, k, cache, extent, *_rows_of(rays, tau0, x0, d, s_lo, s_hi))
             if not near.all():
                 rays = np.flatnonzero(near) if rays is None else rays[near]
                 if len(rays) == 0:
@@ -585,9 +588,10 @@ def _rows_of(rays, tau0, x0, d, s_lo, s_hi):
     return tau0[rays], rows.take(x0, rays), rows.take(d, rays), s_lo[rays], s_hi[rays]
 
 
-def _near_body(frames: FrameSet, src: int, k: int, cache, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
+def _near_body(frames: FrameSet, src: int, k: int, cache, extent, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
     """Which backward rays (source frame, ``s_lo <= s <= s_hi``) pass through the box that holds
     frame k's body (``FrameSet.body_boxes``, widened as for :func:`_may_meet`): a mask.
+    ``extent`` = (largest |coordinate| of the rays' x0, largest |tau0|), or of a bundle they are from.
 
     Relative to the box's centre, moving with velocity v, the ray's event at path length s is
     at ``x0 - X(tau0) + s (d + v)``: a slab test per ray.  Rays it rejects cannot meet the
@@ -601,8 +605,8 @@ def _near_body(frames: FrameSet, src: int, k: int, cache, tau0, x0, d, s_lo, s_h
         return np.zeros(0, dtype=bool)
     since = tau0 - t_box
     # the rays meet the box where |s (d + v)| is about |x0 - X(tau0)|: coordinates up to this
-    scale = (1.0 + max(float(np.max(np.abs(x0[:, axis]))) for axis in range(3)) + float(np.max(np.abs(x_box)))
-             + float(np.max(np.abs(velocity))) * float(np.max(np.abs(since))))
+    x_max, tau_max = extent
+    scale = 1.0 + x_max + float(np.max(np.abs(x_box))) + float(np.max(np.abs(velocity))) * (tau_max + abs(float(t_box)))
     widen = _widened(half[None, :], scale)[0]
     enter, leave = np.array(s_lo, dtype=np.float64), np.array(s_hi, dtype=np.float64)
     offset, e, t_a, t_b, near = (np.empty(n) for _ in range(5))

@@ -49,7 +49,7 @@ def test_culled_shadow_rays_are_exactly_those_that_could_not_be_blocked(monkeypa
 
     monkeypatch.setattr(tracer, "_near_body", counting)
     blocked = tracer.occluded(frame_set, frame_set.world, tau0, x0, d, 1e-6, s_hi)
-    monkeypatch.setattr(tracer, "_near_body", lambda *args: np.ones(len(args[5]), dtype=bool))
+    monkeypatch.setattr(tracer, "_near_body", lambda *args: np.ones(len(args[6]), dtype=bool))
     every_ray_traced = tracer.occluded(frame_set, frame_set.world, tau0, x0, d, 1e-6, s_hi)
     assert np.array_equal(blocked, every_ray_traced)
     assert 0.05 < blocked.mean() < 0.8  # many rays blocked, many passing close by
@@ -62,7 +62,8 @@ def test_rays_grazing_the_body_are_kept():
     tau0, x0, d = rays_past_the_box(5000, 2, spread=1.0)
     k = next(k for k in frame_set.geometry if k != frame_set.world)
     s_lo, s_hi = np.full(len(d), 1e-6), np.full(len(d), 12.0)
-    near = tracer._near_body(frame_set, frame_set.world, k, None, tau0, x0, d, s_lo, s_hi)
+    extent = (float(np.max(np.abs(x0))) + 50.0, float(np.max(np.abs(tau0))))
+    near = tracer._near_body(frame_set, frame_set.world, k, None, extent, tau0, x0, d, s_lo, s_hi)
     assert near.all()
-    far = tracer._near_body(frame_set, frame_set.world, k, None, tau0, x0 + 50.0, d, s_lo, s_hi)
+    far = tracer._near_body(frame_set, frame_set.world, k, None, extent, tau0, x0 + 50.0, d, s_lo, s_hi)
     assert not far.any()
