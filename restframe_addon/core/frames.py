@@ -17,9 +17,12 @@ offset, each valid only between two of the body's simultaneity slices (a
 from __future__ import annotations
 
 import math
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 from embreex import rtcore, rtcore_scene
@@ -56,11 +59,13 @@ class FrameMap:
 
     def rays(self, d):
         """(d', w): mapped backward directions and the path-length ratio s'/s (= 1/D)."""
-        w = None
-        for boost in self.steps:
+        if not self.steps:
+            return d, np.ones(np.shape(d)[:-1])
+        d, w = self.steps[0].rays(d)
+        for boost in self.steps[1:]:
             d, step_w = boost.rays(d)
-            w = step_w if w is None else w * step_w
-        return d, np.ones(np.shape(d)[:-1]) if w is None else w
+            w = w * step_w
+        return d, w
 
 
 def shift_into_frame(boost: Boost, pivot) -> np.ndarray:
@@ -99,17 +104,27 @@ class Geometry:
     tri_holdout: np.ndarray | None = None  # (M,) bool: holdout triangles; None: none
     radius: float = 0.0  # distance from the local origin (a moving body's pivot) to its farthest used vertex
     extent: float = field(init=False)  # the longest side of the bounds
-    face_normals: np.ndarray = field(init=False)  # unit geometric normal of every triangle (0 for degenerate ones)
 
     def __post_init__(self):
         self.extent = float(np.max(self.hi - self.lo))
-        p0, p1, p2 = (self.vertices[self.triangles[:, j]] for j in range(3))  # no (n, 3, 3) array: 2x faster
-        self.face_normals = rows.normalized(rows.cross(p1 - p0, p2 - p0))
         for array in (self.vertices, self.triangles, self.tri_material, self.tri_object_index, self.tri_clock,
                       self.corner_normals, self.corner_uvs, self.lo, self.hi, self.anchor, self.piece_start,
-                      self.clusters, self.face_normals, self.tri_visibility, self.tri_holdout):
+                      self.clusters, self.tri_visibility, self.tri_holdout):
             if array is not None:
                 array.flags.writeable = False  # shared by every render thread
+
+    def face_normals(self, prim) -> np.ndarray:
+        """Unit geometric normals of the triangles ``prim`` (0 for degenerate ones), worked out
+        for the hits that need them: a pass over every triangle at build time cost a third of
+        the BVH build, for a mesh whose hits are a fraction of its triangles."""
+        corners = self.triangles[prim]
+        p0 = self.vertices[corners[:, 0]]
+        return triangle_normals(self.vertices[corners[:, 1]] - p0, self.vertices[corners[:, 2]] - p0)
+
+
+def triangle_normals(edge1, edge2) -> np.ndarray:
+    """Unit normals (n, 3) of triangles from their two edges out of the first corner (0 for degenerate ones)."""
+    return rows.normalized(rows.cross(edge1, edge2))
 
 
 @dataclass(frozen=True)
@@ -369,8 +384,12 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
     by_key: dict[tuple, RestFrame] = {}
     warnings: list[str] = []
 
+    boosts: dict[tuple, Boost] = {}  # by velocity key: checked and worked out (in exact arithmetic) once, not per object
+
     def shared_frame(velocity: Velocity, name: str) -> RestFrame:
-        boost = Boost.from_velocity(velocity.beta, velocity.lorentz_factor, name=name)
+        boost = boosts.get(velocity.key)
+        if boost is None:
+            boost = boosts[velocity.key] = Boost.from_velocity(velocity.beta, velocity.lorentz_factor, name=name)
         key = REST.key if boost.is_identity else velocity.key
         frame = by_key.get(key)
         if frame is None:
@@ -579,49 +598,84 @@ def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) ->
     along the longest axis): a tighter outline than one sphere, for culling whole ray bundles.
     None once ``should_stop()`` is true (checked between steps).
 
-    Worked on one coordinate at a time (numpy is slow along a length-3 axis), gathering into
-    one scratch array (fresh arrays this size cost more in page faults than the arithmetic):
-    a group's box is the box of its triangles' own boxes.  The triangles' indices are valid,
-    so ``take`` has nothing to clip.
+    Worked on one coordinate at a time (numpy is slow along a length-3 axis): a group's box is
+    the box of its triangles' own boxes.  The triangles go in chunks, and the groups of each
+    split and the groups' lower and upper bounds side by side, to the build's threads (numpy
+    lets go of the GIL on long arrays); each gathers into its own stretch of one scratch array (fresh arrays this size cost more in page
+    faults than the arithmetic).  The triangles' indices are valid, so ``take`` has nothing to clip.
     """
     n = len(triangles)
     scratch = np.empty((3, n))
     corner_index = np.ascontiguousarray(triangles.T)
-    centroids, tri_lo, tri_hi = [], [], []  # per axis: of each triangle
-    for axis in range(3):
-        if should_stop():
-            return None
-        column = np.ascontiguousarray(vertices[:, axis])
-        a, b, c = (np.take(column, index, out=out, mode="clip") for index, out in zip(corner_index, scratch))
-        centroid, lo, hi = np.add(a, b), np.minimum(a, b), np.maximum(a, b)
-        centroid += c
-        centroid /= 3.0
-        centroids.append(centroid)
-        tri_lo.append(np.minimum(lo, c, out=lo))
-        tri_hi.append(np.maximum(hi, c, out=hi))
+    columns = [np.ascontiguousarray(vertices[:, axis]) for axis in range(3)]
+    centroids, tri_lo, tri_hi = np.empty((3, n)), np.empty((3, n)), np.empty((3, n))  # [axis, triangle]
+
+    def triangle_bounds(start: int, stop: int) -> None:
+        for axis, column in enumerate(columns):
+            a, b, c = (np.take(column, index[start:stop], out=out[start:stop], mode="clip")
+                       for index, out in zip(corner_index, scratch))
+            centroid, lo, hi = centroids[axis, start:stop], tri_lo[axis, start:stop], tri_hi[axis, start:stop]
+            np.add(a, b, out=centroid)
+            centroid += c
+            centroid /= 3.0
+            np.minimum(np.minimum(a, b, out=lo), c, out=lo)
+            np.maximum(np.maximum(a, b, out=hi), c, out=hi)
+
+    def halves(group: np.ndarray, at: int) -> list[np.ndarray]:
+        """The group split at its centroids' median along their longest axis (``at``: where
+        its stretch of the scratch array starts)."""
+        if len(group) < 64:
+            return [group]
+        c = [np.take(centroid, group, out=out[at:at + len(group)], mode="clip") for centroid, out in zip(centroids, scratch)]
+        axis = int(np.argmax([ca.max() - ca.min() for ca in c]))
+        order = np.argpartition(c[axis], len(group) // 2)
+        return [group[order[: len(group) // 2]], group[order[len(group) // 2:]]]
+
+    def boxes(reduce, bounds, out) -> list[np.ndarray]:
+        """Per axis, every group's ``reduce`` (min or max) of its triangles' ``bounds``: their
+        triangles in a row (gathered into ``out``), reduced group by group."""
+        return [reduce.reduceat(np.take(bound, in_groups, out=out, mode="clip"), starts) for bound in bounds]
+
+    if should_stop():
+        return None
+    threaded = n > _CHUNK  # a small mesh's steps take less than handing them to a thread
+    _side_by_side(triangle_bounds, [(start, min(start + _CHUNK, n)) for start in range(0, n, _CHUNK)])
     groups = [np.arange(n)]
     for _ in range(depth):
         if should_stop():
             return None
-        split = []
-        for group in groups:
-            if len(group) < 64:
-                split.append(group)
-                continue
-            c = [np.take(centroid, group, out=out[:len(group)], mode="clip") for centroid, out in zip(centroids, scratch)]
-            axis = int(np.argmax([ca.max() - ca.min() for ca in c]))
-            order = np.argpartition(c[axis], len(group) // 2)
-            split += [group[order[: len(group) // 2]], group[order[len(group) // 2:]]]
-        groups = split
+        groups = [half for split in _side_by_side(halves, _with_starts(groups), threaded) for half in split]
     if should_stop():
         return None
-    # each group's box, all groups at once: their triangles in a row, reduced group by group
     in_groups = np.concatenate(groups)
     starts = np.cumsum([0] + [len(group) for group in groups[:-1]])
-    box = [[reduce.reduceat(np.take(bound, in_groups, out=scratch[0], mode="clip"), starts) for bound in bounds]
-           for reduce, bounds in ((np.minimum, tri_lo), (np.maximum, tri_hi))]
-    lo, hi = np.column_stack(box[0]), np.column_stack(box[1])
+    lo, hi = (np.column_stack(b) for b in _side_by_side(
+        boxes, [(np.minimum, tri_lo, scratch[0]), (np.maximum, tri_hi, scratch[1])], threaded))
     return np.array([[*(0.5 * (l + h)), 0.5 * float(np.linalg.norm(h - l))] for l, h in zip(lo, hi)])
+
+
+_CHUNK = 2**16  # triangles per task of the culling clusters' first pass
+
+
+def _with_starts(groups: list[np.ndarray]) -> list[tuple[np.ndarray, int]]:
+    """Each group with where its stretch of a scratch array of their total length starts."""
+    return list(zip(groups, np.cumsum([0] + [len(group) for group in groups[:-1]]).tolist()))
+
+
+_POOL: ThreadPoolExecutor | None = None  # the build's threads, one per core
+_POOL_LOCK = threading.Lock()
+
+
+def _side_by_side(work: Callable, arguments: list[tuple], threaded: bool = True) -> list:
+    """``[work(*a) for a in arguments]``, computed on the build's threads (in the calling
+    thread where there is one task or one core, or not ``threaded``)."""
+    global _POOL
+    if not threaded or len(arguments) < 2 or (os.cpu_count() or 1) < 2:
+        return [work(*a) for a in arguments]
+    with _POOL_LOCK:
+        if _POOL is None:
+            _POOL = ThreadPoolExecutor(max_workers=os.cpu_count(), thread_name_prefix="restframe-build")
+    return [future.result() for future in [_POOL.submit(work, *a) for a in arguments]]
 
 
 def _flat_normals(part: dict) -> np.ndarray:

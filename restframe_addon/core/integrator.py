@@ -281,7 +281,7 @@ class PathTracer:
                 emitted *= mats.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
             weight = None
             if bounce and k in self.emitters:  # also drawn by the emitter samples of the last vertex
-                pdf_light = self._emitter_pdf(k, prim, hits.s_frame, rows.dot(frame.geometry.face_normals[prim], d_k),
+                pdf_light = self._emitter_pdf(k, prim, hits.s_frame, rows.dot(frame.geometry.face_normals(prim), d_k),
                                               doppler)
                 weight = mis.power_heuristic(state.pdf, pdf_light)
             self._accumulate(out, path, throughput * emitted, weight, bounce)

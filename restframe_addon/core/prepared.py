@@ -27,11 +27,12 @@ from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
 from .integrator import PathTracer, scene_world
 from .passes import DEFAULT_PASSES, EXTRA_PASSES, ray_doppler
 from .persistent import GeometryCache
-from .scene import RAY_CAMERA, Camera, RenderSettings, Scene
+from .scene import RAY_CAMERA, Camera, RenderSettings, Scene, render_workers
 from .shading import MaterialTable, PreparedLight, Shader, prepare_lights
 from .tracer import TraceCache
 from .validation import RenderError, check_render
 
+_SMALLEST_SPLIT_TILE = 8  # pixels: tiles are not split below this (the Tile Size setting's own minimum)
 _EXPOSURE_PREVIEW = 48  # pixels on the longer side of the exposure-normalisation preview
 _LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 _UNPICKLING_CACHE: ContextVar[GeometryCache | None] = ContextVar("restframe_unpickling_cache", default=None)
@@ -75,9 +76,15 @@ class PreparedScene:
         return (0, 0, width, height)
 
     def tiles(self, area=None) -> list[tuple[int, int, int, int]]:
-        """The tiles of ``area`` (default: the region to render), row by row from the bottom."""
+        """The tiles of ``area`` (default: the region to render), row by row from the bottom:
+        squares of the tile size, halved (down to 8 pixels) while there are fewer of them than
+        the render's workers, since each worker renders whole tiles: a 255x255 image in one
+        256-pixel tile left all cores but one idle.  The pixels are the same for any tiling."""
         x0, y0, x1, y1 = area or self.region
         size = max(int(self.settings.tile_size), 1)
+        workers = render_workers(self.settings.threads)
+        while size >= 2 * _SMALLEST_SPLIT_TILE and math.ceil((x1 - x0) / size) * math.ceil((y1 - y0) / size) < workers:
+            size = (size + 1) // 2
         return [
             (tx, ty, min(tx + size, x1), min(ty + size, y1))
             for ty in range(y0, y1, size)

@@ -15,7 +15,6 @@ Pass arrays are float32 ``(h, w, C)`` with row 0 at the bottom (Blender's order)
 
 from __future__ import annotations
 
-import os
 import threading
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass
@@ -27,7 +26,7 @@ from . import blas, sampling
 from .passes import (ALL_PASSES, DENOISING_PASSES, EXTRA_PASSES, PASSES, pixel_passes,  # noqa: F401 (PASSES: public)
                      ray_doppler)
 from .prepared import PreparedScene, prepare
-from .scene import RAY_CAMERA, RenderSettings, Scene
+from .scene import RAY_CAMERA, RenderSettings, Scene, render_workers
 from .tracer import TraceCache
 from .validation import DOPPLER_MODES, RenderError  # noqa: F401 (public names of this module)
 
@@ -170,17 +169,13 @@ def _batches(n: int, samples: int, channels: int):
             yield part, first, min(per_batch, samples - first)
 
 
-def _worker_count(threads: int) -> int:
-    return threads if threads > 0 else (os.cpu_count() or 1)
-
-
 def render_tiles(prepared: PreparedScene, should_stop: Callable[[], bool] = lambda: False,
                  threads: int | None = None, warn: Callable[[str], None] | None = None) -> Iterator[Tile]:
     """Yield the tiles of the prepared scene's region as they complete, rendered by ``threads``
     threads or worker processes (``settings.parallelism``; None: the settings' count; 0: one per
     core); return early once ``should_stop()`` is true (a tile cut short by it is never yielded).
     ``warn(message)`` hears why worker processes fell back to threads."""
-    workers = _worker_count(prepared.settings.threads if threads is None else threads)
+    workers = render_workers(prepared.settings.threads if threads is None else threads)
     with blas.single_threaded():  # the render threads use the cores (see blas)
         if prepared.settings.parallelism == "PROCESSES":
             from . import workers as processes  # (it imports this module)

@@ -8,6 +8,7 @@ own rest frame* (see ``docs/physics.md#rest-shapes``: the artist models rest sha
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -254,3 +255,8 @@ class RenderSettings:
     doppler_range: tuple[float, float] | None = None  # FACTOR display: None = the frame's own range
     doppler_levels: int = 0  # FACTOR display: quantise to N >= 2 grey levels (0 = continuous; 1 is refused)
     passes: tuple[str, ...] | None = None  # passes to fill besides Combined (passes.EXTRA_PASSES names); None = passes.DEFAULT_PASSES
+
+
+def render_workers(threads: int) -> int:
+    """The render threads (or worker processes) a ``RenderSettings.threads`` asks for: 0 = one per core."""
+    return threads if threads > 0 else (os.cpu_count() or 1)

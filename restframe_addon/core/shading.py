@@ -744,7 +744,7 @@ def uv_tangents(frame, prim, tau=None):
     determinant = du1 * dv2 - du2 * dv1
     tangent = rows.scale(tangent, np.where(determinant < 0.0, -1.0, 1.0))
     bitangent = rows.scale(bitangent, np.where(determinant < 0.0, -1.0, 1.0))
-    sign = np.where(rows.dot(rows.cross(geometry.face_normals[prim], tangent), bitangent) < 0.0, -1.0, 1.0)
+    sign = np.where(rows.dot(rows.cross(geometry.face_normals(prim), tangent), bitangent) < 0.0, -1.0, 1.0)
     if frame.spin is not None:
         _, tangent = frame.to_frame(corners[:, 0], tangent, tau)
     return tangent, sign

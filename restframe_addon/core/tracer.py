@@ -26,7 +26,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from . import rows
-from .frames import FrameSet, RestFrame
+from .frames import FrameSet, RestFrame, triangle_normals
 from .scene import RAY_SHADOW
 
 _PAD = 1e-4  # bounds padding, relative to the frame's extent: float32 geometry may sit just outside
@@ -718,10 +718,10 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None):
     p0, p1, p2 = (rows.take(geometry.vertices, corners[:, i]) for i in range(3))
     u = np.asarray(u, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)
-    p1 -= p0
+    p1 -= p0  # the edges out of the first corner
     p2 -= p0
     position = rows.add_scaled(rows.add_scaled(p0, u, p1), v, p2)
-    ng = rows.take(geometry.face_normals, prim)
+    ng = triangle_normals(p1, p2)  # Geometry.face_normals, from the edges at hand
     if geometry.corner_normals is None:
         ns = ng
     else:

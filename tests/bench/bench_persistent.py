@@ -126,13 +126,14 @@ def report(name: str, results: dict[bool, dict]) -> None:
         r = results[persistent]
         ratios = ", ".join(f"{x:.2f}" for x in r["ratios"])
         print(f"{label}: frames 2..N / frame 1 = {ratios} (median {statistics.median(r['ratios']):.2f})")
-    print("\n| ms, median over runs | " + " | ".join(STEPS) + " |")
-    print("|---|" + "---|" * len(STEPS))
+    print("\n| ms, median over runs | " + " | ".join(STEPS) + " | tiles (engine - export - prepare) |")
+    print("|---|" + "---|" * (len(STEPS) + 1))
     for persistent, label in ((True, "persistent"), (False, "fresh")):
         for which in ("first", "later"):
             row = results[persistent][which]
             title = f"{label}, frame 1" if which == "first" else f"{label}, frames 2..N (mean)"
-            print(f"| {title} | " + " | ".join(f"{row[step]:.0f}" for step in STEPS) + " |")
+            print(f"| {title} | " + " | ".join(f"{row[step]:.0f}" for step in STEPS)
+                  + f" | {row['engine'] - row['export'] - row['prepare']:.0f} |")
 
 
 def main() -> int:

@@ -375,3 +375,46 @@ def run(ctx) -> Section:
                           f"{e['export_s']:.2f} s, {e['export_peak_mb']:.0f} MB peak; prepare {e['prepare_s']:.2f} s; "
                           f"peak RSS {e['rss_render_mb']:.0f} MB", None))
     return sec
+
+
+def bars_spread(runs: int, repeats: int, res=(256, 192)) -> list[dict]:
+    """The 11x11 bars' renders alone, ``runs`` times over, each the min of ``repeats`` interleaved
+    repeats of wall-clock and of CPU time (one thread: CPU time is what the render itself took,
+    the less disturbed by a shared machine): how stable the 11-frames / 1-frame ratio is."""
+    import time
+
+    s = settings(res)
+    scenes = {"1": bars_scene([0.5] * 11), "11": bars_scene([0.05 + 0.08 * i for i in range(11)])}
+    for scene in scenes.values():
+        render_image(scene, s)  # warm
+    studies = []
+    for _ in range(runs):
+        wall, cpu = {k: [] for k in scenes}, {k: [] for k in scenes}
+        for r in range(repeats):
+            for k in (list(scenes) if r % 2 == 0 else list(scenes)[::-1]):
+                w, c = time.perf_counter(), time.process_time()
+                render_image(scenes[k], s)
+                wall[k].append(time.perf_counter() - w)
+                cpu[k].append(time.process_time() - c)
+        studies.append({"wall 1": min(wall["1"]), "wall 11": min(wall["11"]), "cpu 1": min(cpu["1"]),
+                        "cpu 11": min(cpu["11"])})
+    return studies
+
+
+if __name__ == "__main__":  # the 11x11 bars alone: python bench_throughput.py --bars [RUNS] [REPEATS]
+    import statistics
+    import time
+
+    if sys.argv[1:2] != ["--bars"]:
+        raise SystemExit("usage: bench_throughput.py --bars [RUNS] [REPEATS] (the whole section runs from run.py)")
+    runs, repeats = (int(a) for a in (sys.argv[2:] + ["5", "5"][len(sys.argv[2:]):])[:2])
+    print(f"# 11x11 bars, render 11 frames / 1 frame (256x192, one thread): {runs} runs, each the min of {repeats} "
+          f"interleaved repeats; {time.strftime('%H:%M:%S')} UTC, load {os.getloadavg()[0]:.2f}")
+    studies = bars_spread(runs, repeats)
+    for st in studies:
+        print(f"wall {st['wall 11'] / st['wall 1']:.2f} ({st['wall 11']:.3f} / {st['wall 1']:.3f} s), "
+              f"CPU {st['cpu 11'] / st['cpu 1']:.2f} ({st['cpu 11']:.3f} / {st['cpu 1']:.3f} s)")
+    for kind in ("wall", "cpu"):
+        ratios = sorted(st[f"{kind} 11"] / st[f"{kind} 1"] for st in studies)
+        print(f"{kind}: median {statistics.median(ratios):.2f}, range {ratios[0]:.2f}-{ratios[-1]:.2f}")
+    print(f"load at the end {os.getloadavg()[0]:.2f}")

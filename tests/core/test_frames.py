@@ -216,8 +216,11 @@ def plain_clusters(vertices, triangles, depth=4):
     return np.array(spheres)
 
 
+@pytest.mark.parametrize("chunk", [frames._CHUNK, 700], ids=["one thread", "threads"])
 @pytest.mark.parametrize("mesh", ["sphere", "grid", "random", "random with ties", "few"])
-def test_culling_clusters_hold_every_triangle_and_match_the_plain_computation(mesh):
+def test_culling_clusters_hold_every_triangle_and_match_the_plain_computation(mesh, chunk, monkeypatch):
+    """On the calling thread (these meshes are small) and, in chunks of 700 triangles, on the build's threads."""
+    monkeypatch.setattr(frames, "_CHUNK", chunk)
     rng = np.random.default_rng(2)
     if mesh == "sphere":
         vertices, triangles = shuffled_sphere()
@@ -285,3 +288,23 @@ def test_culling_by_clusters_never_hides_a_hit(monkeypatch):
     assert len(np.unique(full.frame)) == 5  # every body is hit, and the background
     for name in ("frame", "prim", "s", "u", "v"):
         np.testing.assert_array_equal(getattr(culled, name), getattr(full, name), err_msg=name)
+
+
+def test_face_normals_are_the_triangles_unit_normals_and_the_hits_normals():
+    """Worked out per hit (not for every triangle at build time): the unit normal of each asked-for
+    triangle (plain numpy here, 0 for a degenerate one), and bit for bit the geometric normal the
+    tracer gives a hit."""
+    vertices, triangles = shuffled_sphere()
+    triangles = np.vstack([triangles, [[0, 0, 1]]])  # a degenerate triangle
+    geometry = build_frames(grid_scene((vertices, triangles))).frames[0].geometry
+    prim = np.array([len(triangles) - 1, 0, 5, 5, 17, len(triangles) - 2])
+    corners = vertices[triangles[prim]]
+    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    length = np.linalg.norm(cross, axis=1, keepdims=True)
+    expected = np.where(length > 0, cross / np.where(length > 0, length, 1.0), 0.0)
+    normals = geometry.face_normals(prim)
+    np.testing.assert_allclose(normals, expected, rtol=0, atol=1e-12)
+    assert not normals[0].any()
+    frame = build_frames(grid_scene((vertices, triangles))).frames[0]
+    _, ng, _ = tracer.hit_geometry(frame, prim, np.full(len(prim), 0.2), np.full(len(prim), 0.3))
+    np.testing.assert_array_equal(ng, geometry.face_normals(prim))

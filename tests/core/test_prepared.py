@@ -104,7 +104,7 @@ def test_the_frame_set_is_read_only_and_rendering_changes_nothing_in_it():
             assert not value.flags.writeable, name
     for k in frames.geometry:
         geometry = frames.frames[k].geometry
-        assert not geometry.vertices.flags.writeable and not geometry.face_normals.flags.writeable
+        assert not geometry.vertices.flags.writeable and not geometry.triangles.flags.writeable
     with pytest.raises(Exception):
         prepared.exposure = 2.0
 
@@ -154,3 +154,33 @@ def test_the_pass_table_keeps_its_public_names_and_order():
     assert list(DEFAULT_PASSES) == list(EXTRA_PASSES)[:6]  # the denoising data only when asked for
     assert list(ALL_PASSES) == ["Combined", *EXTRA_PASSES] and ALL_PASSES["Combined"] == 4
     assert (render.PASSES, render.EXTRA_PASSES, render.ALL_PASSES) == (PASSES, EXTRA_PASSES, ALL_PASSES)
+
+
+@pytest.mark.parametrize("threads, tile_size, resolution, expected_size", [
+    (1, 256, (255, 255), 256),  # one worker: the one tile
+    (2, 256, (255, 255), 128),  # two workers: halved to 4 tiles
+    (4, 256, (255, 255), 128),
+    (5, 256, (255, 255), 64),
+    (2, 16, (24, 18), 16),  # already 4 tiles
+    (8, 20, (24, 18), 10),  # halved (rounding up) to 9 tiles, then no further below 8 pixels
+    (3, 10, (10, 10), 10),  # not split below 8 pixels
+])
+def test_an_image_is_split_into_at_least_one_tile_per_worker(threads, tile_size, resolution, expected_size):
+    """Each worker renders whole tiles: with fewer tiles than workers the tile size is halved, and
+    the pixels stay the same."""
+    prepared = prepare(busy_scene(), settings(resolution=resolution, threads=threads, tile_size=tile_size))
+    width, height = resolution
+    expected = [(x, y, min(x + expected_size, width), min(y + expected_size, height))
+                for y in range(0, height, expected_size) for x in range(0, width, expected_size)]
+    assert prepared.tiles() == expected
+    covered = np.zeros((height, width), dtype=int)
+    for x0, y0, x1, y1 in prepared.tiles():
+        covered[y0:y1, x0:x1] += 1
+    assert (covered == 1).all()
+
+
+def test_split_tiles_give_the_pixels_of_one_tile():
+    scene = busy_scene(Velocity((0.0, 0.4, 0.0)))
+    one = render_image(scene, settings(resolution=(24, 18), threads=1, tile_size=32))
+    split = render_image(scene, settings(resolution=(24, 18), threads=4, tile_size=32))
+    assert_same_passes(one, split)
