@@ -228,7 +228,7 @@ class RestFrame:
     def to_frame(self, x, d, tau=None):
         """Local geometry coordinates (points, directions) -> frame coordinates."""
         if self.spin is None:
-            return x + self.offset, d
+            return rows.add(x, self.offset), d
         pose = self.pose(tau)
         return np.einsum("nij,nj->ni", pose, x) + self.offset, np.einsum("nij,nj->ni", pose, d)
 

@@ -146,24 +146,38 @@ class Boost:
         sign = np.where(toward, 1.0, -1.0)
         moving = [i for i in range(3) if n[i] != 0.0]  # axes along which n has a component
         # d + n or d - n: the small difference vector
-        diff = [d[..., i] + sign * n[i] if i in moving else d[..., i] for i in range(3)]
-        half_s2 = 0.5 * (diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2])
-        h = np.where(toward, half_s2, 2.0 - half_s2)  # h = 1 + n.d
+        diff = [np.add(d[..., i], np.multiply(sign, n[i])) if i in moving else d[..., i] for i in range(3)]
+        shape = d.shape[:-1]
+        half_s2 = np.multiply(diff[0], diff[0], out=np.empty(shape))
+        for i in (1, 2):
+            half_s2 += np.multiply(diff[i], diff[i])
+        half_s2 *= 0.5
+        h = np.subtract(2.0, half_s2, out=np.empty(shape))
+        np.copyto(h, half_s2, where=toward)  # h = 1 + n.d
         # d_perp = d - (n.d) n, from the difference vector for accuracy
-        along = sign * half_s2
+        along = np.multiply(sign, half_s2, out=sign)
         perp = [diff[i] - along * n[i] if i in moving else diff[i] for i in range(3)]
         # inputs a few ulps off unit length leave a residue along n; remove it exactly
         residue = sum(perp[i] * n[i] for i in moving)
-        one_plus_bd = self.one_minus_b + b * h
-        par = (h - self.one_minus_b) / one_plus_bd
-        inverse = 1.0 / (self.gamma * one_plus_bd)
+        one_plus_bd = np.multiply(b, h, out=np.empty(shape))
+        one_plus_bd += self.one_minus_b
+        par = np.subtract(h, self.one_minus_b, out=h)
+        par /= one_plus_bd
+        inverse = np.multiply(self.gamma, one_plus_bd, out=np.empty(shape))
+        np.divide(1.0, inverse, out=inverse)
         d_new = np.empty(d.shape)
+        scratch = np.empty(shape)
         for i in range(3):
             if i in moving:
-                d_new[..., i] = par * n[i] + (perp[i] - residue * n[i]) * inverse
+                np.multiply(residue, n[i], out=scratch)
+                np.subtract(perp[i], scratch, out=scratch)
+                scratch *= inverse
+                np.multiply(par, n[i], out=d_new[..., i])
+                d_new[..., i] += scratch
             else:
                 np.multiply(perp[i], inverse, out=d_new[..., i])
-        return d_new, self.gamma * one_plus_bd
+        one_plus_bd *= self.gamma
+        return d_new, one_plus_bd
 
     def doppler(self, d):
         """Doppler factor D = 1/(gamma (1 + beta.d)) for backward directions d."""

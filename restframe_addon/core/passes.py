@@ -79,10 +79,14 @@ def facing_normals(frame: RestFrame, prim, u, v, d_k, tau_hit=None):
     from the viewer falls back to the geometric one."""
     position, ng, ns = hit_geometry(frame, prim, u, v, tau_hit)
     back = rows.dot(ng, d_k) > 0.0
-    facing = np.where(back, -1.0, 1.0)
-    ng, ns = rows.scale(ng, facing), rows.scale(ns, facing)
+    for normals in (ng,) if ns is ng else (ng, ns):  # (hit_geometry's own arrays: turned in place)
+        for axis in range(3):
+            np.negative(normals[:, axis], out=normals[:, axis], where=back)
+    if ns is ng:
+        ns = ng.copy()
     away = rows.dot(ns, d_k) >= 0.0
-    ns[away] = ng[away]
+    if away.any():
+        ns[away] = rows.take(ng, away)
     return position, ng, ns, back
 
 
@@ -95,7 +99,7 @@ def ray_doppler(frames: FrameSet, hits: Hits) -> np.ndarray:
             continue
         sel = np.flatnonzero(hits.frame == k)
         doppler[sel] = hit_doppler(frame, hits.prim[sel], hits.u[sel], hits.v[sel], hit_times(hits, sel),
-                                   hits.d_frame[sel], hits.w[sel])
+                                   rows.take(hits.d_frame, sel), hits.w[sel])
     return doppler
 
 
@@ -114,8 +118,9 @@ def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
         passes["Depth"] = np.where(hit, hits.s, _MISS_DEPTH)
     if "Emission Time" in wanted:
         # world time of the hit event: back along the ray in the camera frame, then into S
+        s_hit = hits.s[hit]
         world_tau, _ = frames.map(frames.camera, frames.world).events(
-            tau[hit] - hits.s[hit], rows.add_scaled(x[hit], hits.s[hit], d[hit]))
+            tau[hit] - s_hit, rows.add_scaled(rows.take(x, hit), s_hit, rows.take(d, hit)))
         passes["Emission Time"] = np.zeros(n)
         passes["Emission Time"][hit] = world_tau / light_speed
     per_frame = wanted & {"Doppler", "Normal", "IndexOB", "Object Time"}
@@ -126,7 +131,7 @@ def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
     for k in frames_hit(hits):
         sel = np.flatnonzero(hits.frame == k)
         frame = frames.frames[int(k)]
-        d_k, tau_hit = hits.d_frame[sel], hit_times(hits, sel)
+        d_k, tau_hit = rows.take(hits.d_frame, sel), hit_times(hits, sel)
         prim, u, v = hits.prim[sel], hits.u[sel], hits.v[sel]
         if "Doppler" in wanted:
             passes["Doppler"][sel, 0] = hit_doppler(frame, prim, u, v, tau_hit, d_k, hits.w[sel])

@@ -14,6 +14,18 @@ import numpy as np
 _ONES = np.ones(3)
 
 
+def take(a, index) -> np.ndarray:
+    """The rows of ``a`` at ``index`` (integer indices or a boolean mask over the rows).
+
+    numpy's fancy indexing of an (n, 3) array copies three elements at a time: ``take`` and
+    ``compress`` along the first axis do the same 3-4x faster (1-D arrays alike for masks).
+    """
+    index = np.asarray(index)
+    if index.dtype == bool:
+        return np.compress(index, a, axis=0)
+    return np.take(a, index, axis=0)
+
+
 def dot(a, b) -> np.ndarray:
     """Row-wise dot products: (n, 3) with (n, 3), or (n, 3) with one (3,) vector."""
     a = np.asarray(a)
@@ -41,6 +53,16 @@ def scale(a, s) -> np.ndarray:
 def normalized(a) -> np.ndarray:
     """Rows scaled to unit length (rows of length 0 stay 0)."""
     return scale(a, 1.0 / np.maximum(norm(a), 1e-300))
+
+
+def add(a, b) -> np.ndarray:
+    """``a + b`` for (..., 3) a and (3,) or (..., 3) b."""
+    a = np.asarray(a)
+    b = np.asarray(b)
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    for axis in range(3):
+        np.add(a[..., axis], b[..., axis], out=out[..., axis])
+    return out
 
 
 def add_scaled(a, s, b) -> np.ndarray:

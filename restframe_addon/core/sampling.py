@@ -14,19 +14,53 @@ _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
 
 def _mix(z: np.ndarray) -> np.ndarray:
-    """splitmix64's finaliser: a bijective, well-mixing hash of uint64."""
-    z = (z ^ (z >> np.uint64(30))) * _M1
-    z = (z ^ (z >> np.uint64(27))) * _M2
-    return z ^ (z >> np.uint64(31))
+    """splitmix64's finaliser: a bijective, well-mixing hash of uint64 (in place: ``z`` is the
+    caller's own scratch array, returned)."""
+    shifted = z >> np.uint64(30)
+    z ^= shifted
+    z *= _M1
+    np.right_shift(z, np.uint64(27), out=shifted)
+    z ^= shifted
+    z *= _M2
+    np.right_shift(z, np.uint64(31), out=shifted)
+    z ^= shifted
+    return z
+
+
+def _sample_keys(pixel: np.ndarray, sample: np.ndarray | None) -> np.ndarray:
+    """The hash of (pixel, sample) that every dimension's numbers start from (sample None: 0)."""
+    key = pixel.astype(np.uint64)
+    key *= _GOLDEN
+    if sample is None:
+        key ^= _M2  # (0 + 1) * _M2
+    else:
+        mixed = sample.astype(np.uint64)
+        mixed += np.uint64(1)
+        mixed *= _M2
+        key ^= mixed
+    return _mix(key)
+
+
+def _from_keys(keys: np.ndarray, dimension: int) -> np.ndarray:
+    """The numbers of one dimension from :func:`_sample_keys`."""
+    with np.errstate(over="ignore"):
+        z = keys + np.uint64(dimension) * _GOLDEN
+    z = _mix(z)
+    z >>= np.uint64(11)
+    out = z.astype(np.float64)
+    out *= 1.0 / (1 << 53)
+    return out
 
 
 def uniform(pixel: np.ndarray, sample: np.ndarray, dimension: int) -> np.ndarray:
     """Uniform numbers in [0, 1) keyed by pixel id, sample number and dimension."""
-    with np.errstate(over="ignore"):
-        key = pixel.astype(np.uint64) * _GOLDEN
-        key = _mix(key ^ (sample.astype(np.uint64) + np.uint64(1)) * _M2)
-        key = _mix(key + np.uint64(dimension) * _GOLDEN)
-    return (key >> np.uint64(11)).astype(np.float64) * (1.0 / (1 << 53))
+    return _from_keys(_sample_keys(pixel, sample), dimension)
+
+
+def uniforms(pixel: np.ndarray, sample: np.ndarray, dimensions) -> list[np.ndarray]:
+    """:func:`uniform` of several dimensions of the same samples (their common hash done once)."""
+    keys = _sample_keys(pixel, sample)
+    return [_from_keys(keys, dimension) for dimension in dimensions]
 
 
 def stratified_offsets(pixel: np.ndarray, sample: np.ndarray, count: int):
@@ -43,9 +77,13 @@ def stratified_offsets(pixel: np.ndarray, sample: np.ndarray, count: int):
     side = int(np.ceil(np.sqrt(count)))
     cells = side * side
     stratum = strata(pixel, sample, cells, 0)
-    jx = uniform(pixel, sample, 1)
-    jy = uniform(pixel, sample, 2)
-    return (stratum % side + jx) / side, (stratum // side + jy) / side
+    row, column = np.divmod(stratum, side)
+    x, y = uniforms(pixel, sample, (1, 2))
+    x += column
+    y += row
+    x /= side
+    y /= side
+    return x, y
 
 
 def strata(pixel: np.ndarray, sample: np.ndarray, cells: int, dimension: int):
@@ -53,7 +91,7 @@ def strata(pixel: np.ndarray, sample: np.ndarray, cells: int, dimension: int):
     cells``, the start per pixel (from ``dimension``), the step coprime to ``cells`` near the golden
     ratio times ``cells``, so that a pixel's first samples already spread over the strata."""
     step = _coprime_step(cells)
-    start = (uniform(pixel, np.zeros_like(sample), dimension) * cells).astype(np.int64)
+    start = (_from_keys(_sample_keys(pixel, None), dimension) * cells).astype(np.int64)
     return (sample.astype(np.int64) * step + start) % cells
 
 

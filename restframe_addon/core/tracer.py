@@ -50,7 +50,9 @@ class Hits:
 
     def take(self, index) -> "Hits":
         """The hits of some of the rays (an index or slice)."""
-        return Hits(*(getattr(self, f.name)[index] for f in fields(self)))
+        if isinstance(index, slice):
+            return Hits(*(getattr(self, f.name)[index] for f in fields(self)))
+        return Hits(*(rows.take(getattr(self, f.name), index) for f in fields(self)))
 
 
 def _clip_to_bounds(geometry, origin, d, t_lo, t_hi):
@@ -60,15 +62,17 @@ def _clip_to_bounds(geometry, origin, d, t_lo, t_hi):
     length-3 axis cost more than the arithmetic.
     """
     pad = _padding(geometry)
-    enter, leave = t_lo, t_hi
+    n = len(d)
+    enter, leave = np.empty(n), np.empty(n)
+    inv, t_a, t_b, near = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     with np.errstate(divide="ignore", invalid="ignore"):
         for axis in range(3):
-            inv = 1.0 / d[:, axis]
-            t_a = (geometry.lo[axis] - pad - origin[..., axis]) * inv
-            t_b = (geometry.hi[axis] + pad - origin[..., axis]) * inv
+            np.divide(1.0, d[:, axis], out=inv)
+            np.multiply(np.subtract(geometry.lo[axis] - pad, origin[..., axis], out=t_a), inv, out=t_a)
+            np.multiply(np.subtract(geometry.hi[axis] + pad, origin[..., axis], out=t_b), inv, out=t_b)
             # fmin/fmax ignore the NaN of 0 * inf (a ray in the plane of a slab face)
-            enter = np.fmax(enter, np.fmin(t_a, t_b))
-            leave = np.fmin(leave, np.fmax(t_a, t_b))
+            np.fmax(t_lo if axis == 0 else enter, np.fmin(t_a, t_b, out=near), out=enter)
+            np.fmin(t_hi if axis == 0 else leave, np.fmax(t_a, t_b, out=near), out=leave)
     return enter, leave
 
 
@@ -109,14 +113,15 @@ def _local_query(geometry, origin, d, t_lo, t_hi, occlusion: bool):
     if occlusion:
         blocked = np.zeros(n, dtype=bool)
         if len(idx):
-            blocked[idx] = _clipped_query(geometry, origin if origin.ndim == 1 else origin[idx], d[idx],
-                                          enter[idx], leave[idx], occlusion)
+            blocked[idx] = _clipped_query(geometry, origin if origin.ndim == 1 else rows.take(origin, idx),
+                                          rows.take(d, idx), enter[idx], leave[idx], occlusion)
         return blocked
     t, prim = np.full(n, np.inf), np.full(n, -1, dtype=np.int32)
     u, v = np.zeros(n, dtype=np.float32), np.zeros(n, dtype=np.float32)
     if len(idx):
-        t[idx], prim[idx], u[idx], v[idx] = _clipped_query(geometry, origin if origin.ndim == 1 else origin[idx],
-                                                           d[idx], enter[idx], leave[idx], occlusion)
+        t[idx], prim[idx], u[idx], v[idx] = _clipped_query(geometry,
+                                                           origin if origin.ndim == 1 else rows.take(origin, idx),
+                                                           rows.take(d, idx), enter[idx], leave[idx], occlusion)
     return t, prim, u, v
 
 
@@ -150,29 +155,35 @@ def _split_query(geometry, origin, d, t_lo, t_hi, occlusion: bool, direct):
         blocked = np.zeros(n, dtype=bool)
         for idx, unclipped in parts:
             if unclipped:
-                blocked[idx] = _embree_query(geometry, origin - geometry.anchor, d[idx], t_hi[idx], occlusion)
+                blocked[idx] = _embree_query(geometry, origin - geometry.anchor, rows.take(d, idx), t_hi[idx], occlusion)
             else:
-                blocked[idx] = _local_query(geometry, origin, d[idx], t_lo[idx], t_hi[idx], occlusion)
+                blocked[idx] = _local_query(geometry, origin, rows.take(d, idx), t_lo[idx], t_hi[idx], occlusion)
         return blocked
     t, prim = np.full(n, np.inf), np.full(n, -1, dtype=np.int32)
     u, v = np.zeros(n, dtype=np.float32), np.zeros(n, dtype=np.float32)
     for idx, unclipped in parts:
         if unclipped:
-            part = _embree_query(geometry, origin - geometry.anchor, d[idx], t_hi[idx], occlusion)
+            part = _embree_query(geometry, origin - geometry.anchor, rows.take(d, idx), t_hi[idx], occlusion)
         else:
-            part = _local_query(geometry, origin, d[idx], t_lo[idx], t_hi[idx], occlusion)
+            part = _local_query(geometry, origin, rows.take(d, idx), t_lo[idx], t_hi[idx], occlusion)
         t[idx], prim[idx], u[idx], v[idx] = part
     return t, prim, u, v
 
 
 def _clipped_query(geometry, origin, d, enter, leave, occlusion: bool):
     """Rays moved to where they enter the bounds (float64), queried from there in float32."""
-    start_point = rows.add_scaled(origin - geometry.anchor, enter, d)
-    result = _embree_query(geometry, start_point, d, leave - enter, occlusion)
+    o32 = np.empty(d.shape, dtype=np.float32)
+    start = np.empty(len(d))
+    for axis in range(3):  # the start point (float64) one axis at a time, rounded once into embree's origins
+        np.multiply(enter, d[:, axis], out=start)
+        start += origin[..., axis] - geometry.anchor[axis]
+        o32[:, axis] = start
+    result = _embree_run(geometry, o32, d, np.subtract(leave, enter, out=np.empty(len(d), np.float32)), occlusion)
     if occlusion:
         return result
     t, prim, u, v = result
-    return t + enter, prim, u, v
+    t += enter
+    return t, prim, u, v
 
 
 def _embree_query(geometry, origin, d, length, occlusion: bool):
@@ -181,16 +192,21 @@ def _embree_query(geometry, origin, d, length, occlusion: bool):
     o32 = np.empty(d.shape, dtype=np.float32)
     for axis in range(3):  # a shared origin is a broadcast view: filling by columns is fastest
         o32[:, axis] = origin[..., axis]
+    return _embree_run(geometry, o32, d, length.astype(np.float32), occlusion)
+
+
+def _embree_run(geometry, o32, d, dists, occlusion: bool):
+    """:func:`_embree_query` from its float32 origins and lengths."""
     d32 = np.ascontiguousarray(d, dtype=np.float32)
-    dists = length.astype(np.float32)
     if occlusion:
         return geometry.embree.run(o32, d32, dists=dists, query="OCCLUDED") >= 0
     out = geometry.embree.run(o32, d32, dists=dists, output=1)
     prim = out["primID"]
-    hit = prim >= 0
+    miss = prim < 0
     if len(geometry.piece_start) > 1:  # triangles were attached in pieces: number them as the geometry does
-        prim = np.where(hit, geometry.piece_start[out["geomID"]] + prim, np.int32(-1))
-    t = np.where(hit, out["tfar"], np.inf).astype(np.float64)
+        prim = np.where(miss, np.int32(-1), geometry.piece_start[out["geomID"]] + prim)
+    t = out["tfar"].astype(np.float64)
+    t[miss] = np.inf
     return t, prim, out["u"], out["v"]
 
 
@@ -314,7 +330,7 @@ def _pass_through(frames: FrameSet, src: int, tau0, x0, d, s_hi, cache, ray, see
             break
         # just past the hit: the frame's surface offset, in path length of the source frame
         past = found.s + frames.surface_offsets[found.frame] / found.w
-        again = _nearest(frames, src, tau0[rays], x0[rays], d[rays], past, s_hi[rays], cache)
+        again = _nearest(frames, src, tau0[rays], rows.take(x0, rays), rows.take(d, rays), past, s_hi[rays], cache)
         for f in fields(hits):
             getattr(hits, f.name)[rays] = getattr(again, f.name)
         rays = rays[again.frame >= 0]
@@ -348,12 +364,12 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         rays = _toward(frames, src, k, shared, d, bundle, cache) if bundle is not None else None
         if rays is not None and len(rays) == 0:
             continue
-        d_rays, lo, hi = (d, s_lo, best) if rays is None else (d[rays], s_lo[rays], best[rays])
+        d_rays, lo, hi = (d, s_lo, best) if rays is None else (rows.take(d, rays), s_lo[rays], best[rays])
         if shared is not None:
             tau_k, origin = fmap.events(np.array(shared[0]), shared[1])
             tau_k = np.broadcast_to(tau_k, lo.shape)
         else:
-            tau_k, origin = fmap.events(tau0, x0) if rays is None else fmap.events(tau0[rays], x0[rays])
+            tau_k, origin = fmap.events(tau0, x0) if rays is None else fmap.events(tau0[rays], rows.take(x0, rays))
         if fmap.is_identity:
             dk, w = d_rays, None
         else:
@@ -379,7 +395,7 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         elif nearer.any():
             keep = np.flatnonzero(nearer)
             _update(hits, best, rays[keep], k, s[keep], t[keep], None if w is None else w[keep],
-                    prim[keep], u[keep], v[keep], dk[keep], tau_k[keep])
+                    prim[keep], u[keep], v[keep], rows.take(dk, keep), tau_k[keep])
     return _no_hits(n) if hits is None else hits
 
 
@@ -464,7 +480,7 @@ def _toward(frames: FrameSet, src: int, k: int, origin_event, d, bundle, cache: 
 
 def _bundle_cone(d):
     """(axis, half-angle) of a cone holding every direction d."""
-    axis = d.sum(axis=0)
+    axis = np.array([d[:, 0].sum(), d[:, 1].sum(), d[:, 2].sum()])  # (d.sum(axis=0) is 15x slower)
     length = float(np.linalg.norm(axis))
     if length < 1e-9 * len(d):
         return np.array([1.0, 0.0, 0.0]), np.pi
@@ -525,21 +541,94 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
     candidates = frames.candidates(src, tau0, x0)
     if reach is not None:
         candidates = [k for k, meets in zip(candidates, _may_meet(frames, src, candidates, reach, cache)) if meets]
+    todo = None  # the rays not yet blocked: None while that is every ray (no gathers)
+    extent = None  # (largest |x0| coordinate, largest |tau0|) of the bundle, for the rounding margin of _near_body
     for k in candidates:
-        todo = np.flatnonzero(~blocked)
-        if len(todo) == 0:
+        if todo is not None and len(todo) == 0:
             break
         fmap = frames.map(src, k)
         frame = frames.frames[k]
-        tau_k, origin = fmap.events(tau0[todo], x0[todo])
+        rays = todo  # the rays to trace in frame k (None: all)
+        if not fmap.is_identity:
+            # before mapping them into the frame: only rays that pass the body's box can meet it
+            if extent is None:
+                extent = (max(float(np.max(np.abs(x0[:, axis]))) for axis in range(3)), float(np.max(np.abs(tau0))))
+            near = _near_body(frames, src, k, cache, extent, *_rows_of(rays, tau0, x0, d, s_lo, s_hi))
+            if not near.all():
+                rays = np.flatnonzero(near) if rays is None else rays[near]
+                if len(rays) == 0:
+                    continue
+        tau_k, origin, d_rays, lo, hi = _rows_of(rays, tau0, x0, d, s_lo, s_hi)
+        tau_k, origin = fmap.events(tau_k, origin)
         if reach is not None and reach.direction is not None:  # parallel rays (sunlight): map one
             dk, w = fmap.rays(reach.direction)
-            dk, w = np.broadcast_to(dk, (len(todo), 3)), float(w)
+            dk, w = np.broadcast_to(dk, (len(lo), 3)), float(w)
+        elif fmap.is_identity:
+            dk, w = d_rays, None
         else:
-            dk, w = fmap.rays(d[todo])
-        lo, hi = _ray_range(frame, tau_k, origin, dk, s_lo[todo] * w, s_hi[todo] * w)
-        blocked[todo[_query(frame, tau_k, origin, dk, lo, hi, occlusion=True)]] = True
+            dk, w = fmap.rays(d_rays)
+        if w is not None:  # (w = 1 leaves the path lengths as they are)
+            lo, hi = lo * w, hi * w
+        lo, hi = _ray_range(frame, tau_k, origin, dk, lo, hi)
+        hit = _query(frame, tau_k, origin, dk, lo, hi, occlusion=True)
+        if not hit.any():
+            continue
+        if rays is None:
+            blocked = hit
+        else:
+            blocked[rays[hit]] = True
+        todo = np.flatnonzero(~blocked) if todo is None else todo[~blocked[todo]]
     return blocked
+
+
+def _rows_of(rays, tau0, x0, d, s_lo, s_hi):
+    """(tau0, x0, d, s_lo, s_hi) of the rays with indices ``rays`` (None: all, as they are)."""
+    if rays is None:
+        return tau0, x0, d, s_lo, s_hi
+    return tau0[rays], rows.take(x0, rays), rows.take(d, rays), s_lo[rays], s_hi[rays]
+
+
+def _near_body(frames: FrameSet, src: int, k: int, cache, extent, tau0, x0, d, s_lo, s_hi) -> np.ndarray:
+    """Which backward rays (source frame, ``s_lo <= s <= s_hi``) pass through the box that holds
+    frame k's body (``FrameSet.body_boxes``, widened as for :func:`_may_meet`): a mask.
+    ``extent`` = (largest |coordinate| of the rays' x0, largest |tau0|), or of a bundle they are from.
+
+    Relative to the box's centre, moving with velocity v, the ray's event at path length s is
+    at ``x0 - X(tau0) + s (d + v)``: a slab test per ray.  Rays it rejects cannot meet the
+    frame's bounds either (their query would find nothing), so no ray's result changes.
+    """
+    slot = frames.geometry_slot[k]
+    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
+    t_box, x_box, velocity, half = (a[slot] for a in boxes)
+    n = len(d)
+    if n == 0:
+        return np.zeros(0, dtype=bool)
+    since = tau0 - t_box
+    # the rays meet the box where |s (d + v)| is about |x0 - X(tau0)|: coordinates up to this
+    x_max, tau_max = extent
+    scale = 1.0 + x_max + float(np.max(np.abs(x_box))) + float(np.max(np.abs(velocity))) * (tau_max + abs(float(t_box)))
+    widen = _widened(half[None, :], scale)[0]
+    enter, leave = np.array(s_lo, dtype=np.float64), np.array(s_hi, dtype=np.float64)
+    offset, e, t_a, t_b, near = (np.empty(n) for _ in range(5))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for axis in range(3):
+            v = float(velocity[axis])
+            np.multiply(since, v, out=offset)  # the box centre's displacement at the ray's start
+            offset += x_box[axis]
+            np.subtract(x0[:, axis], offset, out=offset)
+            np.add(d[:, axis], v, out=e)
+            np.divide(np.subtract(-widen[axis], offset, out=t_a), e, out=t_a)
+            np.divide(np.subtract(widen[axis], offset, out=t_b), e, out=t_b)
+            # fmin/fmax ignore the NaN of 0 / 0 (a ray along a slab face)
+            np.fmax(enter, np.fmin(t_a, t_b, out=near), out=enter)
+            np.fmin(leave, np.fmax(t_a, t_b, out=near), out=leave)
+    return enter <= leave
+
+
+def _widened(half, scale: float) -> np.ndarray:
+    """Half-extents (m, 3) of body boxes widened for rounding: float32 geometry, float64 arithmetic
+    on coordinates up to ``scale``."""
+    return half * (1.0 + 2 * _PAD) + 2 * _PAD * half.max(axis=1, keepdims=True) + 1e-9 * scale
 
 
 @dataclass
@@ -563,11 +652,15 @@ def _bundle_reach(tau0, x0, d, s_lo, s_hi) -> Reach | None:
     if not bounded and not np.all(d == d[0]):
         return None
     lo, hi = np.empty(3), np.empty(3)
+    ends = np.empty(len(d))
     for axis in range(3):  # one axis at a time: numpy is slow along a length-3 last axis
-        ends = x0[:, axis] + s_lo * d[:, axis]
-        if bounded:
-            ends = np.concatenate([ends, x0[:, axis] + s_hi * d[:, axis]])
+        np.multiply(s_lo, d[:, axis], out=ends)
+        ends += x0[:, axis]
         lo[axis], hi[axis] = ends.min(), ends.max()
+        if bounded:
+            np.multiply(s_hi, d[:, axis], out=ends)
+            ends += x0[:, axis]
+            lo[axis], hi[axis] = min(lo[axis], ends.min()), max(hi[axis], ends.max())
     start = tau0 - s_lo
     return Reach(lo, hi, float(np.min(tau0 - s_hi)) if bounded else float(np.min(start)), float(np.max(start)),
                  None if bounded else np.array(d[0]))
@@ -588,7 +681,7 @@ def _may_meet(frames: FrameSet, src: int, ks, reach: Reach, cache: TraceCache | 
     boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
     t_a, x_a, velocity, half = (a[slots] for a in boxes)
     scale = 1.0 + float(np.max(np.abs(reach.hi))) + float(np.max(np.abs(reach.lo)))
-    widen = half * (1.0 + 2 * _PAD) + 2 * _PAD * half.max(axis=1, keepdims=True) + 1e-9 * scale
+    widen = _widened(half, scale)
     if reach.direction is None:
         start = x_a + velocity * (reach.earliest - t_a)[:, None]
         return _segments_meet_boxes(start, velocity * (reach.latest - reach.earliest), 1.0,
@@ -618,19 +711,21 @@ def _segments_meet_boxes(origin, direction, t_max: float, lo, hi) -> np.ndarray:
 
 def hit_geometry(frame: RestFrame, prim, u, v, tau=None):
     """Float64 position, unit geometric normal and unit shading normal at hits of one frame
-    (frame coordinates; ``tau``, the hits' frame times, poses a spinning body)."""
+    (frame coordinates; ``tau``, the hits' frame times, poses a spinning body): new arrays, the
+    caller's to write into (the two normals are one array where the mesh has no corner normals)."""
     geometry = frame.geometry
-    corners = geometry.triangles[prim]
-    p0 = geometry.vertices[corners[:, 0]]
+    corners = rows.take(geometry.triangles, prim)
+    p0, p1, p2 = (rows.take(geometry.vertices, corners[:, i]) for i in range(3))
     u = np.asarray(u, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)
-    edge1, edge2 = geometry.vertices[corners[:, 1]] - p0, geometry.vertices[corners[:, 2]] - p0
-    position = rows.add_scaled(rows.add_scaled(p0, u, edge1), v, edge2)
-    ng = triangle_normals(edge1, edge2)  # Geometry.face_normals, from the edges at hand
+    p1 -= p0  # the edges out of the first corner
+    p2 -= p0
+    position = rows.add_scaled(rows.add_scaled(p0, u, p1), v, p2)
+    ng = triangle_normals(p1, p2)  # Geometry.face_normals, from the edges at hand
     if geometry.corner_normals is None:
         ns = ng
     else:
-        cn = geometry.corner_normals[prim]
+        cn = rows.take(geometry.corner_normals, prim)
         ns = rows.normalized(rows.add_scaled(rows.add_scaled(rows.scale(cn[:, 0], 1.0 - u - v), u, cn[:, 1]), v, cn[:, 2]))
     position, ng = frame.to_frame(position, ng, tau)
     if frame.spin is not None:

@@ -39,6 +39,7 @@ SECTIONS = {
     "6": "bench_build",
     "7": "bench_path_cycles",
     "8": "measure_lens",
+    "9": "bench_per_sample",
 }
 
 

@@ -1,0 +1,107 @@
+"""Before/after in one run: two checkouts render the same .blend on one thread, interleaved, in CPU seconds.
+
+    git worktree add /tmp/base origin/main
+    tools/dev.sh tests/bench/ab_cpu.py /tmp/base                      # moving_sphere, 960x540, 8 samples
+    tools/dev.sh tests/bench/ab_cpu.py /tmp/base --stages --repeats 7  # and the tracer's stages
+
+Each checkout runs in its own process (a server that exports and prepares the scene once, then
+renders on request); the driver asks them in turn, alternating the order, so both see the same
+machine. Times are CPU seconds of the render (one thread: other work on a shared machine inflates
+them less than wall time), min over the repeats. ``--stages`` adds the CPU time inside the tracer
+calls of the shading, the hit geometry, the sample jitter and the camera rays.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve()
+SCENES = {"moving_sphere": ("moving_sphere.blend", (960, 540), 8), "bars": ("bars_sideways.blend", None, None)}
+STAGES = (("shading", "occluded"), ("shading", "trace_nearest"), ("shading", "facing_normals"),
+          ("sampling", "stratified_offsets"), ("prepared", "PreparedScene.sample_rays"))
+
+
+def serve(repo: str, scene: str, stages: bool) -> None:
+    sys.path[:0] = [repo + "/tests/bench", repo]
+    from bench_parallel import export_blend
+
+    import restframe_addon
+    from restframe_addon.core import prepared, sampling, shading
+    from restframe_addon.core.render import render_tiles
+
+    restframe_addon.register()
+    blend, resolution, samples = SCENES[scene]
+    core_scene, settings = export_blend(blend, resolution, samples, None)
+    prep = prepared.prepare(core_scene, dataclasses.replace(settings, parallelism="THREADS", threads=1))
+    totals: dict[str, float] = {}
+    modules = {"shading": shading, "sampling": sampling, "prepared": prepared}
+    for module, name in STAGES if stages else ():
+        owner = modules[module]
+        *outer, attr = name.split(".")
+        for part in outer:
+            owner = getattr(owner, part)
+        setattr(owner, attr, _timed(owner.__dict__[attr], attr, totals))
+    list(render_tiles(prep, threads=1))
+    print("ready", flush=True)
+    for _ in sys.stdin:
+        totals.clear()
+        t0 = time.process_time()
+        list(render_tiles(prep, threads=1))
+        totals["render"] = time.process_time() - t0
+        print(json.dumps(totals), flush=True)
+
+
+def _timed(func, name, totals):
+    def timed(*args, **kwargs):
+        t0 = time.process_time()
+        try:
+            return func(*args, **kwargs)
+        finally:
+            totals[name] = totals.get(name, 0.0) + time.process_time() - t0
+    return timed
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("before", help="the checkout to compare against (a git worktree)")
+    parser.add_argument("--after", default=str(HERE.parents[2]), help="default: this checkout")
+    parser.add_argument("--scene", default="moving_sphere", choices=sorted(SCENES))
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--stages", action="store_true")
+    parser.add_argument("--serve", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.serve:
+        serve(args.serve, args.scene, args.stages)
+        return 0
+    servers = {}
+    for name, repo in (("before", args.before), ("after", args.after)):
+        command = [sys.executable, str(HERE), "-", "--serve", repo, "--scene", args.scene] + (["--stages"] * args.stages)
+        servers[name] = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    for server in servers.values():
+        while server.stdout.readline().strip() != "ready":
+            pass
+    times = {name: [] for name in servers}
+    for r in range(args.repeats):
+        for name in (list(servers) if r % 2 == 0 else list(servers)[::-1]):
+            servers[name].stdin.write("go\n")
+            servers[name].stdin.flush()
+            times[name].append(json.loads(servers[name].stdout.readline()))
+    for server in servers.values():
+        server.stdin.close()
+        server.wait()
+    print(f"{args.scene}, one thread, CPU seconds, min of {args.repeats} interleaved repeats")
+    print("| | before | after | after / before |\n|---|---|---|---|")
+    for key in times["before"][0]:
+        before, after = (min(t[key] for t in times[name]) for name in ("before", "after"))
+        print(f"| {key} | {before:.3f} | {after:.3f} | {after / before:.2f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
