@@ -69,6 +69,7 @@ class PathTracer:
                                 settings.transmission_bounces])
         self.clamp_direct = float(settings.clamp_direct)
         self.clamp_indirect = float(settings.clamp_indirect)
+        self.samples = max(int(settings.samples), 1)  # camera samples per pixel: the strata of light samples
         mats = self.materials
         self.emissive = bool(np.any(mats.emission > 0.0))
         self.emitters = _emitter_tables(self.frames, mats) if self.emissive else {}
@@ -156,7 +157,7 @@ class PathTracer:
                       cache):
         """Next-event estimate of the world at vertices of frame k: a direction drawn from the
         world's own density in the world frame, seen from frame k (density times D^2)."""
-        u1, u2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
+        u1, u2 = sampling.stratified_pair(pixel, sample, self.samples, dim)
         d_world, pdf = self.world.sample(u1, u2)
         to_frame = self.frames.map(self.frames.world, k)
         if to_frame.is_identity:
@@ -306,7 +307,7 @@ class PathTracer:
                                     lobes)
         if not self.world.is_black and lobes.any_smooth:
             world = self._sample_world(k, tau, origin, ng, ns, view, base, mat, lobes, eps, pixel, sample, lam,
-                                       dim + 3, bounce, cache)
+                                       dim + 10, bounce, cache)
             direct = world if direct is None else direct + world
         if self.emitters and lobes.any_smooth:
             glow = self._sample_emitters(k, tau, origin, ng, ns, view, base, mat, lobes, pixel, sample, lam,
@@ -316,7 +317,7 @@ class PathTracer:
             self._accumulate(out, path, throughput * direct, None, bounce + 1)
         # scattering: one lobe chosen by its weight, a direction from its sampler
         lobe, probability = lobes.choose(sampling.uniform(pixel, sample, dim))
-        u1, u2 = sampling.uniform(pixel, sample, dim + 1), sampling.uniform(pixel, sample, dim + 2)
+        u1, u2 = sampling.stratified_pair(pixel, sample, self.samples, dim + 1)
         light, weight, pdf = lobes.sample(lobe, probability, u1, u2)
         transmitted = lobe == _TRANSMIT
         side = np.where(transmitted, -1.0, 1.0)
