@@ -21,7 +21,9 @@ past a limit only adds what the ray found (emission, world), Russian roulette af
 (indirect) scatterings.
 
 All paths of a batch advance together (one numpy call per frame and bounce); random
-numbers are keyed by (pixel, sample, dimension), so tiles stay independent.
+numbers are keyed by (pixel, sample, dimension), so tiles stay independent, and the world
+sample and the scattering direction of each vertex are stratified over a pixel's samples
+(:func:`~.sampling.stratified_pair`: per sample uniform, together even, as Cycles' sequences).
 """
 
 from __future__ import annotations
