@@ -202,7 +202,7 @@ class EnvironmentWorld:
         self._unmapping = mapping if mapping is _IDENTITY else mapping.T  # texture -> world directions
         self.interpolation = interpolation
         h, w = self.image.shape[:2]
-        luminance = (self.image @ LUMINANCE_RGB)[..., None]
+        luminance = self.image @ LUMINANCE_RGB
         if interpolation == "Linear":
             # cell rows between pixel-centre rows, the two caps wrapping as Cycles' lookup does, each
             # split into ``split`` x ``split`` sub-cells: the bilinear radiance inside a cell lies
@@ -213,14 +213,12 @@ class EnvironmentWorld:
             v_edges = np.append((coarse_v[:-1, None] + np.diff(coarse_v)[:, None] * (np.arange(split) / split)).ravel(),
                                 1.0)
             self._u_offset = 0.5 / w
-            u_corners = self._u_offset + np.arange(w * split + 1) / (w * split)
-            uu, vv = np.meshgrid(u_corners, v_edges)
-            corners = image_lookup(luminance, uu.ravel(), vv.ravel()).reshape(uu.shape)
+            corners = _refined_lattice(luminance, v_edges, split)
             corner_rows = corners[:-1] + corners[1:]
             cell_luminance = 0.25 * (corner_rows[:, :-1] + corner_rows[:, 1:])
         else:
             v_edges = np.arange(h + 1) / h
-            cell_luminance = luminance[..., 0]
+            cell_luminance = luminance
             self._u_offset = 0.0
         self._columns = cell_luminance.shape[1]
         self._z_edges = -np.cos(np.pi * v_edges)
@@ -282,6 +280,23 @@ class EnvironmentWorld:
         u = self._u_offset + (column + along_phi) / w
         t = _polar(z, np.pi * (1.0 - 2.0 * u))
         return _rotate(self._unmapping, t), self._cell_pdf[row, column]
+
+
+def _refined_lattice(values, v_edges, split: int):
+    """The bilinear lookup of :func:`image_lookup` (Linear) of an (H, W) image at rows ``v_edges``
+    and columns ``u = (j / split + 1/2) / W``, j = 0 .. W split: the pixel centres and ``split - 1``
+    points between neighbours.  On this lattice bilinear interpolation is one linear
+    interpolation along v, then one along u (a general lookup per corner takes longer than the
+    rest of the sampling map)."""
+    h, w = values.shape
+    y = v_edges * h - 0.5
+    y0 = np.floor(y)
+    fy = (y - y0)[:, None]
+    y0 = y0.astype(np.int64)
+    along_v = (1.0 - fy) * values[y0 % h] + fy * values[(y0 + 1) % h]
+    j = np.arange(w * split + 1)
+    x0, fx = j // split, (j % split) / split
+    return (1.0 - fx) * along_v[:, x0 % w] + fx * along_v[:, (x0 + 1) % w]
 
 
 def _rotate(matrix, d):

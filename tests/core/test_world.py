@@ -190,6 +190,17 @@ def test_a_small_linear_hdri_is_sampled_by_its_interpolated_radiance():
         assert ratio.std() < bound * ratio.mean(), interpolation
 
 
+def test_the_sampling_maps_corners_are_the_linear_lookup():
+    image = np.random.default_rng(8).random((7, 12, 3))
+    luminance = image @ world.LUMINANCE_RGB
+    v = np.concatenate([[0.0], np.sort(np.random.default_rng(9).random(20)), [1.0]])
+    for split in (1, 3):
+        corners = world._refined_lattice(luminance, v, split)
+        uu, vv = np.meshgrid((np.arange(12 * split + 1) / split + 0.5) / 12, v)
+        looked_up = world.image_lookup(luminance[..., None], uu.ravel(), vv.ravel())
+        np.testing.assert_allclose(corners, looked_up.reshape(uu.shape), rtol=1e-12, atol=1e-14)
+
+
 def test_uniform_world_sampling_and_radiance():
     uniform = world.UniformWorld((0.2, 0.4, 0.8), strength=2.5)
     rng = np.random.default_rng(5)
