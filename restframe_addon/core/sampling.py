@@ -94,8 +94,8 @@ def stratified_pair(pixel: np.ndarray, sample: np.ndarray, count: int, dimension
     aperture, the path tracer's light and scattering directions)."""
     side = int(np.ceil(np.sqrt(count)))
     cell = shuffled_strata(pixel, sample, side * side, dimension)
-    return ((cell % side + uniform(pixel, sample, dimension + 1)) / side,
-            (cell // side + uniform(pixel, sample, dimension + 2)) / side)
+    jx, jy = uniforms(pixel, sample, (dimension + 1, dimension + 2))
+    return (cell % side + jx) / side, (cell // side + jy) / side
 
 
 def strata(pixel: np.ndarray, sample: np.ndarray, cells: int, dimension: int):
