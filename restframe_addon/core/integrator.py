@@ -29,11 +29,11 @@ from __future__ import annotations
 import numpy as np
 
 from . import mis, rows, sampling
-from .emitters import EmitterTable, solid_angle_pdf
+from .emitters import EmitterTable, LampShape, solid_angle_pdf
 from .bsdf import diffuse_pdf, ggx_reflection_pdf, reflect, refract, sample_diffuse, sample_ggx_reflection
 from .passes import hit_doppler, hit_times
 from .scene import RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_TRANSMISSION, RenderSettings, Scene
-from .shading import LayeredLobes, Shader, _cutout_dimension, hit_uv
+from .shading import LayeredLobes, PreparedLight, Shader, _cutout_dimension, hit_uv
 from .tracer import Hits, TraceCache, frames_hit, occluded
 from .world import EnvironmentWorld, UniformWorld, frame_pdf, mapping_rotation
 
@@ -75,8 +75,11 @@ class PathTracer:
         power = np.array([table.total for table, _ in self.emitters.values()])
         self.emitter_frames = np.array(list(self.emitters), dtype=np.int64)
         self.emitter_choice = power / power.sum() if len(power) else power  # probability of each frame
+        # lamps with an extent, sampled by shadow rays and found by bounce rays (None: a delta lamp)
+        self.lamp_shapes = [LampShape.of(pl.light, pl.axes) for pl in shader.lights]
+        self.lamps_found = any(shape is not None and shape.use_mis for shape in self.lamp_shapes)
         # a ray past the limits is still traced for what it finds: only worth it if there is something
-        self.findable = self.emissive or not world.is_black
+        self.findable = self.emissive or not world.is_black or self.lamps_found
 
     # ------------------------------------------------------------------ paths
     def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, pixel, sample, lam, hits=None,
@@ -96,7 +99,11 @@ class PathTracer:
             counts=np.zeros((n, 4), dtype=np.int64), terminal=np.zeros(n, dtype=bool), reference=np.ones(n),
             ray=np.full(n, RAY_CAMERA, dtype=np.int64))
         bounce = 0
+        rays = (np.broadcast_to(tau0, (n,)), np.broadcast_to(x0, (n, 3)), state.d, np.broadcast_to(s_lo, (n,)),
+                np.broadcast_to(s_hi, (n,)))
         while len(path):
+            if self.lamps_found:
+                path, state, hits = self._add_lamps(out, path, state, rays, hits, bounce)
             self._add_world(out, path, state, hits, bounce)
             path, state, rays = self._vertices(out, path, state, hits, bounce, pixel, sample, cache)
             bounce += 1
@@ -181,6 +188,122 @@ class PathTracer:
         weight = mis.power_heuristic(pdf[sel], mix.pdf(sel, ns[sel], view[sel], light[sel])) * cos[sel] / pdf[sel]
         total[sel] = rows.scale(f * values, weight)
         return total
+
+    # ------------------------------------------------------------------ lamps
+    def _lamp_view(self, pl: PreparedLight, k, tau, position):
+        """A lamp seen from events of frame k, in its rest frame (an animated lamp's momentary rest
+        frame at the retarded event of each, as the shadow rays see it): the events there, the
+        lamp's place, the maps of backward directions from frame k there and back (each with its
+        path-length ratio s_to / s_from) and the lamp's clock minus that frame's time."""
+        if pl.light.trajectory is not None:
+            tau_j, x_j, centre, back, clock_zero, forward = self.shader._momentary(pl, k, tau, position)
+            return tau_j, x_j, centre, forward, back, clock_zero
+        into = self.frames.map(k, pl.frame)
+        tau_j, x_j = into.events(tau, position)
+        return (tau_j, x_j, np.broadcast_to(pl.position, (len(tau), 3)), into.rays, self.frames.map(pl.frame, k).rays,
+                pl.clock_offset)
+
+    def _lamp_clock(self, pl: PreparedLight, tau_j, x_j, length, clock_zero):
+        """The lamp's own clock (c*t) when it sent light reaching events (tau_j, x_j) of its frame
+        from path length ``length`` there (None unless its output is keyed; a sun's plane wave
+        passed the lamp's place (P - x).e before reaching x)."""
+        if pl.keyed is None:
+            return None
+        if pl.light.kind == "SUN":
+            return tau_j - (pl.position - x_j) @ pl.axes[:, 2] + pl.clock_offset
+        return tau_j - length + clock_zero
+
+    def _sample_lamps(self, k, tau, position, ng, ns, view, base, mat, lobes, depth, pixel, sample, lam, cache):
+        """Next-event estimate of the lamps at vertices of frame k: a delta lamp by the direct-light
+        integrator's shadow ray (:meth:`~.shading.Shader._incident`), a lamp with an extent by a
+        direction drawn from its shape in its rest frame (:class:`~.emitters.LampShape`), density
+        carried into frame k by D^2, radiance by D^4 (D^5 at lambda D), weighed against the bounce
+        rays that find it by the power heuristic."""
+        shader = self.shader
+        eps = shader.epsilon[k]
+        origin = position + eps * ng
+        total = np.zeros_like(base)
+        for index, (pl, shape) in enumerate(zip(shader.lights, self.lamp_shapes)):
+            dim = 1000 + 100 * depth + 4 * index  # the direct-light integrator's dimensions
+            if shape is None:
+                e_k, strength, doppler, s_max, clock = shader._incident(pl, k, tau, position, None, None)
+            else:
+                u1, u2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
+                tau_j, x_j, centre, _, back, clock_zero = self._lamp_view(pl, k, tau, position)
+                e_j = shape.sample(centre, x_j, u1, u2)
+                length, pdf_j, radiance = shape.hit(centre, x_j, e_j)
+                e_k, doppler = back(e_j)  # s_k / s_lamp: the Doppler factor of the lamp seen here
+                pdf = frame_pdf(pdf_j, doppler)
+                strength = np.where(pdf > 0.0, radiance * shader.searchlight_power(doppler, 4)
+                                    / np.where(pdf > 0.0, pdf, 1.0), 0.0)
+                s_max = doppler * length
+                clock = self._lamp_clock(pl, tau_j, x_j, length, clock_zero)
+            cos = rows.dot(ns, e_k)
+            sel = np.flatnonzero((cos > 0.0) & (rows.dot(ng, e_k) > 0.0) & (strength > 0.0))
+            if not len(sel):
+                continue
+            blocked = occluded(self.frames, k, tau[sel], origin[sel], e_k[sel], eps, s_max[sel] - 2.0 * eps, cache,
+                               see_through=shader.cutouts(pixel[sel], sample[sel], _cutout_dimension(depth, 8 + index)))
+            sel = sel[~blocked]
+            if not len(sel):
+                continue
+            weight = strength[sel] * cos[sel]
+            if shape is not None and shape.use_mis:
+                weight = weight * mis.power_heuristic(pdf[sel], lobes.pdf(sel, ns[sel], view[sel], e_k[sel]))
+            f = shader.brdf(ns[sel], view[sel], e_k[sel], base[sel], mat[sel], lobes.take(sel))
+            emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel),
+                                        None if clock is None else clock[sel])
+            total[sel] += rows.scale(f * emitted, weight)
+        return total
+
+    def _add_lamps(self, out, path, state, rays, hits, bounce):
+        """What camera and bounce rays ``rays`` (tau, origin, d, s_lo, ...) of the paths find of the
+        lamps with an extent that they see (MIS-weighted against the lamp samples of the vertex they
+        left): a sphere or area lamp nearer than the surface hit ends its path there, a sun adds
+        to the world where the ray leaves the scene.  Returns the paths, states and hits that go on."""
+        tau, origin, d, s_lo = rays[:4]
+        n = len(path)
+        nearest = hits.s.copy() if len(rays) < 5 else np.minimum(hits.s, rays[4])
+        found = np.zeros((n, self.colour.channels))
+        absorbed = np.zeros(n, dtype=bool)
+        found_by = [i for i, shape in enumerate(self.lamp_shapes) if shape is not None and shape.use_mis]
+        for index in sorted(found_by, key=lambda i: self.lamp_shapes[i].is_sun):  # suns last: behind the others
+            pl, shape = self.shader.lights[index], self.lamp_shapes[index]
+            seen = (state.ray & shape.visibility) != 0
+            if shape.is_sun:
+                seen &= (hits.frame < 0) & ~absorbed
+            for k in np.unique(state.src[seen]):
+                sel = np.flatnonzero(seen & (state.src == k))
+                tau_j, x_j, centre, forward, _, clock_zero = self._lamp_view(pl, int(k), tau[sel], origin[sel])
+                d_j, ratio = forward(d[sel])  # s_lamp / s_k
+                length, pdf_j, radiance = shape.hit(centre, x_j, d_j)
+                hit = pdf_j > 0.0
+                if not shape.is_sun:
+                    s_k = length / ratio
+                    hit &= (s_k > s_lo[sel]) & (s_k < nearest[sel])
+                    nearest[sel[hit]] = s_k[hit]  # a nearer lamp hides a farther one
+                sel, d_j, ratio, length, pdf_j, radiance, tau_j, x_j = (
+                    a[hit] for a in (sel, d_j, ratio, length, pdf_j, radiance, tau_j, x_j))
+                if not len(sel):
+                    continue
+                doppler = 1.0 / ratio  # nu_k / nu_lamp
+                clock = self._lamp_clock(pl, tau_j, x_j, length, clock_zero)
+                emitted = self.colour.light(index, self.colour.shift(_rows(state.lam, sel), doppler), len(sel), clock)
+                weight = radiance * self.shader.searchlight_power(doppler, 4) * mis.power_heuristic(
+                    state.pdf[sel], frame_pdf(pdf_j, doppler))
+                value = state.throughput[sel] * rows.scale(np.asarray(emitted, dtype=np.float64), weight)
+                if shape.is_sun:
+                    found[sel] += value
+                else:  # the nearest lamp so far: replaces what a farther one gave
+                    found[sel] = value
+                    absorbed[sel] = True
+        lit = np.flatnonzero(np.any(found != 0.0, axis=1))
+        if len(lit):
+            self._accumulate(out, path[lit], found[lit], None, bounce)
+        if not absorbed.any():
+            return path, state, hits
+        go = np.flatnonzero(~absorbed)
+        return path[go], state.take(go), hits.take(go)
 
     # ------------------------------------------------------------------ emissive surfaces
     def _emitter_pdf(self, j, prim, distance, cos_emit, doppler):
@@ -302,8 +425,8 @@ class PathTracer:
         # next-event estimation: lamps (the direct-light integrator's own code) and the world
         direct = None
         if shader.lights:
-            direct = shader._direct(k, tau, position, ng, ns, view, base, mat, bounce, pixel, sample, lam, cache,
-                                    lobes)
+            direct = self._sample_lamps(k, tau, position, ng, ns, view, base, mat, lobes, bounce, pixel, sample, lam,
+                                        cache)
         if not self.world.is_black and lobes.any_smooth:
             world = self._sample_world(k, tau, origin, ng, ns, view, base, mat, lobes, eps, pixel, sample, lam,
                                        dim + 3, bounce, cache)

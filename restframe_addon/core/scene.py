@@ -129,6 +129,10 @@ class Light:
     # linear between samples, constant beyond; None = ``power`` / ``color`` at every time
     power_curve: tuple[np.ndarray, np.ndarray] | None = None
     color_curve: tuple[np.ndarray, np.ndarray] | None = None
+    # Path Tracing, as Cycles: the ray types that see a lamp with an extent (its Ray Visibility),
+    # and whether bounce rays find it at all, weighed against its samples (Multiple Importance)
+    visibility: int = RAY_ALL
+    use_mis: bool = True
 
     @property
     def is_keyed(self) -> bool:

@@ -560,7 +560,7 @@ class Shader:
             back = self.frames.map(pl.frame, k).rays
             clock_zero = pl.clock_offset
         else:
-            tau_j, x_j, sample, back, clock_zero = self._momentary(pl, k, tau, position)
+            tau_j, x_j, sample, back, clock_zero, _ = self._momentary(pl, k, tau, position)
         if light.kind == "AREA":
             sx, sy = light.area_size
             if light.area_shape in ("DISK", "ELLIPSE"):
@@ -594,11 +594,13 @@ class Shader:
         """An animated lamp seen from hit events of frame k, in its momentary rest frame at the
         retarded event of each (where its world line crosses the hit's past light cone, solved
         as for animated bodies): the hit events there (tau_j, x_j), the lamp's place, the map of
-        backward directions from there to frame k (d, s_k / s_lamp), and its clock minus that
-        frame's time (None unless keyed).  Static in that frame near the event: exact for a
-        point lamp, an area lamp's other points as if moving inertially."""
+        backward directions from there to frame k (d, s_k / s_lamp), its clock minus that
+        frame's time (None unless keyed), and the map of directions from frame k there (d,
+        s_lamp / s_k; the path tracer's bounce rays).  Static in that frame near the event: exact
+        for a point lamp, an area lamp's other points as if moving inertially."""
         trajectory = pl.light.trajectory
-        tau_w, x_w = self.frames.map(k, self.frames.world).events(tau, position)
+        from_frame = self.frames.map(k, self.frames.world)
+        tau_w, x_w = from_frame.events(tau, position)
         emitted = trajectory.light_cone_crossing(tau_w, x_w)
         lamp_w, beta = trajectory.state(emitted)
         into_lamp = RowBoosts(beta)
@@ -611,8 +613,13 @@ class Shader:
             e_k, w_frame = to_frame.rays(e_w)
             return e_k, w_world * w_frame
 
+        def forward(d_k):
+            d_w, w_world = from_frame.rays(d_k)
+            d_j, w_lamp = into_lamp.rays(d_w)
+            return d_j, w_world * w_lamp
+
         clock_zero = None if pl.keyed is None else trajectory.proper_time(emitted) - tau_lamp
-        return tau_j, x_j, lamp, back, clock_zero
+        return tau_j, x_j, lamp, back, clock_zero, forward
 
     # ------------------------------------------------------------------ mirror and glass
     def _secondary(self, k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam, cache):

@@ -125,22 +125,28 @@ def dataclass_replace(scene, **changes):
 
 
 # ---------------------------------------------------------------------------- against the direct light
-def lamp_floor(world=(0.0, 0.0, 0.0), material=Material("grey", roughness=0.4)):
+def lamp_floor(world=(0.0, 0.0, 0.0), material=Material("grey", roughness=0.4), radius=0.2):
     camera = look_at_camera((0, -3, 2), (0, 0, 0), fov_half_tan=0.5)
     floor = Mesh("floor", *quad((0, 0, 0), (6, 6)))
     block = Mesh("block", *box(center=(0.5, 0.5, 0.5)))
-    lamp = Light("lamp", "POINT", (1.0, -1.0, 3.0), power=500.0, radius=0.2)
+    lamp = Light("lamp", "POINT", (1.0, -1.0, 3.0), power=500.0, radius=radius)
     return Scene(camera=camera, meshes=[floor, block], materials=[material], lights=[lamp], world_color=world)
 
 
 def test_one_scattering_without_world_is_the_direct_light():
     """Total 0, a black world and no emitters: on diffuse surfaces (where the layered Principled
-    BSDF of Path Tracing is the plain one of Direct Light) the path tracer's light is the Direct
-    Light integrator's, sample for sample (the same next-event code and random numbers)."""
-    scene = lamp_floor(material=lambert(0.6))
+    BSDF of Path Tracing is the plain one of Direct Light) the path tracer's light of a point lamp
+    is the Direct Light integrator's, sample for sample (the same shadow-ray code); of a soft lamp
+    (a sphere sampled in the cone it fills and found by bounce rays, against Direct Light's disc)
+    the same within noise."""
+    scene = lamp_floor(material=lambert(0.6), radius=0.0)
     direct = render_image(scene, RenderSettings(resolution=(12, 12), samples=4, threads=1))
     path = render_image(scene, path_settings(res=(12, 12), samples=4, max_bounces=0))
     np.testing.assert_array_equal(path["Combined"], direct["Combined"])
+    soft = lamp_floor(material=lambert(0.6))
+    direct = render_image(soft, RenderSettings(resolution=(12, 12), samples=256, threads=1))
+    path = render_image(soft, path_settings(res=(12, 12), samples=256, max_bounces=0))
+    assert mean_rgb(path) == pytest.approx(mean_rgb(direct), rel=0.01)
     bounced = render_image(scene, path_settings(res=(12, 12), samples=4, max_bounces=2))
     assert mean_rgb(bounced).sum() > mean_rgb(direct).sum()  # light bounced off the floor onto the block
 
