@@ -190,6 +190,14 @@ MUTANTS = (
            (Patch(CORE + "integrator.py", "lam = colour.shift(state.lam, doppler)", "lam = state.lam"),),
            ("tests/core/test_integrator.py::test_emitter_samples_and_bounce_rays_agree_across_frames",
             "tests/core/test_integrator.py::test_moving_wall_bleeds_doppler_shifted_colour_onto_a_static_floor")),
+    Mutant("lamp-hit-searchlight", "a moving lamp found by a bounce ray brings its radiance times D^2, not D^4",
+           (Patch(CORE + "integrator.py", "weight = radiance * self.shader.searchlight_power(doppler, 4) * mis.",
+                  "weight = radiance * self.shader.searchlight_power(doppler, 2) * mis."),),
+           ("tests/core/test_integrator.py::test_lamp_samples_and_bounce_rays_agree_across_frames",)),
+    Mutant("lamp-mis-jacobian", "a bounce ray's MIS weight against a moving lamp's samples uses the lamp's density "
+                                "in its own frame (no aberration Jacobian D^2)",
+           (Patch(CORE + "integrator.py", "state.pdf[sel], frame_pdf(pdf_j, doppler))", "state.pdf[sel], pdf_j)"),),
+           ("tests/core/test_integrator.py::test_lamp_samples_and_bounce_rays_agree_across_frames",)),
 )
 
 
