@@ -234,6 +234,47 @@ def test_cornell_box_bleeds_colour_as_cycles(addon, tmp_path):
     assert left[0] / left[1] > right[0] / right[1]
 
 
+def glossy_lamps_scene(roughness):
+    """A metal floor reflecting an area lamp and a large soft point lamp (black world), the lamps
+    just above the camera's view: what the floor shows of them comes from their samples and from
+    the glossy bounce rays that find them, weighed by MIS (a mirror: from the rays alone)."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    world = bpy.data.worlds.new("Black")
+    world.color = (0.0, 0.0, 0.0)
+    if bpy.app.version < (5, 0, 0):
+        world.use_nodes = True
+    world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
+    scene.world = world
+    bpy.ops.mesh.primitive_plane_add(size=8.0)
+    bpy.context.active_object.data.materials.append(principled("Metal", (0.9, 0.9, 0.9), 1.0, roughness))
+    area = bpy.data.lights.new("Panel", 'AREA')
+    area.energy, area.shape, area.size, area.size_y = 80.0, 'RECTANGLE', 1.0, 0.6
+    ball = bpy.data.lights.new("Ball", 'POINT')
+    ball.energy, ball.shadow_soft_size, ball.color = 150.0, 0.4, (1.0, 0.7, 0.4)
+    for light, location in ((area, (0.8, 1.5, 1.2)), (ball, (-1.0, 1.2, 0.9))):
+        obj = bpy.data.objects.new(light.name, light)
+        obj.location = location
+        scene.collection.objects.link(obj)
+    add_camera(scene, location=(0.0, -3.5, 1.3), rotation=(math.radians(60), 0.0, 0.0), lens=35.0)
+    return scene
+
+
+@pytest.mark.parametrize("roughness", [0.02, 0.2])
+def test_glossy_reflections_of_lamps_match_cycles(addon, tmp_path, roughness):
+    """Area and sphere lamps seen in polished and in rough metal, per pixel: RESTframe's error
+    against Cycles within twice the difference of two Cycles seeds."""
+    scene = glossy_lamps_scene(roughness)
+    images = render_pair(scene, tmp_path, samples=512, bounces=4)
+    rms = lambda a: float(np.sqrt(np.mean(a * a)))  # noqa: E731
+    reference = images["cycles1"]
+    ours, seeds = rms(images["restframe"] - reference), rms(images["cycles2"] - reference)
+    print(f"lamps in metal of roughness {roughness}, per pixel: RESTframe-Cycles {ours:.3g}, Cycles seeds {seeds:.3g}, "
+          f"mean {reference.mean():.3g}, RESTframe mean {images['restframe'].mean():.3g}")
+    assert reference.max() > 10.0 * reference.mean()  # the highlights are in view
+    assert ours <= 2.0 * seeds
+
+
 def synthetic_hdri(width=64, height=32):
     """An equirectangular sky made here: a blue-to-white gradient over a dim ground, a bright sun
     disc (about 300 x the sky) at azimuth 60 degrees, elevation 35 degrees."""
