@@ -421,3 +421,25 @@ def test_lamp_samples_and_bounce_rays_agree_across_frames(monkeypatch, mode):
     assert found == pytest.approx(sampled, rel=0.03)
     assert both == pytest.approx(sampled, rel=0.01)
     assert np.all(sampled > 0.0)
+
+
+@pytest.mark.parametrize("beta", [0.0, 0.5])
+def test_camera_sees_lamps_with_their_radiance_times_d4(beta):
+    """Looking straight at an area lamp (radiance P / (pi A)) and a sphere lamp (P / (4 pi^2 R^2))
+    receding along the line of sight at beta: D^4 times that, D = sqrt((1 - b) / (1 + b)); hidden
+    from the camera by their Ray Visibility."""
+    from restframe_addon.core.scene import RAY_ALL, RAY_CAMERA
+
+    doppler4 = ((1.0 - beta) / (1.0 + beta)) ** 2
+    camera = look_at_camera((0, 0, 0), (0, 0, 1), up=(0, 1, 0), fov_half_tan=0.01)
+    lamps = {"area": (Light("panel", "AREA", (0, 0, 2), power=30.0, area_size=(0.5, 0.4),
+                            velocity=Velocity((0.0, 0.0, beta))), 30.0 / (math.pi * 0.2)),
+             "sphere": (Light("ball", "POINT", (0, 0, 3), power=30.0, radius=0.3,
+                              velocity=Velocity((0.0, 0.0, beta))), 30.0 / (4.0 * math.pi**2 * 0.09))}
+    for lamp, radiance in lamps.values():
+        scene = Scene(camera=camera, meshes=[], materials=[lambert()],
+                      lights=[lamp], world_color=(0.0, 0.0, 0.0))
+        seen = mean_rgb(render_image(scene, path_settings(res=(3, 3), samples=1)))
+        assert seen == pytest.approx(np.full(3, radiance * doppler4), rel=2e-4)  # pixels 0.01 rad off the axis
+        lamp.visibility = RAY_ALL & ~RAY_CAMERA
+        assert np.all(mean_rgb(render_image(scene, path_settings(res=(3, 3), samples=1))) == 0.0)
