@@ -198,6 +198,10 @@ MUTANTS = (
                                 "in its own frame (no aberration Jacobian D^2)",
            (Patch(CORE + "integrator.py", "state.pdf[sel], frame_pdf(pdf_j, doppler))", "state.pdf[sel], pdf_j)"),),
            ("tests/core/test_integrator.py::test_lamp_samples_and_bounce_rays_agree_across_frames",)),
+    Mutant("rough-glass-fresnel-dropped", "light refracted through a rough microfacet not weighed by 1 - Fresnel",
+           (Patch(CORE + "bsdf.py", "through = 1.0 - fresnel_dielectric(rows.dot(view, h), eta)",
+                  "through = np.ones(len(n))"),),
+           ("tests/core/test_bsdf_glass.py",)),
 )
 
 

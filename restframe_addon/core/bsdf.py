@@ -256,6 +256,26 @@ def refract(view, h, eta):
     return out, ok
 
 
+def sample_ggx_transmission(n, view, eta, alpha, u1, u2):
+    """Directions through a rough dielectric interface (the transmission half of
+    :func:`dielectric_eval`, Walter et al. 2007): a visible microfacet normal h, the view refracted
+    through it.  eta = n_view / n_other per ray.
+
+    Returns (light, weight): the scalar throughput weight f_t |cos_l| / pdf_t = (1 - F(v.h)) G2 / G1(v)
+    (0 where h reflects totally or sends the ray back to the viewer's side: such samples are lost),
+    pdf_t the density of this sampler alone, :func:`dielectric_eval`'s pdf / (1 - F).
+    """
+    h = sample_ggx_vndf(n, view, alpha, u1, u2)
+    light, ok = refract(view, h, eta)
+    cos_v = np.maximum(rows.dot(n, view), _MIN_COS)
+    cos_l = -rows.dot(n, light)
+    ok &= cos_l > 0.0
+    masking = 1.0 + ggx_lambda(cos_v, alpha)  # 1 / G1(v)
+    through = 1.0 - fresnel_dielectric(rows.dot(view, h), eta)
+    weight = np.where(ok, through * masking / (masking + ggx_lambda(np.maximum(cos_l, _MIN_COS), alpha)), 0.0)
+    return light, weight
+
+
 def _glass_half_vector(n, view, light, eta):
     """Microfacet normal joining view and light (reflection or refraction), on n's side."""
     transmitted = rows.dot(n, light) < 0.0

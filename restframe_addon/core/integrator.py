@@ -30,7 +30,8 @@ import numpy as np
 
 from . import mis, rows, sampling
 from .emitters import EmitterTable, LampShape, solid_angle_pdf
-from .bsdf import diffuse_pdf, ggx_reflection_pdf, reflect, refract, sample_diffuse, sample_ggx_reflection
+from .bsdf import (diffuse_pdf, ggx_reflection_pdf, reflect, refract, sample_diffuse, sample_ggx_reflection,
+                   sample_ggx_transmission)
 from .passes import hit_doppler, hit_times
 from .scene import RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_TRANSMISSION, RenderSettings, Scene
 from .shading import LayeredLobes, PreparedLight, Shader, _cutout_dimension, hit_uv
@@ -526,10 +527,14 @@ class _Paths:
 
 class _Lobes(LayeredLobes):
     """The surfaces' lobes at some vertices with the weights that choose among them: diffuse,
-    rough specular (multiscatter GGX), mirror and refraction (:class:`~.shading.LayeredLobes`)."""
+    rough specular (multiscatter GGX), mirror and refraction (:class:`~.shading.LayeredLobes`):
+    Snell's through smooth glass, GGX microfacet transmission (Walter et al. 2007, single
+    scattering) through rough glass.  Transmitted light is found by the refracted rays alone (no
+    samples of lights through the surface), so their MIS density is that of a delta lobe."""
 
     def __init__(self, mats, base, mat, ns, view, back):
         super().__init__(mats, base, mat, ns, view, back)
+        self.transmission = mats.transmission[mat] * (1.0 - self.metallic)
         glossy_albedo = np.where(self.glossy[:, None], self.fresnel(self.cos_v), 0.0)
         weights = np.stack([(self.diffuse * np.pi).mean(axis=1), glossy_albedo.mean(axis=1),
                             self.reflect_weight.mean(axis=1), self.transmit_weight.mean(axis=1)], axis=1)
@@ -578,10 +583,15 @@ class _Lobes(LayeredLobes):
         if len(sel):
             light[sel] = reflect(view[sel], ns[sel])
             weight[sel] = rows.scale(self.reflect_weight[sel], scale[sel])
-        sel = np.flatnonzero(lobe == _TRANSMIT)
+        sel = np.flatnonzero((lobe == _TRANSMIT) & self.mirror)
         if len(sel):
             light[sel], ok = refract(view[sel], ns[sel], self.eta[sel])
             weight[sel] = rows.scale(self.transmit_weight[sel], np.where(ok, scale[sel], 0.0))
+        sel = np.flatnonzero((lobe == _TRANSMIT) & ~self.mirror)
+        if len(sel):
+            light[sel], through = sample_ggx_transmission(ns[sel], view[sel], self.eta[sel], self.alpha[sel], u1[sel],
+                                                          u2[sel])
+            weight[sel] = through[:, None] * (self.transmission[sel] * scale[sel])[:, None]
         smooth = np.flatnonzero((lobe == _DIFFUSE) | (lobe == _GLOSSY))
         if len(smooth):
             pdf[smooth] = self.pdf(smooth, ns[smooth], view[smooth], light[smooth])
