@@ -30,8 +30,8 @@ import numpy as np
 
 from . import mis, rows, sampling
 from .emitters import EmitterTable, LampShape, solid_angle_pdf
-from .bsdf import (diffuse_pdf, ggx_reflection_pdf, reflect, refract, sample_diffuse, sample_ggx_reflection,
-                   sample_ggx_transmission)
+from .bsdf import (diffuse_pdf, ggx_glass_albedo, ggx_reflection_pdf, reflect, refract, sample_diffuse,
+                   sample_ggx_reflection, sample_ggx_transmission)
 from .passes import hit_doppler, hit_times
 from .scene import RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_TRANSMISSION, RenderSettings, Scene
 from .shading import LayeredLobes, PreparedLight, Shader, _cutout_dimension, hit_uv
@@ -528,13 +528,25 @@ class _Paths:
 class _Lobes(LayeredLobes):
     """The surfaces' lobes at some vertices with the weights that choose among them: diffuse,
     rough specular (multiscatter GGX), mirror and refraction (:class:`~.shading.LayeredLobes`):
-    Snell's through smooth glass, GGX microfacet transmission (Walter et al. 2007, single
-    scattering) through rough glass.  Transmitted light is found by the refracted rays alone (no
-    samples of lights through the surface), so their MIS density is that of a delta lobe."""
+    Snell's through smooth glass, GGX microfacet transmission (Walter et al. 2007) through rough
+    glass, whose reflection and refraction are scaled by 1 / their single-scattering albedo as
+    Cycles' multiscatter glass preserves energy (mixed by Transmission with the opaque
+    dielectric's compensation of the reflection).  Transmitted light is found by the refracted
+    rays alone (no samples of lights through the surface), so their MIS density is that of a
+    delta lobe."""
 
     def __init__(self, mats, base, mat, ns, view, back):
         super().__init__(mats, base, mat, ns, view, back)
-        self.transmission = mats.transmission[mat] * (1.0 - self.metallic)
+        share = mats.transmission[mat]
+        self.transmission = share * (1.0 - self.metallic)
+        self.glass_compensation = np.ones(len(mat))
+        rough = np.flatnonzero((share > 0.0) & ~self.mirror)
+        if len(rough):
+            self.glass_compensation[rough] = 1.0 / np.maximum(
+                ggx_glass_albedo(self.cos_v[rough], self.alpha[rough], self.eta[rough]), 1e-6)
+            mixed = rows.scale(self.compensation_dielectric[rough], 1.0 - share[rough])
+            self.compensation_dielectric = self.compensation_dielectric.copy()
+            self.compensation_dielectric[rough] = mixed + (share[rough] * self.glass_compensation[rough])[:, None]
         glossy_albedo = np.where(self.glossy[:, None], self.fresnel(self.cos_v), 0.0)
         weights = np.stack([(self.diffuse * np.pi).mean(axis=1), glossy_albedo.mean(axis=1),
                             self.reflect_weight.mean(axis=1), self.transmit_weight.mean(axis=1)], axis=1)
@@ -591,7 +603,7 @@ class _Lobes(LayeredLobes):
         if len(sel):
             light[sel], through = sample_ggx_transmission(ns[sel], view[sel], self.eta[sel], self.alpha[sel], u1[sel],
                                                           u2[sel])
-            weight[sel] = through[:, None] * (self.transmission[sel] * scale[sel])[:, None]
+            weight[sel] = (through * self.transmission[sel] * self.glass_compensation[sel] * scale[sel])[:, None]
         smooth = np.flatnonzero((lobe == _DIFFUSE) | (lobe == _GLOSSY))
         if len(smooth):
             pdf[smooth] = self.pdf(smooth, ns[smooth], view[smooth], light[smooth])
