@@ -391,36 +391,49 @@ def test_glass_white_furnace():
 
 
 # ---------------------------------------------------------------------------- lamps found by bounce rays
-def moving_lamps_scene(use_mis=True, velocity=Velocity((0.3, 0.0, 0.5))):
+def moving_lamps_scene(use_mis=True, animated=False):
     """A white floor lit by a large area lamp and a large sphere lamp beside it, both rising away
-    from it at 0.58c (D about 0.6 overhead; black world)."""
+    from it at 0.58c (D about 0.6 overhead; black world): at constant velocity, or ``animated`` on
+    a keyed straight world line (seen in its momentary rest frames)."""
+    from restframe_addon.core.motion import Trajectory
+
+    beta = np.array([0.3, 0.0, 0.5])
     camera = look_at_camera((0, 0, 0.3), (0, 0, 0), up=(0, 1, 0), fov_half_tan=0.01)
     floor = Mesh("floor", *quad((0, 0, 0), (20, 20)))
-    area = Light("panel", "AREA", (0.6, 0.4, 0.6), power=40.0, area_size=(1.0, 0.8), velocity=velocity,
-                 use_mis=use_mis)
-    sphere = Light("ball", "POINT", (-0.7, -0.5, 0.9), power=60.0, radius=0.4, velocity=velocity, use_mis=use_mis,
+    area = Light("panel", "AREA", (0.6, 0.4, 0.6), power=40.0, area_size=(1.0, 0.8), use_mis=use_mis)
+    sphere = Light("ball", "POINT", (-0.7, -0.5, 0.9), power=60.0, radius=0.4, use_mis=use_mis,
                    color=(1.0, 0.6, 0.3))
+    for lamp in (area, sphere):
+        if animated:
+            tau = np.linspace(-60.0, 60.0, 241)
+            lamp.trajectory = Trajectory(tau, np.asarray(lamp.position) + np.outer(tau, beta), name=lamp.name,
+                                         smooth=True)
+        else:
+            lamp.velocity = Velocity(tuple(beta))
     return Scene(camera=camera, meshes=[floor], materials=[lambert()], lights=[area, sphere],
                  world_color=(0.0, 0.0, 0.0))
 
 
-@pytest.mark.parametrize("mode", ["OFF", "SPECTRAL"])
-def test_lamp_samples_and_bounce_rays_agree_across_frames(monkeypatch, mode):
+@pytest.mark.parametrize("mode, animated", [("OFF", False), ("SPECTRAL", False), ("OFF", True)])
+def test_lamp_samples_and_bounce_rays_agree_across_frames(monkeypatch, mode, animated):
     """Lamps receding at 0.58c light a static floor: their samples alone (Multiple Importance off),
     the bounce rays that find them alone (each lamp's radiance times D^4, D^5 at lambda D, in the
     floor's frame) and the two weighed by the power heuristic (each density in the floor's frame)
-    give the same light within noise."""
+    give the same light within noise; on a keyed world line as at constant velocity."""
     from restframe_addon.core import integrator
 
     settings = path_settings(res=(4, 4), samples=1024, max_bounces=0, doppler_mode=mode, spectral_samples=8)
-    both = mean_rgb(render_image(moving_lamps_scene(), settings))
-    sampled = mean_rgb(render_image(moving_lamps_scene(use_mis=False), settings))
+    both = mean_rgb(render_image(moving_lamps_scene(animated=animated), settings))
+    sampled = mean_rgb(render_image(moving_lamps_scene(use_mis=False, animated=animated), settings))
     monkeypatch.setattr(integrator.PathTracer, "_sample_lamps", lambda self, *args: np.zeros_like(args[6]))
     monkeypatch.setattr(integrator.mis, "power_heuristic", lambda chosen, other: np.where(chosen > 0.0, 1.0, 0.0))
-    found = mean_rgb(render_image(moving_lamps_scene(), settings))
+    found = mean_rgb(render_image(moving_lamps_scene(animated=animated), settings))
     assert found == pytest.approx(sampled, rel=0.03)
     assert both == pytest.approx(sampled, rel=0.01)
     assert np.all(sampled > 0.0)
+    if animated:  # the same light as the lamps at constant velocity
+        monkeypatch.undo()
+        assert both == pytest.approx(mean_rgb(render_image(moving_lamps_scene(), settings)), rel=0.01)
 
 
 @pytest.mark.parametrize("beta", [0.0, 0.5])
