@@ -226,8 +226,11 @@ class PathTracer:
         total = np.zeros_like(base)
         for index, (pl, shape) in enumerate(zip(shader.lights, self.lamp_shapes)):
             dim = 1000 + 100 * depth + 4 * index  # the direct-light integrator's dimensions
-            if shape is None:
-                e_k, strength, doppler, s_max, clock = shader._incident(pl, k, tau, position, None, None)
+            if shape is None:  # a delta lamp (or an area lamp of no area: a point of it)
+                xi1 = xi2 = None
+                if pl.sampled:
+                    xi1, xi2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
+                e_k, strength, doppler, s_max, clock = shader._incident(pl, k, tau, position, xi1, xi2)
             else:
                 u1, u2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
                 tau_j, x_j, centre, _, back, clock_zero = self._lamp_view(pl, k, tau, position)

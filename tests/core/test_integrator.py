@@ -456,3 +456,13 @@ def test_camera_sees_lamps_with_their_radiance_times_d4(beta):
         assert seen == pytest.approx(np.full(3, radiance * doppler4), rel=2e-4)  # pixels 0.01 rad off the axis
         lamp.visibility = RAY_ALL & ~RAY_CAMERA
         assert np.all(mean_rgb(render_image(scene, path_settings(res=(3, 3), samples=1))) == 0.0)
+
+
+def test_lamps_of_no_extent_are_lit_by_their_shadow_rays_alone():
+    """A point lamp, a sharp sun and an area lamp of no area: the same light as Direct Light's."""
+    scene = lamp_floor(material=lambert(0.6), radius=0.0)
+    scene.lights += [Light("sun", "SUN", (0, 0, 5), power=2.0, sun_angle=0.0),
+                     Light("flat", "AREA", (0.5, -0.5, 2.0), power=50.0, area_size=(0.0, 0.3))]
+    direct = render_image(scene, RenderSettings(resolution=(6, 6), samples=2, threads=1))
+    path = render_image(scene, path_settings(res=(6, 6), samples=2, max_bounces=0))
+    np.testing.assert_array_equal(path["Combined"], direct["Combined"])
