@@ -129,9 +129,10 @@ class Light:
     # linear between samples, constant beyond; None = ``power`` / ``color`` at every time
     power_curve: tuple[np.ndarray, np.ndarray] | None = None
     color_curve: tuple[np.ndarray, np.ndarray] | None = None
-    # Path Tracing, as Cycles: the ray types that see a lamp with an extent (its Ray Visibility),
-    # and whether bounce rays find it at all, weighed against its samples (Multiple Importance)
-    visibility: int = RAY_ALL
+    # Path Tracing, as Cycles: the ray types that see a lamp with an extent (its Ray Visibility;
+    # Blender makes new lamps invisible to the camera), and whether bounce rays find it at all,
+    # weighed against its samples (Multiple Importance)
+    visibility: int = RAY_ALL & ~RAY_CAMERA
     use_mis: bool = True
 
     @property

@@ -64,6 +64,24 @@ def test_light_path_settings_are_exported(scene):
     assert (settings.clamp_direct, settings.clamp_indirect) == (4.0, 0.5)
 
 
+def test_lamp_ray_visibility_and_multiple_importance_are_exported(scene):
+    """Blender's defaults (a new lamp is hidden from the camera only, Multiple Importance on), and
+    the others switched off."""
+    from restframe_addon.core.scene import RAY_ALL, RAY_CAMERA, RAY_GLOSSY
+
+    add_camera(scene)
+    for name in ("Plain", "Hidden"):
+        obj = bpy.data.objects.new(name, bpy.data.lights.new(name, 'AREA'))
+        scene.collection.objects.link(obj)
+    hidden = bpy.data.objects["Hidden"]
+    hidden.visible_camera = hidden.visible_glossy = False
+    hidden.data.cycles.use_multiple_importance_sampling = False
+    out, _, _ = export_now(scene)
+    lights = {light.name: light for light in out.lights}
+    assert (lights["Plain"].visibility, lights["Plain"].use_mis) == (RAY_ALL & ~RAY_CAMERA, True)
+    assert (lights["Hidden"].visibility, lights["Hidden"].use_mis) == (RAY_ALL & ~RAY_CAMERA & ~RAY_GLOSSY, False)
+
+
 def environment_world(image_size=(16, 8), rotation=(0.0, 0.0, 0.0), projection='EQUIRECTANGULAR'):
     """A world whose Background Color is an Environment Texture fed by a Mapping node."""
     world = bpy.data.worlds.new("Sky")
