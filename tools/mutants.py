@@ -202,6 +202,9 @@ MUTANTS = (
            (Patch(CORE + "bsdf.py", "through = 1.0 - fresnel_dielectric(rows.dot(view, h), eta)",
                   "through = np.ones(len(n))"),),
            ("tests/core/test_bsdf_glass.py",)),
+    Mutant("coat-does-not-dim", "the lobes under a coat get all the light the coat also reflects",
+           (Patch(CORE + "integrator.py", "under = (1.0 - albedo)[:, None]", "under = np.ones((n, 1))"),),
+           ("tests/core/test_bsdf_glass.py::test_a_clear_coat_over_white_keeps_the_furnace_white",)),
 )
 
 

@@ -30,20 +30,23 @@ import numpy as np
 
 from . import mis, rows, sampling
 from .emitters import EmitterTable, LampShape, solid_angle_pdf
-from .bsdf import (diffuse_pdf, ggx_glass_albedo, ggx_reflection_pdf, reflect, refract, sample_diffuse,
-                   sample_ggx_reflection, sample_ggx_transmission)
+from .bsdf import (dielectric_f0, diffuse_pdf, fresnel_average_dielectric, fresnel_dielectric, ggx_dielectric_albedo,
+                   ggx_energy_compensation, ggx_g2, ggx_glass_albedo, ggx_ndf, ggx_reflection_pdf, reflect, refract,
+                   sample_diffuse, sample_ggx_reflection, sample_ggx_transmission)
 from .passes import hit_doppler, hit_times
 from .scene import RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_TRANSMISSION, RenderSettings, Scene
-from .shading import LayeredLobes, PreparedLight, Shader, _cutout_dimension, hit_uv
+from .shading import _MIN_ALPHA, MIRROR_ROUGHNESS, LayeredLobes, PreparedLight, Shader, _cutout_dimension, hit_uv
 from .tracer import Hits, TraceCache, frames_hit, occluded
 from .world import EnvironmentWorld, UniformWorld, frame_pdf, mapping_rotation
 
 RR_START = 3  # bounces without Russian roulette
 _DIMENSION = 1 << 20  # first random-number dimension of the path tracer (the direct light uses 1000 + ...)
 _DIMENSIONS_PER_BOUNCE = 16
-_DIFFUSE, _GLOSSY, _MIRROR, _TRANSMIT = range(4)  # lobes
-_KIND_OF_LOBE = np.array([1, 2, 2, 3])  # bounce counters: 0 total, 1 diffuse, 2 glossy (mirror too), 3 transmission
-_RAY_OF_LOBE = np.array([RAY_DIFFUSE, RAY_GLOSSY, RAY_GLOSSY, RAY_TRANSMISSION])  # what the bounce ray is (visibility)
+_DIFFUSE, _GLOSSY, _MIRROR, _TRANSMIT, _COAT, _COAT_MIRROR = range(6)  # lobes
+# bounce counters: 0 total, 1 diffuse, 2 glossy (mirror and coat too), 3 transmission
+_KIND_OF_LOBE = np.array([1, 2, 2, 3, 2, 2])
+_RAY_OF_LOBE = np.array([RAY_DIFFUSE, RAY_GLOSSY, RAY_GLOSSY, RAY_TRANSMISSION, RAY_GLOSSY,
+                         RAY_GLOSSY])  # what the bounce ray is (visibility)
 _WORLD_STREAM, _EMITTER_STREAM = 6, 7  # cut-out streams of the shadow rays toward the world and the emitters
 
 
@@ -536,7 +539,9 @@ class _Lobes(LayeredLobes):
     Cycles' multiscatter glass preserves energy (mixed by Transmission with the opaque
     dielectric's compensation of the reflection).  Transmitted light is found by the refracted
     rays alone (no samples of lights through the surface), so their MIS density is that of a
-    delta lobe."""
+    delta lobe.  A coat (Coat Weight) is a clear dielectric layer over all of it, as Cycles'
+    Principled BSDF: a multiscatter GGX lobe (or a mirror below ``MIRROR_ROUGHNESS``) of the
+    coat's IOR, which dims everything under it by 1 - weight x its directional albedo."""
 
     def __init__(self, mats, base, mat, ns, view, back):
         super().__init__(mats, base, mat, ns, view, back)
@@ -550,13 +555,69 @@ class _Lobes(LayeredLobes):
             mixed = rows.scale(self.compensation_dielectric[rough], 1.0 - share[rough])
             self.compensation_dielectric = self.compensation_dielectric.copy()
             self.compensation_dielectric[rough] = mixed + (share[rough] * self.glass_compensation[rough])[:, None]
+        coat_albedo = self._coat(mats, mat)
         glossy_albedo = np.where(self.glossy[:, None], self.fresnel(self.cos_v), 0.0)
         weights = np.stack([(self.diffuse * np.pi).mean(axis=1), glossy_albedo.mean(axis=1),
-                            self.reflect_weight.mean(axis=1), self.transmit_weight.mean(axis=1)], axis=1)
+                            self.reflect_weight.mean(axis=1), self.transmit_weight.mean(axis=1),
+                            np.where(self.coat_rough, coat_albedo, 0.0), np.where(self.coat_mirror, coat_albedo, 0.0)],
+                           axis=1)
         weights = np.maximum(weights, 0.0)
         total = weights.sum(axis=1)
         self.probability = np.where(total[:, None] > 0.0, weights / np.where(total > 0.0, total, 1.0)[:, None], 0.0)
-        self.any_smooth = bool(np.any(self.probability[:, _DIFFUSE] + self.probability[:, _GLOSSY] > 0.0))
+        self.any_smooth = bool(np.any(self.probability[:, [_DIFFUSE, _GLOSSY, _COAT]].sum(axis=1) > 0.0))
+
+    def _coat(self, mats, mat):
+        """Sets up the coat layer (none on the inside of a transmissive body) and dims the lobes
+        under it; returns its directional albedo (n,), weight included."""
+        n = len(mat)
+        self.coat = np.where(self.eta > 1.0, 0.0, mats.coat_weight[mat])
+        coated = self.coat > 0.0
+        self.coat_rough = coated & (mats.coat_roughness[mat] >= MIRROR_ROUGHNESS)
+        self.coat_mirror = coated & ~self.coat_rough
+        self.coat_alpha = np.maximum(mats.coat_roughness[mat] ** 2, _MIN_ALPHA)
+        self.coat_eta = 1.0 / mats.coat_ior[mat]
+        self.coat_compensation = np.ones(n)
+        albedo = np.zeros(n)
+        if not coated.any():
+            return albedo
+        rough = np.flatnonzero(self.coat_rough)
+        if len(rough):
+            ior, cos_v, alpha = mats.coat_ior[mat[rough]], self.cos_v[rough], self.coat_alpha[rough]
+            albedo[rough] = ggx_dielectric_albedo(cos_v, alpha, 1.0 / ior, dielectric_f0(ior)[:, None],
+                                                  np.ones(len(rough)))[:, 0]
+            self.coat_compensation[rough] = ggx_energy_compensation(cos_v, alpha,
+                                                                    fresnel_average_dielectric(ior)[:, None])[:, 0]
+        smooth = np.flatnonzero(self.coat_mirror)
+        albedo[smooth] = fresnel_dielectric(self.cos_v[smooth], self.coat_eta[smooth])
+        albedo *= self.coat
+        under = (1.0 - albedo)[:, None]
+        self.diffuse = self.diffuse * under
+        self.compensation_dielectric = self.compensation_dielectric * under
+        self.compensation_metal = self.compensation_metal * under
+        self.reflect_weight = self.reflect_weight * under
+        self.transmit_weight = self.transmit_weight * under
+        self.glass_compensation = self.glass_compensation * under[:, 0]
+        return albedo
+
+    def _coat_specular(self, index, light):
+        """The rough coat's f (without the cosine) at vertices ``index`` toward ``light``."""
+        ns, view = self.ns[index], self.view[index]
+        h = rows.normalized(view + light)
+        cos_l = rows.dot(ns, light)
+        above = (rows.dot(ns, view) > 0.0) & (cos_l > 0.0)
+        cos_l = np.clip(cos_l, 1e-6, 1.0)
+        alpha, cos_v = self.coat_alpha[index], self.cos_v[index]
+        single = ggx_ndf(rows.dot(ns, h), alpha) * ggx_g2(cos_v, cos_l, alpha) / (4.0 * cos_v * cos_l)
+        fresnel = fresnel_dielectric(rows.dot(view, h), self.coat_eta[index])
+        return np.where(above, self.coat[index] * self.coat_compensation[index] * fresnel * single, 0.0)
+
+    def value(self, light):
+        """f (n, C) without the cosine: the lobes under the coat and the rough coat."""
+        value = super().value(light)
+        r = np.flatnonzero(self.coat_rough)
+        if len(r):
+            value[r] += self._coat_specular(r, light[r])[:, None]
+        return value
 
     def pdf(self, index, ns, view, light):
         """Density per unit solid angle with which :meth:`sample` draws ``light`` at vertices
@@ -567,12 +628,16 @@ class _Lobes(LayeredLobes):
         if len(glossy):
             pdf[glossy] += p[glossy, _GLOSSY] * ggx_reflection_pdf(ns[glossy], view[glossy], light[glossy],
                                                                    self.alpha[index][glossy])
+        coat = np.flatnonzero(self.coat_rough[index])
+        if len(coat):
+            pdf[coat] += p[coat, _COAT] * ggx_reflection_pdf(ns[coat], view[coat], light[coat],
+                                                             self.coat_alpha[index][coat])
         return pdf
 
     def choose(self, u):
         """A lobe per vertex drawn by the weights, and its probability (0: nothing scatters)."""
         cdf = np.cumsum(self.probability, axis=1)
-        lobe = np.minimum((u[:, None] >= cdf).sum(axis=1), 3)
+        lobe = np.minimum((u[:, None] >= cdf).sum(axis=1), len(_KIND_OF_LOBE) - 1)
         return lobe, self.probability[np.arange(len(lobe)), lobe]
 
     def sample(self, lobe, probability, u1, u2):
@@ -607,7 +672,18 @@ class _Lobes(LayeredLobes):
             light[sel], through = sample_ggx_transmission(ns[sel], view[sel], self.eta[sel], self.alpha[sel], u1[sel],
                                                           u2[sel])
             weight[sel] = (through * self.transmission[sel] * self.glass_compensation[sel] * scale[sel])[:, None]
-        smooth = np.flatnonzero((lobe == _DIFFUSE) | (lobe == _GLOSSY))
+        sel = np.flatnonzero(lobe == _COAT)
+        if len(sel):
+            light[sel], _, g = sample_ggx_reflection(ns[sel], view[sel], self.coat_alpha[sel], u1[sel], u2[sel])
+            fresnel = fresnel_dielectric(rows.dot(view[sel], rows.normalized(view[sel] + light[sel])),
+                                         self.coat_eta[sel])
+            weight[sel] = (self.coat[sel] * self.coat_compensation[sel] * fresnel * g * scale[sel])[:, None]
+        sel = np.flatnonzero(lobe == _COAT_MIRROR)
+        if len(sel):
+            light[sel] = reflect(view[sel], ns[sel])
+            fresnel = fresnel_dielectric(self.cos_v[sel], self.coat_eta[sel])
+            weight[sel] = (self.coat[sel] * fresnel * scale[sel])[:, None]
+        smooth = np.flatnonzero((lobe == _DIFFUSE) | (lobe == _GLOSSY) | (lobe == _COAT))
         if len(smooth):
             pdf[smooth] = self.pdf(smooth, ns[smooth], view[smooth], light[smooth])
         return light, weight, pdf

@@ -69,6 +69,9 @@ class MaterialTable:
         self.ior = np.maximum([m.ior for m in materials], 1e-3)
         self.specular_scale = 2.0 * np.clip([m.specular_ior_level for m in materials], 0.0, None)
         self.transmission = np.clip([m.transmission for m in materials], 0.0, 1.0)
+        self.coat_weight = np.clip([m.coat_weight for m in materials], 0.0, 1.0)
+        self.coat_roughness = np.clip([m.coat_roughness for m in materials], 0.0, 1.0)
+        self.coat_ior = np.maximum([m.coat_ior for m in materials], 1.0 + 1e-6)
         self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
         self.textures = [m.base_color_texture for m in materials]
         self.closest = [m.base_color_interpolation == "Closest" for m in materials]
@@ -277,7 +280,7 @@ class LayeredLobes:
 
     def take(self, index) -> "LayeredLobes":
         """The lobes of some of the points (an index array)."""
-        part = object.__new__(LayeredLobes)
+        part = object.__new__(type(self))
         for name, value in vars(self).items():
             setattr(part, name, value[index] if isinstance(value, np.ndarray) else value)
         return part

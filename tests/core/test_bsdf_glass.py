@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from restframe_addon.core.integrator import _GLOSSY, _TRANSMIT, _Lobes
+from restframe_addon.core.integrator import _COAT, _GLOSSY, _TRANSMIT, _Lobes
 from restframe_addon.core.scene import Material
 from restframe_addon.core.shading import MaterialTable
 
@@ -137,3 +137,52 @@ def test_rough_glass_white_furnace(theta_v, roughness):
     print(f"rough glass furnace, roughness {roughness}, theta {theta_v}: {mean:.4f} (single scattering {single:.4f})")
     assert mean == pytest.approx(1.0, abs=4.0 * error + 2e-3)
     assert 0.85 < single < 1.0
+
+
+# ---------------------------------------------------------------------------- the coat
+def coated_lobes(coat_roughness, base, n, theta_v=0.8):
+    mats = MaterialTable([Material("coated", base_color=(base,) * 3, roughness=1.0, specular_ior_level=0.0,
+                                   coat_weight=1.0, coat_roughness=coat_roughness, coat_ior=1.5)])
+    view = np.broadcast_to([math.sin(theta_v), 0.0, math.cos(theta_v)], (n, 3)).copy()
+    return _Lobes(mats, np.full((n, 3), base), np.zeros(n, dtype=np.int64), np.broadcast_to(NORMAL, (n, 3)).copy(),
+                  view, np.zeros(n, dtype=bool))
+
+
+@pytest.mark.parametrize("coat_roughness", [0.02, 0.3])
+def test_a_clear_coat_over_white_keeps_the_furnace_white(coat_roughness):
+    """A clear coat (IOR 1.5) over a white Lambertian base: what the coat reflects the base does not
+    get, so the layers return all the light; the coat alone over black returns its albedo."""
+    n = 200_000
+    u0, u1, u2 = uniforms(n, 3)
+    for base in (1.0, 0.0):
+        lobes = coated_lobes(coat_roughness, base, n)
+        lobe, probability = lobes.choose(u0)
+        _, weight, _ = lobes.sample(lobe, probability, u1, u2)
+        mean, error = weight[:, 0].mean(), weight[:, 0].std() / math.sqrt(n)
+        coat_only = fresnel(np.array([math.cos(0.8)]), 1.0 / 1.5)[0] if coat_roughness < 0.05 else None
+        expected = 1.0 if base else coat_only
+        if expected is not None:
+            assert mean == pytest.approx(expected, abs=4.0 * error + 3e-3)
+        else:
+            assert 0.03 < mean < 0.1
+
+
+def test_the_rough_coat_is_evaluated_as_it_is_sampled():
+    """The value the light samples see (f cos, by uniform directions over the hemisphere) and the
+    sampled coat lobe's weights (f cos / pdf) integrate to the same albedo, and its pdf is the
+    density of its samples (their mean 1 / pdf is the hemisphere's solid angle)."""
+    n = 400_000
+    lobes = coated_lobes(0.3, 0.0, n)
+    rng = np.random.default_rng(11)
+    z, phi = rng.random(n), 2.0 * math.pi * rng.random(n)
+    r = np.sqrt(1.0 - z * z)
+    uniform = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+    by_value = float(np.mean(lobes.value(uniform)[:, 0] * z) * 2.0 * math.pi)
+    u0, u1, u2 = uniforms(n, 4)
+    light, weight, pdf = lobes.sample(np.full(n, _COAT), np.ones(n), u1, u2)
+    by_samples = float(weight[:, 0].mean())
+    assert by_samples == pytest.approx(by_value, rel=0.01)
+    coat_pdf = lobes.pdf(np.arange(n), lobes.ns, lobes.view, light) / lobes.probability[:, _COAT]
+    up = (light @ NORMAL > 0.0) & (coat_pdf > 0.0)
+    assert np.mean(np.where(up, 1.0 / np.where(up, coat_pdf, 1.0), 0.0)) == pytest.approx(2.0 * math.pi * up.mean(),
+                                                                                              rel=0.02)
