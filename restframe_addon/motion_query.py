@@ -41,6 +41,18 @@ def assembly_root(obj):
     return root
 
 
+def rides_with_parent(obj) -> bool:
+    """A camera with no motion of its own (Constant, zero velocity) under a parent rides with the
+    parent's assembly, as a cockpit camera rides with its ship (``docs/physics.md#observer``)."""
+    rf = obj.restframe
+    return obj.type == 'CAMERA' and obj.parent is not None and not rf.is_animated and not rf.is_moving
+
+
+def motion_source(obj):
+    """The object whose motion settings ``obj`` follows: its own, or a riding camera's parent's."""
+    return obj.parent if rides_with_parent(obj) else obj
+
+
 def fcurves(action, slot):
     """The F-curves of an action (for its slot, with layered actions in 4.4+)."""
     if action is None:
@@ -144,14 +156,17 @@ def clock(obj, scene) -> tuple[float, tuple[float, float, float]]:
     """The object's own clock at the rendered frame (seconds, 0 at the reference time: its
     proper time since then) and its velocity (units of c) there; NaNs where its motion is not
     below c.  Motion = Animation: along the world line of its keyed location sampled
-    ``SUBFRAMES`` per frame, as the renderer samples it."""
-    rf = obj.restframe
+    ``SUBFRAMES`` per frame, as the renderer samples it (a camera or lamp away from its assembly's
+    pivot: its own, carried with the pivot).  A riding camera (``rides_with_parent``) takes its
+    parent's motion."""
+    source = motion_source(obj)
+    rf = source.restframe
     c = scene.restframe.light_speed
     tau = c * observation_time(scene)
     nan = (math.nan, (math.nan,) * 3)
     trajectory = None
     if rf.is_animated:
-        root = assembly_root(obj)
+        root = assembly_root(source)
         curves, _ = location_curves(root)
         if curves:
             current = scene.frame_current + scene.frame_subframe
@@ -161,6 +176,9 @@ def clock(obj, scene) -> tuple[float, tuple[float, float, float]]:
             try:
                 trajectory = Trajectory(world_time(scene, frames), keyed_positions(root, curves, frames),
                                         name=obj.name, smooth=True)
+                offset = np.asarray(obj.matrix_world.translation) - np.asarray(root.matrix_world.translation)
+                if obj.type in {'CAMERA', 'LIGHT'} and np.any(offset):  # a point's own clock, as rendered
+                    trajectory = trajectory.carried(offset, obj.name)
             except ValueError:
                 return nan
         velocity = Velocity()

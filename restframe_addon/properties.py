@@ -329,7 +329,8 @@ class RestframeSceneSettings(PropertyGroup):
     )
     doppler_levels: IntProperty(
         name="Levels",
-        description="Quantise the Factor display to this many grey levels (0: continuous)",
+        description="Quantise the Factor display to this many grey levels, evenly spaced from black to "
+        "white (0: continuous; 1 is refused, it would paint every hit the same grey)",
         default=0,
         min=0,
         max=1024,

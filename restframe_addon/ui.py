@@ -137,6 +137,9 @@ class RESTFRAME_RENDER_PT_doppler(RestframeButtonsPanel, Panel):
         row.prop(rf, "doppler_range", index=0, text="Black")
         row.prop(rf, "doppler_range", index=1, text="White")
         sub.prop(rf, "doppler_levels")
+        levels_error = validation.doppler_levels_error(rf.doppler_levels)
+        if levels_error is not None and rf.doppler_mode == 'FACTOR':
+            sub.label(text=levels_error, icon='ERROR')
 
 
 class RESTFRAME_RENDER_PT_motion_blur(RestframeButtonsPanel, Panel):
@@ -263,7 +266,11 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
         col.prop(rf, "motion")
         if rf.is_animated:
             box = layout.box()
-            box.label(text="World line: the keyframed location (own keys, parents static)", icon='ANIM')
+            root = motion_query.assembly_root(obj)
+            if root != obj:
+                box.label(text=f"World line: that of its parent '{root.name}' (the same Motion)", icon='LINKED')
+            else:
+                box.label(text="World line: the keyframed location (own keys, parents static)", icon='ANIM')
             if not motion_query.has_animated_location(obj):
                 box.label(text="The location has no keyframes: the object stays at rest", icon='INFO')
             if obj.type == 'LIGHT' and obj.data.type == 'SUN':
@@ -299,6 +306,8 @@ class RESTFRAME_OBJECT_PT_motion(RestframeButtonsPanel, Panel):
             col.label(text=f"Rapidity = {rapidity:.6g}")
             if observer_or_lamp:
                 _draw_clock(col, obj, context.scene, speed=False)
+        if motion_query.rides_with_parent(obj):
+            box.label(text=f"Rides with its parent '{obj.parent.name}' (no motion of its own)", icon='LINKED')
         if not rf.is_moving:
             return
         if obj.type == 'CAMERA':

@@ -45,7 +45,7 @@ class RGBColour:
         return self.materials.base_color(mat, uv)
 
     def emission(self, mat, lam):
-        return self.materials.emission[mat]
+        return np.take(self.materials.emission, mat, axis=0)
 
     def light(self, index, lam, n, clock=None):
         """A lamp's colour * power; a keyed lamp's at its clock readings ``clock`` (n,) of emission."""

@@ -100,6 +100,14 @@ class Boost:
             return self.is_identity and other.is_identity
         return self.gamma == other.gamma and bool(np.all(self.n == other.n))
 
+    def contracted(self, offset):
+        """Offsets (..., 3) of points at rest in this frame, as S measures them at one world time:
+        shortened along n by 1/gamma (Lorentz contraction, docs/physics.md#rest-shapes)."""
+        offset = np.asarray(offset, dtype=np.float64)
+        if self.is_identity:
+            return offset
+        return offset - (self.gamma_minus_one / self.gamma) * (offset @ self.n)[..., None] * self.n
+
     def matrix(self) -> np.ndarray:
         """The 4x4 matrix acting on (tau, x, y, z)."""
         n, g = self.n, self.gamma

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .lorentz import RowBoosts
 from .validation import check_finite_motion
 
 _MAX_DEPTH = 40
@@ -107,6 +108,18 @@ class Trajectory:
                 f"{self.name}: the turn at frame {frames[i + 1]:g} is too sharp for a rigid body of radius "
                 f"{self.body_radius:.3g}: it is smoothed over {2 * room[i]:.3g} units of c*t instead of "
                 f"{2 * wanted[i]:.3g}, so points far from the pivot may be placed inconsistently")
+
+    def carried(self, offset, name: str) -> "Trajectory":
+        """The world line of a point at ``offset`` from this pivot in the pivot's momentary rest
+        frames (a point of the Born-rigid body, docs/physics.md#accelerated-bodies): each sample's
+        event moved by the offset laid off on the pivot's simultaneity slice there; a point's
+        (``smooth``).  Raises ValueError naming ``name`` where the offset lies beyond the horizon of
+        the acceleration (its events would not follow one another)."""
+        position, beta = self.state(self.tau)
+        count = len(self.tau)
+        d_tau, d_x = RowBoosts(beta).inverse().events(np.zeros(count), np.broadcast_to(offset, (count, 3)))
+        return Trajectory(tau=self.tau + d_tau, position=position + d_x, name=name, frames=self.frames,
+                          smooth=True)
 
     def _locate(self, tau):
         """Interval index (clamped to the end pieces) of each time."""

@@ -148,11 +148,12 @@ def _sample(prepared: PreparedScene, rays, hits, pixel, sample, cache: TraceCach
 
 
 def _doppler_grey(prepared: PreparedScene, doppler):
-    """The FACTOR display: D mapped linearly from the Doppler range to black .. white (optionally in levels)."""
+    """The FACTOR display: D mapped linearly from the Doppler range to black .. white, continuous
+    with 0 levels, else in that many (at least 2: ``validation.check_doppler_levels``)."""
     lo, hi = prepared.doppler_range
     t = np.clip((doppler - lo) / (hi - lo), 0.0, 1.0) if hi > lo else np.ones_like(doppler)
     levels = int(prepared.settings.doppler_levels)
-    if levels > 1:
+    if levels:
         t = np.minimum(np.floor(t * levels), levels - 1) / (levels - 1)
     return t
 

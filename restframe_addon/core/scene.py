@@ -262,5 +262,5 @@ class RenderSettings:
     threads: int = 0  # 0 = all cores
     parallelism: str = "THREADS"  # THREADS, or PROCESSES: tiles in worker processes (core.workers), free of the GIL
     doppler_range: tuple[float, float] | None = None  # FACTOR display: None = the frame's own range
-    doppler_levels: int = 0  # FACTOR display: quantise to N grey levels (0 = continuous)
+    doppler_levels: int = 0  # FACTOR display: quantise to N >= 2 grey levels (0 = continuous; 1 is refused)
     passes: tuple[str, ...] | None = None  # passes to fill besides Combined (passes.EXTRA_PASSES names); None = passes.DEFAULT_PASSES

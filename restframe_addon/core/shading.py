@@ -48,6 +48,9 @@ PASS_ALPHA_THRESHOLD = 0.5
 # sampler dimensions of the cut-out decisions: from here, 1000 per (bounce depth, ray type) and
 # (bounce depth, light), one more per surface passed (at most tracer._MAX_PASS_THROUGH < 1000)
 _CUTOUT_DIMENSION = 1_000_000
+# Direct Light shades the hits in a lamp's shadow too (with no light), rather than gathering the
+# others, unless more than 1 in this many are in shadow (a gather costs about 1/8 of the shading)
+_SHADE_IN_SHADOW = 8
 
 
 class MaterialTable:
@@ -73,12 +76,14 @@ class MaterialTable:
         self.coat_roughness = np.clip([m.coat_roughness for m in materials], 0.0, 1.0)
         self.coat_ior = np.maximum([m.coat_ior for m in materials], 1.0 + 1e-6)
         self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
-        self.textures = [m.base_color_texture for m in materials]
+        self.emits = np.any(self.emission != 0.0, axis=1)
+        # images kept contiguous: looked up from flat indices without a copy (world.image_lookup)
+        self.textures = [_contiguous(m.base_color_texture) for m in materials]
         self.closest = [m.base_color_interpolation == "Closest" for m in materials]
         self.principled_alpha = np.clip([m.alpha for m in materials], 0.0, 1.0)  # cut-outs (not the GGX alpha)
-        self.alpha_textures = [m.alpha_texture for m in materials]
+        self.alpha_textures = [_contiguous(m.alpha_texture) for m in materials]
         self.cuts_out = bool(np.any(self.principled_alpha < 1.0)) or any(t is not None for t in self.alpha_textures)
-        self.normal_textures = [m.normal_texture for m in materials]
+        self.normal_textures = [_contiguous(m.normal_texture) for m in materials]
         self.normal_strength = np.maximum([m.normal_strength for m in materials], 0.0)
         self.normal_mapped = any(t is not None for t in self.normal_textures)
         self.holdout = np.array([m.holdout for m in materials], dtype=bool)
@@ -116,7 +121,10 @@ class MaterialTable:
 
     def base_color(self, index, uv):
         """Base colour per hit, with image textures looked up (bilinear or closest, repeat) where present."""
-        color = self.base[index]
+        one = _only_material(index) if uv is not None else None
+        if one is not None and self.textures[one] is not None:  # one textured material: no gathers
+            return self._texture_color(one, uv[:, 0], uv[:, 1])
+        color = np.take(self.base, index, axis=0)
         if uv is None:
             return color
         for m, texture in enumerate(self.textures):
@@ -124,9 +132,11 @@ class MaterialTable:
                 continue
             sel = np.flatnonzero(index == m)
             if len(sel):
-                color[sel] = image_lookup(texture[..., :3], uv[sel, 0], uv[sel, 1],
-                                          "Closest" if self.closest[m] else "Linear")
+                color[sel] = self._texture_color(m, uv[sel, 0], uv[sel, 1])
         return color
+
+    def _texture_color(self, m, u, v):
+        return image_lookup(self.textures[m], u, v, "Closest" if self.closest[m] else "Linear", channels=3)
 
     def opacity(self, index, uv):
         """Principled Alpha per hit (the alpha image looked up where there is one, UVs or not)."""
@@ -136,7 +146,8 @@ class MaterialTable:
                 continue
             sel = np.flatnonzero(index == m)
             if len(sel):
-                alpha[sel] = alpha[sel] * (image_lookup(texture, uv[sel, 0], uv[sel, 1])[:, 0] if uv is not None else 1.0)
+                alpha[sel] = alpha[sel] * (image_lookup(texture, uv[sel, 0], uv[sel, 1], channels=1)[:, 0]
+                                             if uv is not None else 1.0)
         return alpha
 
     def tangent_normals(self, index, uv):
@@ -358,20 +369,20 @@ class Shader:
         if held is not None:
             values[held] = 0.0
         for k in frames_hit(hits):
-            sel = np.flatnonzero(hits.frame == k if held is None else (hits.frame == k) & ~held)
-            if len(sel) == 0:
+            sel = _selection(hits.frame == k if held is None else (hits.frame == k) & ~held)
+            if sel is None:
                 continue
             fmap = self.frames.map(src, int(k))
-            d_k, w = hits.d_frame[sel], hits.w[sel]
+            d_k, w = _take(hits.d_frame, sel), _take(hits.w, sel)
             tau_hit = hit_times(hits, sel)
-            prim, u, v = hits.prim[sel], hits.u[sel], hits.v[sel]
+            prim, u, v = _take(hits.prim, sel), _take(hits.u, sel), _take(hits.v, sel)
             frame = self.frames.frames[k]
             if fmap.is_identity and frame.spin is None:  # at rest with the viewer: D = 1
-                values[sel] = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, pixel[sel], sample[sel],
-                                                  _rows(lam, sel), cache)
+                values[sel] = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, _take(pixel, sel),
+                                                  _take(sample, sel), _rows(lam, sel), cache)
                 continue
             doppler = hit_doppler(frame, prim, u, v, tau_hit, d_k, w)
-            local = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, pixel[sel], sample[sel],
+            local = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, _take(pixel, sel), _take(sample, sel),
                                         self.colour.shift(_rows(lam, sel), doppler), cache)
             values[sel] = rows.scale(local, self.searchlight_power(doppler, 4))
         return values, hits
@@ -447,11 +458,15 @@ class Shader:
         position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau)
         uv = hit_uv(frame, prim, u, v)
         base = self.colour.base_color(mat, uv, lam)
-        values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
-        if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
-            values *= self.materials.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
-        if self.lights:
-            values += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
+        one = _only_material(mat)
+        if self.lights and one is not None and not self.materials.emits[one]:  # the direct light alone
+            values = self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
+        else:
+            values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
+            if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
+                values *= self.materials.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
+            if self.lights:
+                values += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
         if self.materials.traces_secondary and depth < self.max_bounces:
             values += self._secondary(k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam,
                                       cache)
@@ -495,19 +510,33 @@ class Shader:
         mats = self.materials
         if self.layered:
             return (lobes if lobes is not None else LayeredLobes(mats, base, mat, ns, view)).value(light)
-        value = rows.scale(base, mats.diffuse_weight[mat])
-        rough = mats.glossy[mat]
-        r = np.flatnonzero(rough)
-        if len(r):
-            m = mat[r]
-            f0 = rows.scale(base[r], mats.metallic[m]) + mats.f0_dielectric[m][:, None]
-            value[rough] += ggx_reflection(ns[r], view[r], light[r], mats.alpha[m], f0, mats.f90[m])
+        # one material (the common case: a frame's hits on one body): its constants as 1-element
+        # arrays, no gathers, no specular work unless it has a lobe
+        one = _only_material(mat)
+        pick = (lambda table: table[mat]) if one is None else (lambda table: table[one:one + 1])
+        value = rows.scale(base, pick(mats.diffuse_weight))
+        r = np.flatnonzero(mats.glossy[mat]) if one is None else slice(None) if mats.glossy[one] else None
+        if r is None or (one is None and not len(r)):
+            return value
+        m = mat[r] if one is None else slice(one, one + 1)
+        f0 = mats.f0_dielectric[m][:, None]  # a grey F0 (one column) unless metallic
+        if np.any(mats.metallic[m] > 0.0):
+            f0 = rows.scale(base[r], mats.metallic[m]) + f0
+        else:
+            f0 = np.broadcast_to(f0, (len(value) if one is not None else len(r), 1))
+        specular = ggx_reflection(ns[r], view[r], light[r], mats.alpha[m], f0, mats.f90[m])
+        if one is not None and value.shape[1] <= 4:  # column by column (see rows)
+            for c in range(value.shape[1]):
+                value[:, c] += specular[:, min(c, specular.shape[1] - 1)]
+        else:
+            value[r] += specular
         return value
 
     def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache, lobes=None):
+        """The lamps' light reflected toward ``view`` (n, C): one shadow ray per lamp and hit.
+        A selection of hits is a slice while it is all of them (views, not gathers)."""
         eps = self.epsilon[k]
-        origin = position + eps * ng
-        total = np.zeros_like(base)
+        total = None
         for index, light in enumerate(self.lights):
             dim = 1000 + 100 * depth + 4 * index
             xi1 = xi2 = None  # a point light or sharp sun needs no random numbers
@@ -515,21 +544,39 @@ class Shader:
                 xi1, xi2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
             e_k, strength, doppler, s_max, clock = self._incident(light, k, tau, position, xi1, xi2)
             cos_n = rows.dot(ns, e_k)
-            lit = (cos_n > 0.0) & (rows.dot(ng, e_k) > 0.0) & (strength > 0.0)
-            sel = np.flatnonzero(lit)
-            if len(sel) == 0:
+            sel = _selection((cos_n > 0.0) & (rows.dot(ng, e_k) > 0.0) & (strength > 0.0))
+            if sel is None:
                 continue
-            blocked = occluded(self.frames, k, tau[sel], origin[sel], e_k[sel], eps, s_max[sel] - 2.0 * eps, cache,
-                               see_through=self.cutouts(pixel[sel], sample[sel], _cutout_dimension(depth, 8 + index)))
-            sel = sel[~blocked]
-            if len(sel) == 0:
+            e_sel = _take(e_k, sel)
+            tau_sel, pixel_sel, sample_sel = _take(tau, sel), _take(pixel, sel), _take(sample, sel)
+            origin = np.multiply(_take(ng, sel), eps)
+            origin += _take(position, sel)
+            reach = _take(s_max, sel) - 2.0 * eps if np.ndim(s_max) else s_max  # sunlight: unbounded
+            blocked = occluded(self.frames, k, tau_sel, origin, e_sel, eps, reach, cache,
+                               see_through=self.cutouts(pixel_sel, sample_sel, _cutout_dimension(depth, 8 + index)))
+            weight = _take(strength, sel) * _take(cos_n, sel)
+            shadowed = np.count_nonzero(blocked)
+            if shadowed == len(blocked):
                 continue
+            if shadowed * _SHADE_IN_SHADOW > len(blocked):  # many in shadow: shade only the others
+                lit = np.flatnonzero(~blocked)
+                e_sel, weight = np.take(e_sel, lit, axis=0), np.take(weight, lit)
+                sel = lit if isinstance(sel, slice) else np.take(sel, lit)
+            elif shadowed:  # a few: cheaper to shade them too, with no light
+                weight[blocked] = 0.0
             part = None if lobes is None else lobes.take(sel)
-            brdf = self.brdf(ns[sel], view[sel], e_k[sel], base[sel], mat[sel], part)
-            emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel),
-                                        None if clock is None else clock[sel])
-            total[sel] += rows.scale(brdf * emitted, strength[sel] * cos_n[sel])
-        return total
+            f = self.brdf(_take(ns, sel), _take(view, sel), e_sel, _take(base, sel), _take(mat, sel), part)
+            emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), _take(doppler, sel)), len(f),
+                                        None if clock is None else _take(clock, sel))
+            f = _weighted_product(f, emitted, weight)
+            if total is not None:
+                total[sel] += f
+            elif isinstance(sel, slice):
+                total = f
+            else:
+                total = np.zeros_like(base)
+                total[sel] = f
+        return np.zeros_like(base) if total is None else total
 
     def _incident(self, pl: PreparedLight, k, tau, position, xi1, xi2):
         """Light arriving at hit events of frame k from one light.
@@ -547,16 +594,20 @@ class Shader:
         light = pl.light
         n = len(tau)
         x_axis, y_axis, z_axis = pl.axes[:, 0], pl.axes[:, 1], pl.axes[:, 2]
-        if light.kind == "SUN":
+        if light.kind == "SUN":  # the path length is unbounded (one number for all hits)
             e_j = np.broadcast_to(z_axis, (n, 3))
             if light.sun_angle > 0.0:
                 e_j = _cone_sample(z_axis, 0.5 * light.sun_angle, xi1, xi2)
-            e_k, doppler = self.frames.map(pl.frame, k).rays(e_j)
+            to_surface = self.frames.map(pl.frame, k)
             clock = None
             if pl.keyed is not None:  # the plane wave passed the lamp's place (P - x).e before reaching x
                 tau_j, x_j = self.frames.map(k, pl.frame).events(tau, position)
                 clock = tau_j - (pl.position - x_j) @ z_axis + pl.clock_offset
-            return e_k, self.searchlight_power(doppler, 2), doppler, np.full(n, np.inf), clock
+            if to_surface.is_identity:  # at rest with the surface: D = 1, so D^p = 1
+                one = np.broadcast_to(1.0, (n,))
+                return e_j, one, one, np.inf, clock
+            e_k, doppler = to_surface.rays(e_j)
+            return e_k, self.searchlight_power(doppler, 2), doppler, np.inf, clock
         if light.trajectory is None:
             tau_j, x_j = self.frames.map(k, pl.frame).events(tau, position)
             sample = np.broadcast_to(pl.position, (n, 3))
@@ -567,8 +618,8 @@ class Shader:
         if light.kind == "AREA":
             sx, sy = light.area_size
             if light.area_shape in ("DISK", "ELLIPSE"):
-                radius, angle = np.sqrt(xi1), 2.0 * np.pi * xi2
-                a, b = 0.5 * radius * np.cos(angle), 0.5 * radius * np.sin(angle)
+                radius, (cos_phi, sin_phi) = np.sqrt(xi1), unit_circle(xi2)
+                a, b = 0.5 * radius * cos_phi, 0.5 * radius * sin_phi
             else:
                 a, b = xi1 - 0.5, xi2 - 0.5
             sample = rows.add_scaled(rows.add_scaled(sample, a * sx, x_axis), b * sy, y_axis)
@@ -676,9 +727,17 @@ def hit_uv(frame, prim, u, v):
     corner_uvs = frame.geometry.corner_uvs
     if corner_uvs is None:
         return None
-    cuv = corner_uvs[prim]
-    uu, vv = u[:, None], v[:, None]
-    return (1.0 - uu - vv) * cuv[:, 0] + uu * cuv[:, 1] + vv * cuv[:, 2]
+    cuv = np.take(corner_uvs, prim, axis=0)
+    first = 1.0 - u  # the barycentric weight of the first corner
+    first -= v
+    uv = np.empty((len(prim), 2), dtype=np.result_type(first, cuv))
+    term = np.empty(len(prim), dtype=uv.dtype)
+    for c in range(2):  # column by column (see rows), in place (temporaries cost page faults)
+        column = uv[:, c]
+        np.multiply(first, cuv[:, 0, c], out=column)
+        column += np.multiply(u, cuv[:, 1, c], out=term)
+        column += np.multiply(v, cuv[:, 2, c], out=term)
+    return uv
 
 
 def uv_tangents(frame, prim, tau=None):
@@ -703,7 +762,13 @@ def uv_tangents(frame, prim, tau=None):
 
 def _rows(lam, index):
     """The wavelengths of some rays (None in RGB mode)."""
-    return None if lam is None else lam[index]
+    return None if lam is None else _take(lam, index)
+
+
+def _take(a, sel):
+    """Rows ``sel`` (a slice or indices) of an array: a view, or np.take (several times faster
+    than fancy indexing of (n, 3) rows)."""
+    return a[sel] if isinstance(sel, slice) else np.take(a, sel, axis=0)
 
 
 def _spot_falloff(cos_angle, spot_size, blend):
@@ -715,23 +780,97 @@ def _spot_falloff(cos_angle, spot_size, blend):
 
 
 def _orthonormal_basis(axis):
-    """Two unit vectors perpendicular to each unit axis (n, 3)."""
-    helper = np.where(np.abs(axis[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-    t1 = np.cross(axis, helper)
-    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
-    return t1, np.cross(axis, t1)
+    """Two unit vectors perpendicular to each unit axis (n, 3): t1 = axis x (X, or Y for an
+    axis near X), t2 = axis x t1; column by column (see rows)."""
+    x, y, z = axis[:, 0], axis[:, 1], axis[:, 2]
+    near_x = np.abs(x) >= 0.9
+    hx, hy = np.where(near_x, 0.0, 1.0), np.where(near_x, 1.0, 0.0)  # the helper (hx, hy, 0)
+    t1 = np.empty(axis.shape)
+    t1[:, 0] = y * 0.0 - z * hy
+    t1[:, 1] = z * hx - x * 0.0
+    t1[:, 2] = x * hy - y * hx
+    length = np.sqrt(t1[:, 0] * t1[:, 0] + t1[:, 1] * t1[:, 1] + t1[:, 2] * t1[:, 2])
+    for c in range(3):
+        t1[:, c] /= length
+    return t1, rows.cross(axis, t1)
 
 
 def _disc_sample(axis, radius, xi1, xi2):
     t1, t2 = _orthonormal_basis(axis)
-    r, phi = radius * np.sqrt(xi1), 2.0 * np.pi * xi2
-    return (r * np.cos(phi))[:, None] * t1 + (r * np.sin(phi))[:, None] * t2
+    r, (cos_phi, sin_phi) = radius * np.sqrt(xi1), unit_circle(xi2)
+    return _combine(r * cos_phi, t1, r * sin_phi, t2)
 
 
 def _cone_sample(axis, half_angle, xi1, xi2):
-    axis = np.broadcast_to(axis, (len(xi1), 3))
-    t1, t2 = _orthonormal_basis(axis)
-    cos_t = 1.0 - xi1 * (1.0 - np.cos(half_angle))
-    sin_t = np.sqrt(np.maximum(1.0 - cos_t**2, 0.0))
-    phi = 2.0 * np.pi * xi2
-    return (sin_t * np.cos(phi))[:, None] * t1 + (sin_t * np.sin(phi))[:, None] * t2 + cos_t[:, None] * axis
+    """Directions uniform in the cone about one unit axis (3,): its basis is worked out once."""
+    t1, t2 = (t[0] for t in _orthonormal_basis(axis[None, :]))
+    cos_t = xi1 * (1.0 - np.cos(half_angle))  # in place from here: temporaries cost page faults
+    np.subtract(1.0, cos_t, out=cos_t)
+    sin_t = cos_t * cos_t
+    np.subtract(1.0, sin_t, out=sin_t)
+    np.sqrt(np.maximum(sin_t, 0.0, out=sin_t), out=sin_t)
+    cos_phi, sin_phi = unit_circle(xi2)
+    cos_phi *= sin_t
+    sin_phi *= sin_t
+    return _combine(cos_phi, t1, sin_phi, t2, cos_t, axis)
+
+
+# float32 trigonometry is 15x faster than float64 in numpy; a sample's angle about a cone's axis
+# or a disc's centre needs no more than its 6e-8 (tests/core/test_shading.py checks the images)
+UNIT_CIRCLE_DTYPE = np.float32
+
+
+def unit_circle(xi):
+    """(cos, sin) (float64 arrays) of the angles 2 pi xi, computed to float32 precision
+    (:data:`UNIT_CIRCLE_DTYPE`): they orient the random offsets of cone and disc samples."""
+    phi = np.multiply(2.0 * np.pi, xi, out=np.empty(len(xi), UNIT_CIRCLE_DTYPE))
+    return np.cos(phi, out=np.empty(len(xi))), np.sin(phi, out=np.empty(len(xi)))
+
+
+def _combine(*weights_and_vectors):
+    """Rows ``a t1 + b t2 (+ c t3)`` of (n,) weights and (n, 3) or (3,) vectors, summed in that order."""
+    pairs = list(zip(weights_and_vectors[::2], weights_and_vectors[1::2]))
+    out = np.empty((len(pairs[0][0]), 3))
+    term = np.empty(len(out))
+    for c in range(3):
+        column = out[:, c]
+        np.multiply(pairs[0][0], pairs[0][1][..., c], out=column)
+        for weight, vector in pairs[1:]:
+            column += np.multiply(weight, vector[..., c], out=term)
+    return out
+
+
+def _contiguous(image):
+    return None if image is None else np.ascontiguousarray(image)
+
+
+def _only_material(mat):
+    """The material number when every hit has the same one, else None."""
+    if len(mat) and mat[0] == mat[-1] and bool((mat == mat[0]).all()):
+        return int(mat[0])
+    return None
+
+
+def _selection(mask, within=slice(None)):
+    """The hits of ``within`` (a slice of all, or indices) where ``mask`` holds: the slice itself
+    while that is all of them (views instead of gathers), None when none."""
+    if not len(mask):
+        return None
+    if mask.all():
+        return within
+    index = np.flatnonzero(mask)
+    if not len(index):
+        return None
+    return index if isinstance(within, slice) else within[index]
+
+
+def _weighted_product(a, b, s):
+    """``a * b * s[:, None]`` for (n, C) a (overwritten) and b (often one row broadcast) and (n,) s,
+    column by column for few columns (see rows)."""
+    if a.shape[1] > 4:
+        return rows.scale(a * b, s)
+    for c in range(a.shape[1]):
+        column = a[:, c]
+        column *= b[:, c]
+        column *= s
+    return a

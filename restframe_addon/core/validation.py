@@ -125,6 +125,22 @@ def check_camera_optics(camera) -> None:
         check_shutter_curve(camera.shutter_curve)
 
 
+def doppler_levels_error(levels: int) -> str | None:
+    """Why the Factor display cannot use this many grey levels (None: it can).  0 is continuous;
+    one level would paint every hit the same grey, whatever its D."""
+    if int(levels) == 0 or int(levels) >= 2:
+        return None
+    return (f"Factor display Levels must be 0 (continuous) or at least 2, not {int(levels)} "
+            "(a single level would paint every hit the same grey)")
+
+
+def check_doppler_levels(levels: int) -> None:
+    """Raises RenderError for a grey-level count the Factor display cannot use."""
+    error = doppler_levels_error(levels)
+    if error is not None:
+        raise RenderError(error)
+
+
 def check_render(scene, settings, known_passes) -> None:
     """Raises RenderError for a scene and settings that cannot be rendered (``known_passes``:
     the pass names settings.passes may ask for)."""
@@ -146,6 +162,8 @@ def check_render(scene, settings, known_passes) -> None:
         raise RenderError(f"unknown passes {sorted(unknown)}: RESTframe fills {list(known_passes)} besides Combined")
     if settings.doppler_mode not in DOPPLER_MODES:
         raise RenderError(f"Doppler display mode {settings.doppler_mode!r} is not one of {DOPPLER_MODES}")
+    if settings.doppler_mode == "FACTOR":
+        check_doppler_levels(settings.doppler_levels)
     if settings.parallelism not in PARALLELISM:
         raise RenderError(f"parallelism {settings.parallelism!r} is not one of {PARALLELISM}")
     if settings.integrator not in INTEGRATORS:

@@ -82,35 +82,68 @@ def _polar(z, phi):
     return out
 
 
-def image_lookup(image, u, v, interpolation: str = "Linear"):
+def image_lookup(image, u, v, interpolation: str = "Linear", channels: int | None = None):
     """Colours (n, C) of an (H, W, C) image at (u, v), repeating in both directions as Cycles'
-    environment lookups: bilinear between pixel centres, or the nearest pixel (Closest).
-    Gathers and blends one channel at a time (flat indices; see :mod:`.rows`)."""
-    h, w, channels = image.shape
+    environment lookups: bilinear between pixel centres, or the nearest pixel (Closest);
+    ``channels``: only the first so many.  Gathers whole pixels (np.take of rows, no copy of a
+    contiguous image) and blends one channel at a time (see :mod:`.rows`), in place: a fresh
+    temporary of every step costs more than the step (page faults)."""
+    h, w, stored = image.shape
+    channels = stored if channels is None else min(channels, stored)
+    pixels = image.reshape(h * w, stored)
     out = np.empty((len(u), channels), dtype=np.result_type(image, np.float64))
     if interpolation == "Closest":
-        index = (np.floor(v * h).astype(np.int64) % h) * w + np.floor(u * w).astype(np.int64) % w
+        index = _wrap(np.floor(v * h).astype(np.int64), h) * w + _wrap(np.floor(u * w).astype(np.int64), w)
+        found = np.take(pixels, index, axis=0)
         for c in range(channels):
-            out[:, c] = image[..., c].ravel()[index]
+            out[:, c] = found[:, c]
         return out
-    x = u * w - 0.5
-    y = v * h - 0.5
-    x0 = np.floor(x)
-    y0 = np.floor(y)
-    fx, fy = x - x0, y - y0
-    x0 = x0.astype(np.int64) % w
-    y0 = y0.astype(np.int64) % h
-    x1 = (x0 + 1) % w
-    row0, row1 = y0 * w, ((y0 + 1) % h) * w
-    corners = (row0 + x0, row0 + x1, row1 + x0, row1 + x1)
-    weights = ((1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy)
-    for c in range(channels):
-        plane = image[..., c].ravel()
-        total = weights[0] * plane[corners[0]]
-        for corner, weight in zip(corners[1:], weights[1:]):
-            total += weight * plane[corner]
-        out[:, c] = total
+    fx, fy = u * w, v * h
+    fx -= 0.5
+    fy -= 0.5
+    x0, y0 = np.floor(fx), np.floor(fy)
+    fx -= x0  # the fractions from the pixel centre below
+    fy -= y0
+    x0 = _wrap(x0.astype(np.int64), w)
+    row0 = _wrap(y0.astype(np.int64), h)
+    row0 *= w
+    x1 = x0 + 1
+    x1[x1 == w] = 0
+    row1 = row0 + w
+    row1[row1 == h * w] = 0
+    corner00 = row0 + x0
+    x0 += row1
+    row1 += x1
+    row0 += x1
+    corners = (corner00, row0, x0, row1)  # (x0, y0), (x1, y0), (x0, y1), (x1, y1)
+    gx, gy = 1 - fx, 1 - fy
+    weight00 = gx * gy
+    gy *= fx
+    gx *= fy
+    fx *= fy
+    weights = (weight00, gy, gx, fx)
+    found = np.empty((len(u), stored), dtype=image.dtype)
+    # the blend in the weights' and pixels' precision (float32 coordinates and image: float32)
+    blend = out if np.result_type(fx, image) == out.dtype else np.empty(out.shape, np.result_type(fx, image))
+    term = np.empty(len(u), dtype=blend.dtype)
+    for i, (corner, weight) in enumerate(zip(corners, weights)):
+        np.take(pixels, corner, axis=0, out=found, mode="clip")  # in range: clip only skips the check
+        for c in range(channels):
+            if i == 0:
+                np.multiply(weight, found[:, c], out=blend[:, c])
+            else:
+                np.multiply(weight, found[:, c], out=term)
+                blend[:, c] += term
+    if blend is not out:
+        out[:] = blend
     return out
+
+
+def _wrap(index, size: int):
+    """``index % size`` (repeat) in place, by a bit mask when size is a power of two (as fast as an add)."""
+    if (size & (size - 1)) == 0:
+        return np.bitwise_and(index, size - 1, out=index)
+    return np.remainder(index, size, out=index)
 
 
 # ---------------------------------------------------------------------------- worlds

@@ -8,9 +8,11 @@ import dataclasses
 import numpy as np
 
 from ..core import lens, validation
+from ..core.lorentz import Boost
 from ..core.scene import Camera, Velocity
+from ..motion_query import assembly_root, location_curves, motion_source
 from .errors import ExportError
-from .motion import object_trajectory, object_velocity, shutter_frames
+from .motion import object_velocity, point_trajectory, shutter_frames
 
 
 _PANORAMAS = {"EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID"}
@@ -79,9 +81,22 @@ def motion_blur(scene) -> dict:
     )
 
 
+def _assembly_place(position, camera_object, velocity: Velocity) -> np.ndarray:
+    """Where a point of the camera's assembly is in S at world time 0 (its world line then runs on
+    with the velocity): the assembly pivot plus its Blender offset from it, Lorentz-contracted, so
+    that in the assembly's frame it keeps that offset (``docs/physics.md#observer``)."""
+    pivot = np.asarray(assembly_root(motion_source(camera_object)).matrix_world.translation, dtype=np.float64)
+    boost = Boost.from_velocity(velocity.beta, velocity.lorentz_factor)
+    return pivot + boost.contracted(np.asarray(position, dtype=np.float64) - pivot)
+
+
 def export_camera(camera_object, scene, warn=print) -> Camera:
-    """Blender's camera as the core sees it; ``view_frame`` gives the exact image plane.  With
-    Motion = Animation its keyframed location is its world line (an accelerating observer)."""
+    """Blender's camera as the core sees it; ``view_frame`` gives the exact image plane.
+
+    It moves as a point of its assembly (``docs/physics.md#observer``): with the motion settings of
+    its own, or, with none (Constant, zero velocity), of its parent, so a cockpit camera rides with
+    its ship.  With Motion = Animation the assembly's keyframed location gives its world line (an
+    accelerating observer)."""
     if camera_object is None:
         raise ExportError("the scene has no camera: add one and set it as the scene camera")
     if camera_object.type != 'CAMERA':
@@ -91,7 +106,20 @@ def export_camera(camera_object, scene, warn=print) -> Camera:
     matrix[:3, :3] /= np.linalg.norm(matrix[:3, :3], axis=0)
     render = scene.render
     aspect = (render.resolution_x * render.pixel_aspect_x) / (render.resolution_y * render.pixel_aspect_y)
-    animated = camera_object.restframe.is_animated
+    source = motion_source(camera_object)
+    root = assembly_root(source)
+    if any(source.restframe.angular_velocity):
+        warn(f"{camera_object.name}: the camera does not spin with '{source.name}' (it takes its velocity only)")
+    animated = source.restframe.is_animated
+    velocity = Velocity() if animated else object_velocity(source)
+    trajectory = None
+    if animated:
+        if root != camera_object and location_curves(camera_object)[0]:
+            warn(f"{camera_object.name}: it rides on the world line of '{root.name}' (the same motion settings): "
+                 "its own location keys only place it at the rendered frame")
+        trajectory = point_trajectory(root, scene, matrix[:3, 3], matrix[:3, 3], camera_object.name, warn=warn)
+    else:
+        matrix[:3, 3] = _assembly_place(matrix[:3, 3], camera_object, velocity)
     out = Camera(
         matrix=matrix,
         kind=cam.type,
@@ -99,9 +127,8 @@ def export_camera(camera_object, scene, warn=print) -> Camera:
         clip_start=float(cam.clip_start),
         clip_end=float(cam.clip_end),
         sensor_size=_fitted_sensor(cam, aspect),
-        velocity=Velocity() if animated else object_velocity(camera_object),
-        trajectory=object_trajectory(camera_object, scene, matrix[:3, 3], 0.0, warn=warn, smooth=True)
-        if animated else None,
+        velocity=velocity,
+        trajectory=trajectory,
         name=camera_object.name,
         **depth_of_field(camera_object),
         **motion_blur(scene),
@@ -134,9 +161,12 @@ def render_views(scene) -> list[str]:
 def view_camera(camera: Camera, camera_object, model_matrix, shift_x: float) -> Camera:
     """The camera of one view (an eye): Blender's own model matrix and lens shift for it
     (``RenderEngine.camera_model_matrix`` / ``camera_shift_x`` after ``active_view_set``, the
-    stereo convention of Cycles).  Its position is its own observation event."""
+    stereo convention of Cycles).  Its position is its own observation event, a point of the
+    camera's assembly placed as the camera is."""
     matrix = np.array(model_matrix, dtype=np.float64)
     matrix[:3, :3] /= np.linalg.norm(matrix[:3, :3], axis=0)
+    if camera.trajectory is None:
+        matrix[:3, 3] = _assembly_place(matrix[:3, 3], camera_object, camera.velocity)
     frame = np.array(camera.frame)
     width, height = np.ptp(frame[:, 0]), np.ptp(frame[:, 1])
     fit = camera_object.data.sensor_fit

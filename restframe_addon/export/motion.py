@@ -179,13 +179,20 @@ def _refuse_light_speed(name: str, keyed: dict, parent_matrix: np.ndarray, frame
                       f"of light, between frames {listed}: slow it down or raise the scene's speed of light")
 
 
-def lamp_trajectory(root, scene, camera_position, position, *, should_stop=lambda: False, warn=print) -> Trajectory:
-    """A lamp's world line (Motion = Animation): its assembly root's keyed world line, carried
-    along by the lamp's offset from the root at the rendered frame (a point: ``smooth``)."""
+def point_trajectory(root, scene, camera_position, position, name: str, *, should_stop=lambda: False,
+                     warn=print) -> Trajectory:
+    """The world line of a point (a camera or a lamp) of an animated assembly (Motion = Animation):
+    its root's keyed world line, the point carried along at its offset from the root at the rendered
+    frame, laid off in the root's momentary rest frames as for every point of the Born-rigid body
+    (``Trajectory.carried``)."""
     trajectory = object_trajectory(root, scene, camera_position, 0.0, should_stop=should_stop, warn=warn,
                                    smooth=True)
     offset = np.asarray(position, dtype=np.float64) - np.asarray(root.matrix_world.translation)
     if not np.any(offset):
         return trajectory
-    return Trajectory(tau=trajectory.tau, position=trajectory.position + offset, name=trajectory.name,
-                      frames=trajectory.frames, smooth=True)
+    try:
+        return trajectory.carried(offset, name)
+    except ValueError:
+        raise ExportError(f"{name}: it lies {np.linalg.norm(offset):.6g} from '{root.name}', the pivot of its "
+                          "assembly, beyond the horizon of the assembly's acceleration (a rigid body cannot "
+                          "reach that far): keep it closer or accelerate more gently") from None

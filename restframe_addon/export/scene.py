@@ -23,7 +23,7 @@ from .features import FeatureReport, object_features
 from .lights import export_light, world_color, world_texture
 from .materials import MaterialExporter
 from .meshes import MeshData, place, read_mesh
-from .motion import body_radius, lamp_trajectory, object_trajectory, object_velocity
+from .motion import body_radius, object_trajectory, object_velocity, point_trajectory
 from .settings import render_settings
 
 
@@ -174,8 +174,8 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
                 warn_once(f"{source.name}: a sun lamp is infinitely far and has no world line "
                           "(Motion = Animation is ignored: it stays at rest)")
             elif animated:  # the lamp rides on its assembly's keyed world line
-                trajectory = lamp_trajectory(assembly_root(source), scene, camera_position, matrix[:3, 3],
-                                             should_stop=should_stop, warn=warn_once)
+                trajectory = point_trajectory(assembly_root(source), scene, camera_position, matrix[:3, 3], name,
+                                              should_stop=should_stop, warn=warn_once)
             light = export_light(obj, matrix, velocity, pivot, warn_once, scene=scene, trajectory=trajectory)
             light.visibility = ray_visibility(inst, view_layer)  # which rays see a lamp with an extent
             lights.append(light)

@@ -37,6 +37,8 @@ SECTIONS = {
     "4": "bench_frugal",
     "5": "bench_cycles",
     "6": "bench_build",
+    "7": "bench_path_cycles",
+    "8": "measure_lens",
 }
 
 

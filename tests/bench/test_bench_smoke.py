@@ -19,13 +19,13 @@ def test_benchmark_suite_smoke_run(tmp_path):
                           cwd=RUN.parents[2], timeout=600)
     assert done.returncode == 0, done.stderr[-4000:]
     text = report.read_text()
-    for heading in ("## Goals", "## 1.", "## 2.", "## 3.", "## 4.", "## 5.", "## 6."):
+    for heading in ("## Goals", "## 1.", "## 2.", "## 3.", "## 4.", "## 5.", "## 6.", "## 7.", "## 8."):
         assert heading in text, heading
     assert "FAILED" not in text
     numbers = json.loads((tmp_path / "bench" / "numbers-smoke.json").read_text())
     assert len(numbers) > 40
     assert all(math.isfinite(v) for v in numbers.values())
-    for plot in ("knobs.png", "stability.png", "throughput.png", "cycles.png"):
+    for plot in ("knobs.png", "stability.png", "throughput.png", "cycles.png", "path_cycles.png"):
         assert (tmp_path / "bench" / plot).stat().st_size > 1000
 
 

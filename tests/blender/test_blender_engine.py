@@ -137,6 +137,14 @@ def test_invalid_velocity_fails_the_render_with_its_message(scene):
         bpy.ops.render.render()
 
 
+def test_a_single_factor_level_fails_the_render_with_its_message(scene):
+    add_camera(scene)
+    add_plane(scene, velocity=(0.5, 0.0, 0.0))
+    scene.restframe.doppler_mode, scene.restframe.doppler_levels = 'FACTOR', 1
+    with pytest.raises(RuntimeError, match="Levels must be 0 \\(continuous\\) or at least 2, not 1"):
+        bpy.ops.render.render()
+
+
 def test_missing_camera_fails_the_render(scene):
     add_plane(scene)
     with pytest.raises(RuntimeError, match="camera"):

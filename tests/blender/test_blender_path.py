@@ -455,27 +455,37 @@ def test_glossy_and_metal_under_an_hdri_match_cycles(addon, tmp_path):
 
 # --------------------------------------------------------------------------- denoising
 def test_denoise_node_takes_the_denoising_passes(addon, tmp_path):
-    """Blender's Denoise node fed with RESTframe's Denoising Albedo and Normal passes brings a
-    16-sample Cornell box much closer to a 256-sample render (at 1024 samples and 64 x 64 pixels
-    the error falls 2.9x, measured; here, smaller and against a noisier reference, 1.9x: at least 1.6x)."""
+    """Issue 16's goal: Blender's Denoise node fed with RESTframe's Denoising Albedo and Normal
+    passes brings a 16-sample Cornell box at least 3x closer (RMSE) to a 1024-sample render, and
+    closer than the image alone.  At 128 x 128 pixels: on a 64-pixel image OpenImageDenoise gains
+    less whatever the passes (2.8x here, 2.6x on Cycles' own renders and passes, measured by
+    tests/bench/measure_denoise.py).  (The slowest test of this file: the reference.)"""
     from restframe_addon.denoise import use_denoiser
 
     scene = cornell_box()
     scene.render.engine = 'RESTFRAME'
-    scene.render.resolution_x = scene.render.resolution_y = SIZE
+    scene.render.resolution_x = scene.render.resolution_y = 128
     scene.render.resolution_percentage = 100
+    scene.render.threads_mode, scene.render.threads = 'FIXED', 2
     scene.view_settings.view_transform = 'Standard'
     rf = scene.restframe
-    rf.integrator, rf.samples = 'PATH', 256
+    rf.integrator, rf.samples = 'PATH', 1024
     reference = render_rgba(scene, tmp_path / "reference.exr")[..., :3]
     rf.samples = 16
     raw = render_rgba(scene, tmp_path / "raw.exr")[..., :3]
     use_denoiser(scene)
     assert all(layer.restframe.denoising_store_passes for layer in scene.view_layers)
     denoised = render_rgba(scene, tmp_path / "denoised.exr")[..., :3]
+    tree = scene.compositing_node_group if bpy.app.version >= (5, 0, 0) else scene.node_tree
+    node = next(n for n in tree.nodes if n.bl_idname == "CompositorNodeDenoise")
+    for socket in ("Albedo", "Normal"):
+        tree.links.remove(node.inputs[socket].links[0])
+    image_alone = render_rgba(scene, tmp_path / "image_alone.exr")[..., :3]
     rmse = lambda image: float(np.sqrt(np.mean((image - reference) ** 2)))  # noqa: E731
-    print(f"denoise: raw {rmse(raw):.4g}, denoised {rmse(denoised):.4g}")
-    assert rmse(denoised) < rmse(raw) / 1.6
+    print(f"denoise: raw {rmse(raw):.4g}, denoised {rmse(denoised):.4g} ({rmse(raw) / rmse(denoised):.2f}x), "
+          f"image alone {rmse(image_alone):.4g}")
+    assert rmse(denoised) <= rmse(raw) / 3.0
+    assert rmse(denoised) < rmse(image_alone)
 
 
 def test_the_command_line_denoises(addon, tmp_path):

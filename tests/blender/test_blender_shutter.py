@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from blender_helpers import add_camera, export_now
+from measures import streak_ends
 from test_blender_dof import black_world, emissive, render
 
 WIDTH, HEIGHT = 128, 24
@@ -39,19 +40,6 @@ def moving_emitter(scene, make, speed):
     scene.frame_set(10)
     scene.render.use_motion_blur = True
     return obj
-
-
-def streak_ends(profile):
-    """Sub-pixel columns where a streak's column profile falls to half its level near each end."""
-    lit = np.flatnonzero(profile > 0.02 * profile.max())
-    ends = []
-    for end, inward in ((lit[0], 1), (lit[-1], -1)):
-        plateau = profile[end + 4 * inward:end + 12 * inward:inward].mean()
-        i = end + 4 * inward
-        while profile[i - inward] >= 0.5 * plateau:
-            i -= inward
-        ends.append(i + 0.5 - inward * (profile[i] - 0.5 * plateau) / (profile[i] - profile[i - inward]))
-    return np.array(ends)
 
 
 @pytest.mark.parametrize("position", ['CENTER', 'START'])

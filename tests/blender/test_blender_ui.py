@@ -74,6 +74,15 @@ def test_render_panels_draw_every_setting(scene):
     assert "Frame 25: t = 1 s, c\u00b7t = 10" in labels
 
 
+def test_doppler_panel_flags_a_single_factor_level(scene):
+    scene.restframe.doppler_mode, scene.restframe.doppler_levels = 'FACTOR', 1
+    labels = draw(ui.RESTFRAME_RENDER_PT_doppler, context_for(scene)).get("labels", [])
+    assert any("Levels must be 0 (continuous) or at least 2, not 1" in text for text in labels)
+    scene.restframe.doppler_levels = 2
+    assert not any("Levels" in text for text in draw(ui.RESTFRAME_RENDER_PT_doppler, context_for(scene)).get(
+        "labels", []))
+
+
 def test_every_toggle_of_the_passes_panel_adds_passes_the_render_delivers(scene):
     """Each switch the Passes panel shows turns on more passes of the render result (the ones the
     engine fills besides its own, which are always there): Blender's Depth, Normal and Object Index,
@@ -149,6 +158,20 @@ def test_object_panel_on_a_child_of_a_moving_parent(scene):
     child.parent = parent
     labels = draw(ui.RESTFRAME_OBJECT_PT_motion, context_for(scene, child))["labels"]
     assert any("'Ship'" in text for text in labels)
+
+
+def test_object_panel_of_a_camera_riding_with_its_parent(scene):
+    ship = add_plane(scene, "Ship", velocity=(0.5, 0.0, 0.0))
+    camera = add_camera(scene)
+    camera.parent = ship
+    labels = draw(ui.RESTFRAME_OBJECT_PT_motion, context_for(scene, camera))["labels"]
+    assert any("Rides with its parent 'Ship'" in text for text in labels)
+    camera.restframe.velocity = (0.0, 0.2, 0.0)  # motion of its own: its own assembly
+    labels = draw(ui.RESTFRAME_OBJECT_PT_motion, context_for(scene, camera))["labels"]
+    assert not any("'Ship'" in text for text in labels)
+    ship.restframe.motion = camera.restframe.motion = 'ANIMATION'  # the same Motion: the ship's world line
+    labels = draw(ui.RESTFRAME_OBJECT_PT_motion, context_for(scene, camera))["labels"]
+    assert any("World line: that of its parent 'Ship'" in text for text in labels)
 
 
 @pytest.mark.parametrize("kind", ['POINT', 'SPOT', 'SUN', 'AREA'])

@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from measures import streak_ends
 from shapes import look_at_camera, uv_sphere
 
 from restframe_addon.core import lens, sampling
@@ -307,19 +308,6 @@ def apparent_x(t):
     a = PATH_START + BETA * t
     u = (-a * BETA + np.sqrt(a * a + (1 - BETA * BETA) * PATH_DISTANCE**2)) / (1 - BETA * BETA)
     return a - BETA * u
-
-
-def streak_ends(profile):
-    """Sub-pixel columns where a streak's column profile falls to half its level near each end."""
-    lit = np.flatnonzero(profile > 0.02 * profile.max())
-    ends = []
-    for end, inward in ((lit[0], 1), (lit[-1], -1)):
-        plateau = profile[end + 4 * inward:end + 12 * inward:inward].mean()
-        i = end + 4 * inward
-        while profile[i - inward] >= 0.5 * plateau:
-            i -= inward
-        ends.append(i + 0.5 - inward * (profile[i] - 0.5 * plateau) / (profile[i] - profile[i - inward]))
-    return np.array(ends)
 
 
 @pytest.mark.parametrize("mover", ["emitter", "camera"])

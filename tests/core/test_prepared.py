@@ -8,48 +8,17 @@ from types import MappingProxyType
 
 import numpy as np
 import pytest
-from shapes import box, look_at_camera, quad, uv_sphere
+from scenes import busy_scene
 
 from restframe_addon.core import prepared as prepared_module
 from restframe_addon.core import render
 from restframe_addon.core.lorentz import Boost
-from restframe_addon.core.motion import Trajectory
 from restframe_addon.core.passes import ALL_PASSES, DEFAULT_PASSES, EXTRA_PASSES, PASSES
 from restframe_addon.core.prepared import prepare
 from restframe_addon.core.render import render_image, render_tile, render_tiles
-from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity
+from restframe_addon.core.scene import RenderSettings, Velocity
 from restframe_addon.core.tracer import TraceCache, trace_nearest
 from restframe_addon.core.validation import check_velocity
-
-
-def busy_scene(camera_velocity=Velocity()):
-    """A moving box, a glass ball, a spinning mirror ball and an animated emitter over a floor,
-    lit by a soft lamp, a sun and a moving area light: every code path of a tile."""
-    floor, cube = quad((0.0, 0.0, -1.5), (30.0, 30.0)), box((-2.0, 6.0, 0.0), (1.5, 1.5, 1.5))
-    ball, spinner = uv_sphere((2.0, 7.0, 0.0), 1.0, 16, 8), uv_sphere((0.0, 9.0, 1.5), 1.2, 16, 8)
-    comet = uv_sphere((0.0, 0.0, 0.0), 0.6, 12, 6)
-    tau = np.linspace(-40.0, 10.0, 6)
-    path = np.stack([4.0 + 0.0 * tau, 8.0 + 0.3 * tau, 0.001 * (tau + 40.0) ** 1.5], axis=1)
-    meshes = [
-        Mesh("floor", *floor, object_index=1),
-        Mesh("cube", *cube, velocity=Velocity((0.6, 0.0, 0.0)), pivot=(-2.0, 6.0, 0.0),
-             material_indices=np.full(12, 1), object_index=2),
-        Mesh("ball", *ball, velocity=Velocity((0.0, -0.5, 0.2)), pivot=(2.0, 7.0, 0.0),
-             material_indices=np.full(len(ball[1]), 2), object_index=3),
-        Mesh("spinner", *spinner, pivot=(0.0, 9.0, 1.5), angular_velocity=(0.0, 0.0, 0.4),
-             material_indices=np.full(len(spinner[1]), 3), object_index=4),
-        Mesh("comet", *comet, trajectory=Trajectory(tau, path, name="comet"),
-             material_indices=np.full(len(comet[1]), 4), object_index=5),
-    ]
-    materials = [Material("floor", (0.7, 0.7, 0.7), roughness=0.8), Material("cube", (0.9, 0.3, 0.2), roughness=0.3),
-                 Material("glass", roughness=0.0, transmission=1.0, ior=1.45),
-                 Material("mirror", (0.9, 0.9, 0.9), metallic=1.0, roughness=0.0),
-                 Material("glow", emission=(0.5, 2.0, 0.5))]
-    lights = [Light("lamp", "POINT", (0.0, 2.0, 4.0), power=800.0, radius=0.3),
-              Light("sun", "SUN", (0.0, 0.0, 10.0), power=2.0, sun_angle=0.05),
-              Light("panel", "AREA", (3.0, 4.0, 3.0), power=300.0, velocity=Velocity((0.0, 0.3, 0.0)))]
-    return Scene(camera=look_at_camera((0.0, -2.0, 1.0), (0.0, 7.0, 0.0), velocity=camera_velocity), meshes=meshes,
-                 materials=materials, lights=lights, light_speed=1.0, tau_obs=9.0)
 
 
 def settings(**kw):

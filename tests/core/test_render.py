@@ -244,7 +244,7 @@ def test_visibility_is_decided_by_the_observer_path_length_not_the_rest_frame_on
         assert seen == (2, pytest.approx(12.0, rel=1e-6), 1.0)
 
 
-@pytest.mark.parametrize("levels", [0, 4])
+@pytest.mark.parametrize("levels", [0, 2, 4])
 def test_factor_display_paints_d_across_the_frames_own_range(levels):
     """FACTOR mode: grey = (D - D_min) / (D_max - D_min) over the frame (optionally in N levels), with
     D = 1 / (gamma (1 + beta.d)) of each pixel's camera-ray direction d for a wall sliding across the
@@ -391,6 +391,19 @@ def test_clip_range_is_the_clip_depth_over_the_cosine_to_the_view_axis():
     grid = primary_rays(camera, xs, ys, res, grid=True)
     for flat, tiled in zip((origins, d, s_lo, s_hi, valid), grid):
         np.testing.assert_array_equal(flat, tiled)
+
+
+@pytest.mark.parametrize("levels", [1, -3])
+def test_factor_display_refuses_a_single_grey_level(levels):
+    """0 levels is the continuous display and N >= 2 evenly spaced greys; one level (or fewer) would
+    paint every hit one grey, so the Factor display refuses it; other modes ignore the setting."""
+    v, t = quad((0.0, 10.0, 0.0), (20.0, 20.0), normal_axis=1)
+    scene = Scene(camera=look_at_camera((0, 0, 0), (0, 1, 0)),
+                  meshes=[Mesh("wall", v, t, velocity=Velocity((0.8, 0.0, 0.0)), pivot=(0, 10, 0))])
+    with pytest.raises(RenderError, match=f"Levels must be 0 \\(continuous\\) or at least 2, not {levels}"):
+        render_image(scene, settings((8, 8), doppler_mode="FACTOR", doppler_levels=levels))
+    rgb = render_image(scene, settings((8, 8), doppler_levels=levels))["Combined"]
+    np.testing.assert_array_equal(rgb, render_image(scene, settings((8, 8)))["Combined"])
 
 
 def test_only_the_requested_passes_are_filled_and_they_match_a_full_render():
