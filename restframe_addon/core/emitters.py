@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import rows
-from .shading import _POINT_INTENSITY_PER_WATT, _cone_sample, _spot_falloff
+from .shading import _POINT_INTENSITY_PER_WATT, _cone_sample, _orthonormal_basis, _spot_falloff
 from .world import LUMINANCE_RGB
 
 
@@ -152,9 +152,15 @@ class LampShape:
             point = rows.add_scaled(rows.add_scaled(centre, a * self.size[0], x_axis), b * self.size[1], y_axis)
             return rows.normalized(point - x)
         delta = centre - x
-        distance = rows.norm(delta)
-        sin_max = np.minimum(self.radius / np.maximum(distance, 1e-300), 1.0)
-        return _cone_sample(rows.scale(delta, 1.0 / np.maximum(distance, 1e-300)), np.arcsin(sin_max), u1, u2)
+        distance2 = rows.dot(delta, delta)
+        axes = rows.scale(delta, 1.0 / np.sqrt(np.maximum(distance2, 1e-300)))
+        sin2 = np.minimum(self.radius**2 / np.maximum(distance2, 1e-300), 1.0)
+        one_minus_cos = sin2 / (1.0 + np.sqrt(1.0 - sin2))  # of the cone the sphere fills
+        t1, t2 = _orthonormal_basis(axes)
+        cos_t = 1.0 - u1 * one_minus_cos
+        sin_t = np.sqrt(np.maximum(1.0 - cos_t * cos_t, 0.0))
+        phi = 2.0 * np.pi * u2
+        return rows.scale(t1, sin_t * np.cos(phi)) + rows.scale(t2, sin_t * np.sin(phi)) + rows.scale(axes, cos_t)
 
     def hit(self, centre, x, d):
         """Where rays from x along unit d (n, 3) meet the lamp: (path length (n,), inf for the sun

@@ -234,6 +234,7 @@ class PathTracer:
                 if pl.sampled:
                     xi1, xi2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
                 e_k, strength, doppler, s_max, clock = shader._incident(pl, k, tau, position, xi1, xi2)
+                s_max = np.broadcast_to(s_max, (len(tau),))  # one number for a sun
             else:
                 u1, u2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
                 tau_j, x_j, centre, _, back, clock_zero = self._lamp_view(pl, k, tau, position)
