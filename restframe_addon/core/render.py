@@ -92,9 +92,8 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
             hits = (shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache)
                     if prepared.materials.cuts_out else centre_hits.take(part))
         else:
-            ox, oy = sampling.stratified_offsets(pix, smp, samples)
-            rays, observed = prepared.sample_rays(np.repeat(xs[part], count) + ox, np.repeat(ys[part], count) + oy,
-                                                  keys=(pix, smp, samples))
+            px, py = sampling.stratified_positions(xs[part], ys[part], pixel[part], first, count, samples)
+            rays, observed = prepared.sample_rays(px, py, keys=(pix, smp, samples))
             hits = shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache)
         color, hit, hole = _sample(prepared, rays, hits, pix, smp, cache, observed)
         rgb[part] += color.reshape(m, count, 3).sum(axis=1)

@@ -27,18 +27,33 @@ def _mix(z: np.ndarray) -> np.ndarray:
     return z
 
 
+def _pixel_halves(pixel: np.ndarray) -> np.ndarray:
+    """The pixel's half of the (pixel, sample) hash's input (xor-ed with :func:`_sample_halves`)."""
+    half = pixel.astype(np.uint64)
+    half *= _GOLDEN
+    return half
+
+
+def _sample_halves(sample: np.ndarray) -> np.ndarray:
+    """The sample number's half of the (pixel, sample) hash's input."""
+    half = sample.astype(np.uint64)
+    half += np.uint64(1)
+    half *= _M2
+    return half
+
+
 def _sample_keys(pixel: np.ndarray, sample: np.ndarray | None) -> np.ndarray:
     """The hash of (pixel, sample) that every dimension's numbers start from (sample None: 0)."""
-    key = pixel.astype(np.uint64)
-    key *= _GOLDEN
-    if sample is None:
-        key ^= _M2  # (0 + 1) * _M2
-    else:
-        mixed = sample.astype(np.uint64)
-        mixed += np.uint64(1)
-        mixed *= _M2
-        key ^= mixed
+    key = _pixel_halves(pixel)
+    key ^= _M2 if sample is None else _sample_halves(sample)  # None: (0 + 1) * _M2
     return _mix(key)
+
+
+def _block_keys(pixel: np.ndarray, first: int, count: int) -> np.ndarray:
+    """:func:`_sample_keys` of samples first .. first + count - 1 of each pixel, pixel-major: each
+    half of the hash's input worked out once (per pixel, per sample number), not once per sample."""
+    key = np.bitwise_xor.outer(_pixel_halves(pixel), _sample_halves(np.arange(first, first + count)))
+    return _mix(key.ravel())
 
 
 def _from_keys(keys: np.ndarray, dimension: int) -> np.ndarray:
@@ -47,9 +62,7 @@ def _from_keys(keys: np.ndarray, dimension: int) -> np.ndarray:
         z = keys + np.uint64(dimension) * _GOLDEN
     z = _mix(z)
     z >>= np.uint64(11)
-    out = z.astype(np.float64)
-    out *= 1.0 / (1 << 53)
-    return out
+    return np.multiply(z, np.float64(1.0 / (1 << 53)))  # (exact: z < 2^53 converts without rounding)
 
 
 def uniform(pixel: np.ndarray, sample: np.ndarray, dimension: int) -> np.ndarray:
@@ -75,10 +88,31 @@ def stratified_offsets(pixel: np.ndarray, sample: np.ndarray, count: int):
         half = np.full(len(pixel), 0.5)
         return half, half
     side = int(np.ceil(np.sqrt(count)))
+    return _jittered(_sample_keys(pixel, sample), strata(pixel, sample, side * side, 0), side)
+
+
+def stratified_positions(xs: np.ndarray, ys: np.ndarray, pixel: np.ndarray, first: int, count: int,
+                         samples: int):
+    """Image positions of samples first .. first + count - 1 of ``samples`` per pixel (pixel ids
+    ``pixel`` at integer coordinates xs, ys), pixel-major: ``xs + x, ys + y`` of
+    :func:`stratified_offsets`, the same bits, with the work per pixel and per sample number
+    (the strata's start, each half of the hash) done once each, not once per sample."""
+    if samples == 1:
+        return np.repeat(xs + 0.5, count), np.repeat(ys + 0.5, count)
+    side = int(np.ceil(np.sqrt(samples)))
     cells = side * side
-    stratum = strata(pixel, sample, cells, 0)
+    stratum = np.add.outer(_strata_start(pixel, cells, 0), np.arange(first, first + count) * _coprime_step(cells))
+    stratum %= cells
+    x, y = _jittered(_block_keys(pixel, first, count), stratum.ravel(), side)
+    x.reshape(len(pixel), count)[...] += xs[:, None]
+    y.reshape(len(pixel), count)[...] += ys[:, None]
+    return x, y
+
+
+def _jittered(keys: np.ndarray, stratum: np.ndarray, side: int):
+    """Uniform positions (dimensions 1, 2 of ``keys``) in each sample's stratum of a side x side grid."""
     row, column = np.divmod(stratum, side)
-    x, y = uniforms(pixel, sample, (1, 2))
+    x, y = _from_keys(keys, 1), _from_keys(keys, 2)
     x += column
     y += row
     x /= side
@@ -102,9 +136,12 @@ def strata(pixel: np.ndarray, sample: np.ndarray, cells: int, dimension: int):
     """Which of ``cells`` strata sample k < ``cells`` of a pixel falls in: ``(k * step + start) mod
     cells``, the start per pixel (from ``dimension``), the step coprime to ``cells`` near the golden
     ratio times ``cells``, so that a pixel's first samples already spread over the strata."""
-    step = _coprime_step(cells)
-    start = (_from_keys(_sample_keys(pixel, None), dimension) * cells).astype(np.int64)
-    return (sample.astype(np.int64) * step + start) % cells
+    return (sample.astype(np.int64) * _coprime_step(cells) + _strata_start(pixel, cells, dimension)) % cells
+
+
+def _strata_start(pixel: np.ndarray, cells: int, dimension: int) -> np.ndarray:
+    """The per-pixel start of :func:`strata`."""
+    return (_from_keys(_sample_keys(pixel, None), dimension) * cells).astype(np.int64)
 
 
 def shuffled_strata(pixel: np.ndarray, sample: np.ndarray, cells: int, dimension: int) -> np.ndarray:
