@@ -24,7 +24,9 @@ from pathlib import Path
 HERE = Path(__file__).resolve()
 SCENES = {"moving_sphere": ("moving_sphere.blend", (960, 540), 8), "bars": ("bars_sideways.blend", None, None)}
 STAGES = (("shading", "occluded"), ("shading", "trace_nearest"), ("shading", "facing_normals"),
-          ("sampling", "stratified_offsets"), ("prepared", "PreparedScene.sample_rays"))
+          ("sampling", "stratified_offsets"), ("sampling", "stratified_positions"),
+          ("prepared", "PreparedScene.sample_rays"))
+LABELS = {"stratified_positions": "stratified_offsets"}  # the sample jitter, whichever of the two a checkout calls
 
 
 def serve(repo: str, scene: str, stages: bool) -> None:
@@ -46,7 +48,8 @@ def serve(repo: str, scene: str, stages: bool) -> None:
         *outer, attr = name.split(".")
         for part in outer:
             owner = getattr(owner, part)
-        setattr(owner, attr, _timed(owner.__dict__[attr], attr, totals))
+        if attr in owner.__dict__:  # (an older checkout may lack it)
+            setattr(owner, attr, _timed(owner.__dict__[attr], LABELS.get(attr, attr), totals))
     list(render_tiles(prep, threads=1))
     print("ready", flush=True)
     for _ in sys.stdin:
