@@ -101,20 +101,22 @@ def stratified_positions(xs: np.ndarray, ys: np.ndarray, pixel: np.ndarray, firs
         return np.repeat(xs + 0.5, count), np.repeat(ys + 0.5, count)
     side = int(np.ceil(np.sqrt(samples)))
     cells = side * side
-    stratum = np.add.outer(_strata_start(pixel, cells, 0), np.arange(first, first + count) * _coprime_step(cells))
-    stratum %= cells
-    x, y = _jittered(_block_keys(pixel, first, count), stratum.ravel(), side)
+    steps = np.arange(first, first + count) * _coprime_step(cells) % cells
+    # :func:`strata` before its final ``mod cells`` (below 2 cells): _jittered's tables wrap it
+    stratum = np.add.outer(_strata_start(pixel, cells, 0), steps).ravel()
+    x, y = _jittered(_block_keys(pixel, first, count), stratum, side)
     x.reshape(len(pixel), count)[...] += xs[:, None]
     y.reshape(len(pixel), count)[...] += ys[:, None]
     return x, y
 
 
 def _jittered(keys: np.ndarray, stratum: np.ndarray, side: int):
-    """Uniform positions (dimensions 1, 2 of ``keys``) in each sample's stratum of a side x side grid."""
-    row, column = np.divmod(stratum, side)
+    """Uniform positions (dimensions 1, 2 of ``keys``) in each sample's stratum of a side x side grid
+    (``stratum`` below 2 side^2: taken mod side^2; looked up, not divided, per sample)."""
+    row, column = np.divmod(np.arange(2 * side * side) % (side * side), side)
     x, y = _from_keys(keys, 1), _from_keys(keys, 2)
-    x += column
-    y += row
+    x += column.astype(np.float64).take(stratum)
+    y += row.astype(np.float64).take(stratum)
     x /= side
     y /= side
     return x, y
