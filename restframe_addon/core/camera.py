@@ -121,33 +121,22 @@ class CameraRays:
 
     def _perspective(self, u, v, grid):
         n = len(u) * len(v) if grid else len(u)
-        scratch = np.empty(n) if grid else np.empty((2, n))
 
-        def on_plane(corner, across, up, out):  # corner + u across + v up at every ray, into out
-            if grid:
-                np.add.outer(corner + up * v, across * u, out=out.reshape(len(v), len(u)))
-                return out
-            np.multiply(up, v, out=scratch[0])
-            scratch[0] += corner
-            np.multiply(across, u, out=scratch[1])
-            return np.add(scratch[0], scratch[1], out=out)
+        def on_plane(corner, across, up):  # corner + u across + v up at every ray
+            return np.add.outer(corner + up * v, across * u).ravel() if grid else (corner + up * v) + across * u
 
         directions = np.empty((n, 3))
         for axis, (corner, across, up) in enumerate(self.world_plane):
-            on_plane(corner, across, up, directions[:, axis])
-        inverse = rows.norm(directions)  # the rotation keeps lengths
-        np.divide(1.0, inverse, out=inverse)
+            directions[:, axis] = on_plane(corner, across, up)
+        inverse = 1.0 / rows.norm(directions)  # the rotation keeps lengths
         for axis in range(3):  # one axis at a time: numpy is slow along a length-3 last axis
             directions[:, axis] *= inverse
         corner, across, up = self.plane
         # path length per unit of depth along the view axis: 1 / cosine to the axis (the plane is at z < 0)
-        per_depth = on_plane(corner[2], across[2], up[2], np.empty(n))
-        per_depth *= inverse
-        np.divide(-1.0, per_depth, out=per_depth)
+        per_depth = -1.0 / (inverse * on_plane(corner[2], across[2], up[2]))
         camera = self.camera
-        s_lo = per_depth * camera.clip_start
-        per_depth *= camera.clip_end
-        return np.broadcast_to(self.position, (n, 3)), directions, s_lo, per_depth, np.ones(n, dtype=bool)
+        return (np.broadcast_to(self.position, (n, 3)), directions, camera.clip_start * per_depth,
+                camera.clip_end * per_depth, np.ones(n, dtype=bool))
 
     def _through_lens(self, origins, directions, s_lo, s_hi, valid, pixel, sample, count):
         """The pinhole rays moved to their aperture points and aimed at the points where they
