@@ -357,6 +357,8 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
     candidates = frames.candidates(src, tau0, x0)
     shared = _shared_origin(tau0, x0)
     bundle = _bundle_cone(d) if shared is not None and len(candidates) > 1 and n else None
+    if bundle is not None:
+        bundle = (*bundle, _sub_bundle_cones(d))
     for k in candidates:
         frame = frames.frames[k]
         fmap = frames.map(src, k)
@@ -454,11 +456,14 @@ _CONE_SAMPLES = 16
 
 def _toward(frames: FrameSet, src: int, k: int, origin_event, d, bundle, cache: TraceCache | None):
     """Indices of rays from one event that point into a cone subtended there by one of the
-    frame's bounding spheres, or None when every ray may (the event is inside a sphere, or
-    the bundle's own cone lies inside one).
+    frame's bounding spheres (or a superset of them), or None when every ray may (the event is
+    inside a sphere, or the bundle's own cone lies inside one).
 
-    ``bundle`` = (axis, half-angle) of a cone holding every ray: sphere cones that miss it are
-    skipped and, where one holds it whole, no ray needs testing.
+    ``bundle`` = (axis, half-angle, sub-bundles) of a cone holding every ray and of cones holding
+    runs of rays (:func:`_sub_bundle_cones`): sphere cones that miss the bundle's are skipped and,
+    where one holds it whole, no ray needs testing; then each run that lies in a sphere cone is
+    taken whole and one that misses them all is dropped whole, before the rays of the other runs
+    are tested one by one.
     """
     if cache is None:
         cones = _cones(frames, src, k, origin_event)
@@ -468,14 +473,51 @@ def _toward(frames: FrameSet, src: int, k: int, origin_event, d, bundle, cache: 
     if cones is None:
         return None
     axes, spread = cones
-    bundle_axis, bundle_angle = bundle
+    bundle_axis, bundle_angle, (run_axes, run_cos, run_sin) = bundle
     apart = np.arccos(np.clip(axes @ bundle_axis, -1.0, 1.0))
     if np.any(apart + bundle_angle <= spread):
         return None
     meeting = np.flatnonzero(apart <= spread + bundle_angle)
-    # every ray against every cone at once: one (m, 3) x (3, n) product, reduced over the cones
-    inside = (axes[meeting] @ d.T >= np.cos(spread[meeting])[:, None]).any(axis=0)
+    axes, spread = axes[meeting], spread[meeting]
+    inside = np.zeros(len(d), dtype=bool)
+    tested = np.arange(_RUN * len(run_axes), len(d))  # the rays past the last whole run: one by one
+    if len(run_axes):
+        # the cone of cones: each run against each sphere cone by the cosine of sums of angles
+        # (m, b); a run is taken whole where it lies in a cone, dropped where it misses them all
+        apart = axes @ run_axes.T
+        cos_spread, sin_spread = np.cos(spread)[:, None], np.sin(spread)[:, None]
+        whole = ((apart >= cos_spread * run_cos + sin_spread * run_sin) & (run_cos >= cos_spread)).any(axis=0)
+        clear = spread + _RUN_MARGIN
+        missable = (clear < np.pi / 2)[:, None] & (run_cos > 0.0)  # the sum of the angles below pi
+        meets = ~missable | (apart >= np.cos(clear)[:, None] * run_cos - np.sin(clear)[:, None] * run_sin - 1e-12)
+        partial = np.flatnonzero(~whole & meets.any(axis=0))
+        inside[:_RUN * len(run_axes)].reshape(-1, _RUN)[whole] = True
+        tested = np.append((partial[:, None] * _RUN + np.arange(_RUN)).ravel(), tested)
+    if len(tested):
+        # those rays against every cone at once: one (m, 3) x (3, r) product, reduced over the cones
+        inside[tested] = (axes @ rows.take(d, tested).T >= np.cos(spread)[:, None]).any(axis=0)
     return np.flatnonzero(inside)
+
+
+_RUN = 16  # rays per sub-bundle (consecutive rays: a run of pixels in a row of the tile)
+_RUN_MARGIN = 1e-6  # radians: a run is dropped whole only this far clear of every cone (rounding)
+
+
+def _sub_bundle_cones(d):
+    """(axes (b, 3), cosines and sines of the half-angles (b,)) of cones holding each run of
+    ``_RUN`` consecutive directions d (the rays past the last whole run are left out)."""
+    count = len(d) // _RUN
+    # one axis at a time: numpy is slow along a length-3 last axis
+    columns = [d[:count * _RUN, axis].reshape(count, _RUN) for axis in range(3)]
+    axes = np.stack([column.sum(axis=1) for column in columns], axis=1)
+    length = np.linalg.norm(axes, axis=1)
+    spread_out = length < 1e-9 * _RUN  # directions that cancel: no axis, the cone holds every direction
+    axes /= np.where(spread_out, 1.0, length)[:, None]
+    cosines = columns[0] * axes[:, :1]
+    cosines += columns[1] * axes[:, 1:2]
+    cosines += columns[2] * axes[:, 2:]
+    run_cos = np.where(spread_out, -1.0, np.clip(cosines.min(axis=1), -1.0, 1.0))
+    return axes, run_cos, np.sqrt(1.0 - run_cos * run_cos)
 
 
 def _bundle_cone(d):
