@@ -583,8 +583,6 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
     candidates = frames.candidates(src, tau0, x0)
     if reach is not None:
         candidates = [k for k, meets in zip(candidates, _may_meet(frames, src, candidates, reach, cache)) if meets]
-    # parallel rays (sunlight): runs of consecutive rays are tested against each body's box before the rays are
-    runs = _run_reaches(tau0, x0, d, s_lo) if reach is not None and reach.direction is not None else None
     todo = None  # the rays not yet blocked: None while that is every ray (no gathers)
     extent = None  # (largest |x0| coordinate, largest |tau0|) of the bundle, for the rounding margin of _near_body
     for k in candidates:
@@ -597,12 +595,6 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
             # before mapping them into the frame: only rays that pass the body's box can meet it
             if extent is None:
                 extent = (max(float(np.max(np.abs(x0[:, axis]))) for axis in range(3)), float(np.max(np.abs(tau0))))
-            if runs is not None:
-                close = _runs_near_body(frames, src, k, cache, extent, runs, n)
-                if not close.all():
-                    rays = np.flatnonzero(close) if rays is None else rays[close[rays]]
-                    if len(rays) == 0:
-                        continue
             near = _near_body(frames, src, k, cache, extent, *_rows_of(rays, tau0, x0, d, s_lo, s_hi))
             if not near.all():
                 rays = np.flatnonzero(near) if rays is None else rays[near]
@@ -673,47 +665,6 @@ def _near_body(frames: FrameSet, src: int, k: int, cache, extent, tau0, x0, d, s
             np.fmax(enter, np.fmin(t_a, t_b, out=near), out=enter)
             np.fmin(leave, np.fmax(t_a, t_b, out=near), out=leave)
     return enter <= leave
-
-
-def _run_reaches(tau0, x0, d, s_lo) -> Reach | None:
-    """Per run of ``_RUN`` consecutive parallel rays, where its rays start: a :class:`Reach`
-    with (b, 3) boxes and (b,) time spans (the rays past the last whole run are left out),
-    or None for a bundle of less than two runs."""
-    count = len(d) // _RUN
-    if count < 2:
-        return None
-    lo, hi = np.empty((count, 3)), np.empty((count, 3))
-    starts = np.empty(count * _RUN)
-    for axis in range(3):  # one axis at a time: numpy is slow along a length-3 last axis
-        np.multiply(s_lo[:count * _RUN], d[:count * _RUN, axis], out=starts)
-        starts += x0[:count * _RUN, axis]
-        lo[:, axis], hi[:, axis] = starts.reshape(count, _RUN).min(axis=1), starts.reshape(count, _RUN).max(axis=1)
-    times = (tau0[:count * _RUN] - s_lo[:count * _RUN]).reshape(count, _RUN)
-    return Reach(lo, hi, times.min(axis=1), times.max(axis=1), np.array(d[0]))
-
-
-def _runs_near_body(frames: FrameSet, src: int, k: int, cache, extent, runs: Reach, n: int) -> np.ndarray:
-    """Which of ``n`` parallel rays may pass through frame k's body box, judged run by run as
-    :func:`_may_meet` judges a bundle, with the box widened at least as :func:`_near_body` widens
-    it (``extent`` as there): a mask, True for every ray of a run that may and for the rays past
-    the last whole run.  A run that cannot has no ray that :func:`_near_body` would keep."""
-    slot = frames.geometry_slot[k]
-    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
-    t_box, x_box, velocity, half = (a[slot] for a in boxes)
-    x_max, tau_max = extent
-    scale = max(1.0 + x_max + float(np.max(np.abs(x_box))) + float(np.max(np.abs(velocity))) * (tau_max + abs(float(t_box))),
-                1.0 + float(np.max(np.abs(runs.hi))) + float(np.max(np.abs(runs.lo))))
-    widen = _widened(half[None, :], scale)
-    middle = 0.5 * (runs.earliest + runs.latest)
-    centre = x_box + velocity * (middle - t_box)[:, None]
-    drift = np.abs(velocity) * (0.5 * (runs.latest - runs.earliest))[:, None]
-    slack = widen + drift + 1e-9 * scale  # (and the run boxes' own rounding)
-    direction = np.broadcast_to(-(runs.direction + velocity), centre.shape)
-    meets = _segments_meet_boxes(np.zeros_like(centre), direction, np.inf,
-                                 runs.lo - centre - slack, runs.hi - centre + slack)
-    close = np.ones(n, dtype=bool)
-    close[:_RUN * len(meets)] = np.repeat(meets, _RUN)
-    return close
 
 
 def _widened(half, scale: float) -> np.ndarray:

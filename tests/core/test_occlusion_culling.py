@@ -67,34 +67,3 @@ def test_rays_grazing_the_body_are_kept():
     assert near.all()
     far = tracer._near_body(frame_set, frame_set.world, k, None, extent, tau0, x0 + 50.0, d, s_lo, s_hi)
     assert not far.any()
-
-
-def parallel_rays_past_the_box(count: int, seed: int):
-    """Parallel backward rays (sunlight) through points of the moving box widened 3x at random
-    path lengths, in runs of neighbours (sorted by where they start) as a tile's are."""
-    rng = np.random.default_rng(seed)
-    direction = np.array([0.3, -0.6, 0.74])
-    direction /= np.linalg.norm(direction)
-    tau0 = rng.uniform(-5.0, 5.0, count)
-    s_star = rng.uniform(2.0, 8.0, count)
-    centre = CENTRE + np.outer(tau0 - s_star, VELOCITY)
-    x0 = centre + rng.uniform(-0.5, 0.5, (count, 3)) * SIZE * 3.0 - s_star[:, None] * direction
-    order = np.lexsort((x0[:, 1], np.round(x0[:, 0], 0)))
-    return tau0[order], x0[order], np.broadcast_to(direction, (count, 3))
-
-
-def test_runs_of_parallel_rays_are_culled_only_where_no_ray_passes_the_box(monkeypatch):
-    frame_set = frames()
-    tau0, x0, d = parallel_rays_past_the_box(20003, 5)
-    k = next(k for k in frame_set.geometry if k != frame_set.world)
-    s_lo, s_hi = np.full(len(d), 1e-6), np.full(len(d), np.inf)
-    extent = (float(np.max(np.abs(x0))), float(np.max(np.abs(tau0))))
-    runs = tracer._run_reaches(tau0, x0, d, s_lo)
-    close = tracer._runs_near_body(frame_set, frame_set.world, k, None, extent, runs, len(d))
-    near = tracer._near_body(frame_set, frame_set.world, k, None, extent, tau0, x0, d, s_lo, s_hi)
-    assert close[near].all()  # no ray the per-ray cull keeps is dropped with its run
-    assert not close.all() and close[-3:].all()  # runs were dropped; the rays past the last run are kept
-    blocked = tracer.occluded(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
-    monkeypatch.setattr(tracer, "_runs_near_body", lambda *args: np.ones(args[-1], dtype=bool))
-    assert np.array_equal(blocked, tracer.occluded(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf))
-    assert 0.02 < blocked.mean() < 0.9
