@@ -279,12 +279,16 @@ class TraceCache:
         self._cones: dict = {}
         self._body_boxes: dict[int, tuple] = {}
 
-    def cones(self, key, compute):
-        if key not in self._cones:
-            if len(self._cones) > self._MAX_CONES:
+    def cones(self, keys: list, compute) -> list:
+        """The cones kept under each key; ``compute(missing)`` works out, at once, those of the
+        keys at the indices ``missing``."""
+        missing = [i for i, key in enumerate(keys) if key not in self._cones]
+        if missing:
+            if len(self._cones) + len(missing) > self._MAX_CONES:
                 self._cones.clear()
-            self._cones[key] = compute()
-        return self._cones[key]
+            for i, cones in zip(missing, compute(missing)):
+                self._cones[keys[i]] = cones
+        return [self._cones[key] for key in keys]
 
     def body_boxes(self, frames: FrameSet, src: int):
         if src not in self._body_boxes:
@@ -359,11 +363,12 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
     bundle = _bundle_cone(d) if shared is not None and len(candidates) > 1 and n else None
     if bundle is not None:
         bundle = (*bundle, _sub_bundle_cones(d))
+        cones = dict(zip(candidates, _frame_cones(frames, src, candidates, shared, cache)))
     for k in candidates:
         frame = frames.frames[k]
         fmap = frames.map(src, k)
         # culling by bounding cones pays off only when several frames share the rays
-        rays = _toward(frames, src, k, shared, d, bundle, cache) if bundle is not None else None
+        rays = _toward(cones[k], d, bundle) if bundle is not None else None
         if rays is not None and len(rays) == 0:
             continue
         d_rays, lo, hi = (d, s_lo, best) if rays is None else (rows.take(d, rays), s_lo[rays], best[rays])
@@ -454,9 +459,9 @@ def _shared_origin(tau0, x0):
 _CONE_SAMPLES = 16
 
 
-def _toward(frames: FrameSet, src: int, k: int, origin_event, d, bundle, cache: TraceCache | None):
-    """Indices of rays from one event that point into a cone subtended there by one of the
-    frame's bounding spheres (or a superset of them), or None when every ray may (the event is
+def _toward(cones, d, bundle):
+    """Indices of rays from one event that point into one of a frame's sphere ``cones`` (see
+    :func:`_cones`; or a superset of those rays), or None when every ray may (the event is
     inside a sphere, or the bundle's own cone lies inside one).
 
     ``bundle`` = (axis, half-angle, sub-bundles) of a cone holding every ray and of cones holding
@@ -465,11 +470,6 @@ def _toward(frames: FrameSet, src: int, k: int, origin_event, d, bundle, cache: 
     taken whole and one that misses them all is dropped whole, before the rays of the other runs
     are tested one by one.
     """
-    if cache is None:
-        cones = _cones(frames, src, k, origin_event)
-    else:
-        key = (src, k, origin_event[0], *origin_event[1].tolist())
-        cones = cache.cones(key, lambda: _cones(frames, src, k, origin_event))
     if cones is None:
         return None
     axes, spread = cones
@@ -530,43 +530,66 @@ def _bundle_cone(d):
     return axis, float(np.arccos(np.clip((d @ axis).min(), -1.0, 1.0)))
 
 
-def _cones(frames: FrameSet, src: int, k: int, origin_event):
-    """(axes (m, 3), half-angles (m,)) in frame src of the cones that frame k's bounding spheres
-    subtend at one event, or None when the event is inside one.
+def _frame_cones(frames: FrameSet, src: int, ks, origin_event, cache: TraceCache | None) -> list:
+    """The cones of the frames ``ks`` seen from one event (:func:`_cones`), from the thread's
+    cache where it has them: they depend on the event alone, so every tile of a perspective
+    camera shares them."""
+    if cache is None:
+        return _cones(frames, src, ks, origin_event)
+    event = (origin_event[0], *origin_event[1].tolist())
+    return cache.cones([(src, k, *event) for k in ks],
+                       lambda missing: _cones(frames, src, [ks[i] for i in missing], origin_event))
+
+
+def _cones(frames: FrameSet, src: int, ks, origin_event) -> list:
+    """Per frame k of ``ks``: (axes (m, 3), half-angles (m,)) in frame src of the cones that
+    frame k's bounding spheres subtend at one event, or None when the event is inside one.
 
     Each cone is built in frame k and mapped to frame src by aberration, which maps circles
     on the sky to circles: its image is found from ``_CONE_SAMPLES`` rim directions around
-    the mapped axis, widened by a margin for the sampling.
+    the mapped axis, widened by a margin for the sampling.  All frames' spheres at once, but
+    for the two maps of each frame.
     """
-    frame = frames.frames[k]
-    geometry = frame.geometry
-    _, x_k = frames.map(src, k).events(np.array(origin_event[0]), origin_event[1])
-    if frame.spin is not None:  # any pose: the sphere about the pivot
-        spheres = np.array([[*frame.offset, geometry.radius]])
-    else:
-        spheres = geometry.clusters + np.append(frame.offset, 0.0)
-    pad = 2 * _PAD * geometry.extent + 1e-9 * (1.0 + float(np.max(np.abs(spheres[:, :3]))))
-    offset = spheres[:, :3] - x_k
+    spheres, eyes, pads = [], [], []
+    for k in ks:
+        frame = frames.frames[k]
+        geometry = frame.geometry
+        _, x_k = frames.map(src, k).events(np.array(origin_event[0]), origin_event[1])
+        if frame.spin is not None:  # any pose: the sphere about the pivot
+            frame_spheres = np.array([[*frame.offset, geometry.radius]])
+        else:
+            frame_spheres = geometry.clusters + np.append(frame.offset, 0.0)
+        spheres.append(frame_spheres)
+        eyes.append(x_k)
+        pads.append(2 * _PAD * geometry.extent + 1e-9 * (1.0 + float(np.max(np.abs(frame_spheres[:, :3])))))
+    counts = np.array([len(frame_spheres) for frame_spheres in spheres])
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    spheres = np.concatenate(spheres)
+    offset = spheres[:, :3] - np.repeat(np.array(eyes), counts, axis=0)
     distance = np.linalg.norm(offset, axis=1)
-    radius = spheres[:, 3] + pad
-    cones = None
-    if not np.any(distance <= radius * 1.01):
+    radius = spheres[:, 3] + np.repeat(pads, counts)
+    inside = np.add.reduceat(distance <= radius * 1.01, starts[:-1]) > 0
+    with np.errstate(divide="ignore", invalid="ignore"):  # (at a sphere's centre: the frame has no cones)
         axes = offset / distance[:, None]
-        half = np.arcsin(radius / distance)
+        half = np.arcsin(np.minimum(radius / distance, 1.0))
         t1 = np.cross(axes, np.where(np.abs(axes[:, :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
         t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-        t2 = np.cross(axes, t1)
-        phi = np.linspace(0.0, 2 * np.pi, _CONE_SAMPLES, endpoint=False)
-        rim = (np.cos(half)[:, None, None] * axes[:, None, :]
-               + np.sin(half)[:, None, None] * (np.cos(phi)[None, :, None] * t1[:, None, :]
-                                                + np.sin(phi)[None, :, None] * t2[:, None, :]))
-        directions = np.concatenate([axes[:, None, :], rim], axis=1).reshape(-1, 3)
-        src_dirs, _ = frames.map(k, src).rays(directions)
-        src_dirs = src_dirs.reshape(len(spheres), _CONE_SAMPLES + 1, 3)
-        centre_dirs = src_dirs[:, 0]
-        spread = np.max(np.arccos(np.clip(np.einsum("kij,kj->ki", src_dirs[:, 1:], centre_dirs), -1.0, 1.0)), axis=1)
-        cones = centre_dirs, np.minimum(spread * 1.05 + 1e-9, np.pi)
-    return cones
+    t2 = np.cross(axes, t1)
+    phi = np.linspace(0.0, 2 * np.pi, _CONE_SAMPLES, endpoint=False)
+    rim = (np.cos(half)[:, None, None] * axes[:, None, :]
+           + np.sin(half)[:, None, None] * (np.cos(phi)[None, :, None] * t1[:, None, :]
+                                            + np.sin(phi)[None, :, None] * t2[:, None, :]))
+    directions = np.concatenate([axes[:, None, :], rim], axis=1)
+    src_dirs = np.zeros_like(directions)
+    for i, k in enumerate(ks):
+        if not inside[i]:
+            frame_dirs = directions[starts[i]:starts[i + 1]].reshape(-1, 3)
+            src_dirs[starts[i]:starts[i + 1]] = frames.map(k, src).rays(frame_dirs)[0].reshape(-1, _CONE_SAMPLES + 1, 3)
+    centre_dirs = src_dirs[:, 0]
+    spread = np.max(np.arccos(np.clip(np.einsum("kij,kj->ki", src_dirs[:, 1:], centre_dirs), -1.0, 1.0)), axis=1)
+    spread = np.minimum(spread * 1.05 + 1e-9, np.pi)
+    return [None if inside[i] else (centre_dirs[starts[i]:starts[i + 1]], spread[starts[i]:starts[i + 1]])
+            for i in range(len(ks))]
 
 
 def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None = None,

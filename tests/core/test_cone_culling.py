@@ -33,7 +33,7 @@ def rays_on_cone_rims(frame_set, seed: int):
     shared = (0.0, EYE)
     batches = []
     for k in frame_set.geometry:
-        cones = tracer._cones(frame_set, frame_set.world, k, shared)
+        cones = tracer._cones(frame_set, frame_set.world, [k], shared)[0]
         for axis, spread in zip(*cones):
             t1 = np.cross(axis, [0.0, 0.0, 1.0])
             t1 /= np.linalg.norm(t1)
@@ -58,14 +58,25 @@ def test_run_by_run_cull_keeps_every_ray_the_per_ray_test_keeps():
     shared = (0.0, EYE)
     bundle = (*tracer._bundle_cone(d), tracer._sub_bundle_cones(d))
     dropped = 0
-    for k in frame_set.geometry:
-        axes, spread = tracer._cones(frame_set, frame_set.world, k, shared)
+    for cones in tracer._cones(frame_set, frame_set.world, list(frame_set.geometry), shared):
+        axes, spread = cones
         per_ray = np.flatnonzero((axes @ d.T >= np.cos(spread)[:, None]).any(axis=0))
-        kept = tracer._toward(frame_set, frame_set.world, k, shared, d, bundle, None)
+        kept = tracer._toward(cones, d, bundle)
         assert kept is not None
         assert np.isin(per_ray, kept).all()
         dropped += len(d) - len(kept)
     assert dropped > 0
+
+
+def test_cones_of_frames_at_once_are_those_of_each_frame():
+    frame_set = frames()
+    ks = list(frame_set.geometry)
+    together = tracer._cones(frame_set, frame_set.world, ks, (0.0, EYE))
+    for k, cones in zip(ks, together):
+        alone = tracer._cones(frame_set, frame_set.world, [k], (0.0, EYE))[0]
+        assert all(np.array_equal(a, b) for a, b in zip(cones, alone))
+    inside = tracer._cones(frame_set, frame_set.world, ks, (0.0, np.array([-6.0, 0.0, 0.0])))  # in bar0
+    assert inside[0] is None and all(cones is not None for cones in inside[1:])
 
 
 def test_culled_trace_finds_the_hits_of_an_unculled_one(monkeypatch):
