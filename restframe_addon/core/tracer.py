@@ -286,6 +286,7 @@ class TraceCache:
         if missing:
             if len(self._cones) + len(missing) > self._MAX_CONES:
                 self._cones.clear()
+                missing = list(range(len(keys)))
             for i, cones in zip(missing, compute(missing)):
                 self._cones[keys[i]] = cones
         return [self._cones[key] for key in keys]

@@ -92,3 +92,14 @@ def test_culled_trace_finds_the_hits_of_an_unculled_one(monkeypatch):
     assert 0.05 < hit.mean() < 0.95
     for f in fields(culled):  # (what a missing ray carries besides is no result)
         assert np.array_equal(getattr(culled, f.name)[hit], getattr(unculled, f.name)[hit]), f.name
+
+
+def test_a_full_cone_cache_starts_afresh(monkeypatch):
+    frame_set = frames()
+    ks = list(frame_set.geometry)
+    cache = tracer.TraceCache()
+    kept = tracer._frame_cones(frame_set, frame_set.world, ks[:2], (0.0, EYE), cache)
+    monkeypatch.setattr(tracer.TraceCache, "_MAX_CONES", 3)
+    more = tracer._frame_cones(frame_set, frame_set.world, ks, (0.0, EYE), cache)  # two kept, the rest past the limit
+    assert len(more) == len(ks)
+    assert all(np.array_equal(a, b) for cones, again in zip(kept, more[:2]) for a, b in zip(cones, again))
