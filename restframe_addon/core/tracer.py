@@ -279,12 +279,17 @@ class TraceCache:
         self._cones: dict = {}
         self._body_boxes: dict[int, tuple] = {}
 
-    def cones(self, key, compute):
-        if key not in self._cones:
-            if len(self._cones) > self._MAX_CONES:
+    def cones(self, keys: list, compute) -> list:
+        """The cones kept under each key; ``compute(missing)`` works out, at once, those of the
+        keys at the indices ``missing``."""
+        missing = [i for i, key in enumerate(keys) if key not in self._cones]
+        if missing:
+            if len(self._cones) + len(missing) > self._MAX_CONES:
                 self._cones.clear()
-            self._cones[key] = compute()
-        return self._cones[key]
+                missing = list(range(len(keys)))
+            for i, cones in zip(missing, compute(missing)):
+                self._cones[keys[i]] = cones
+        return [self._cones[key] for key in keys]
 
     def body_boxes(self, frames: FrameSet, src: int):
         if src not in self._body_boxes:
@@ -357,11 +362,14 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
     candidates = frames.candidates(src, tau0, x0)
     shared = _shared_origin(tau0, x0)
     bundle = _bundle_cone(d) if shared is not None and len(candidates) > 1 and n else None
+    if bundle is not None:
+        bundle = (*bundle, _sub_bundle_cones(d))
+        cones = dict(zip(candidates, _frame_cones(frames, src, candidates, shared, cache)))
     for k in candidates:
         frame = frames.frames[k]
         fmap = frames.map(src, k)
         # culling by bounding cones pays off only when several frames share the rays
-        rays = _toward(frames, src, k, shared, d, bundle, cache) if bundle is not None else None
+        rays = _toward(cones[k], d, bundle) if bundle is not None else None
         if rays is not None and len(rays) == 0:
             continue
         d_rays, lo, hi = (d, s_lo, best) if rays is None else (rows.take(d, rays), s_lo[rays], best[rays])
@@ -452,30 +460,65 @@ def _shared_origin(tau0, x0):
 _CONE_SAMPLES = 16
 
 
-def _toward(frames: FrameSet, src: int, k: int, origin_event, d, bundle, cache: TraceCache | None):
-    """Indices of rays from one event that point into a cone subtended there by one of the
-    frame's bounding spheres, or None when every ray may (the event is inside a sphere, or
-    the bundle's own cone lies inside one).
+def _toward(cones, d, bundle):
+    """Indices of rays from one event that point into one of a frame's sphere ``cones`` (see
+    :func:`_cones`; or a superset of those rays), or None when every ray may (the event is
+    inside a sphere, or the bundle's own cone lies inside one).
 
-    ``bundle`` = (axis, half-angle) of a cone holding every ray: sphere cones that miss it are
-    skipped and, where one holds it whole, no ray needs testing.
+    ``bundle`` = (axis, half-angle, sub-bundles) of a cone holding every ray and of cones holding
+    runs of rays (:func:`_sub_bundle_cones`): sphere cones that miss the bundle's are skipped and,
+    where one holds it whole, no ray needs testing; then each run that lies in a sphere cone is
+    taken whole and one that misses them all is dropped whole, before the rays of the other runs
+    are tested one by one.
     """
-    if cache is None:
-        cones = _cones(frames, src, k, origin_event)
-    else:
-        key = (src, k, origin_event[0], *origin_event[1].tolist())
-        cones = cache.cones(key, lambda: _cones(frames, src, k, origin_event))
     if cones is None:
         return None
     axes, spread = cones
-    bundle_axis, bundle_angle = bundle
+    bundle_axis, bundle_angle, (run_axes, run_cos, run_sin) = bundle
     apart = np.arccos(np.clip(axes @ bundle_axis, -1.0, 1.0))
     if np.any(apart + bundle_angle <= spread):
         return None
     meeting = np.flatnonzero(apart <= spread + bundle_angle)
-    # every ray against every cone at once: one (m, 3) x (3, n) product, reduced over the cones
-    inside = (axes[meeting] @ d.T >= np.cos(spread[meeting])[:, None]).any(axis=0)
+    axes, spread = axes[meeting], spread[meeting]
+    inside = np.zeros(len(d), dtype=bool)
+    tested = np.arange(_RUN * len(run_axes), len(d))  # the rays past the last whole run: one by one
+    if len(run_axes):
+        # the cone of cones: each run against each sphere cone by the cosine of sums of angles
+        # (m, b); a run is taken whole where it lies in a cone, dropped where it misses them all
+        apart = axes @ run_axes.T
+        cos_spread, sin_spread = np.cos(spread)[:, None], np.sin(spread)[:, None]
+        whole = ((apart >= cos_spread * run_cos + sin_spread * run_sin) & (run_cos >= cos_spread)).any(axis=0)
+        clear = spread + _RUN_MARGIN
+        missable = (clear < np.pi / 2)[:, None] & (run_cos > 0.0)  # the sum of the angles below pi
+        meets = ~missable | (apart >= np.cos(clear)[:, None] * run_cos - np.sin(clear)[:, None] * run_sin - 1e-12)
+        partial = np.flatnonzero(~whole & meets.any(axis=0))
+        inside[:_RUN * len(run_axes)].reshape(-1, _RUN)[whole] = True
+        tested = np.append((partial[:, None] * _RUN + np.arange(_RUN)).ravel(), tested)
+    if len(tested):
+        # those rays against every cone at once: one (m, 3) x (3, r) product, reduced over the cones
+        inside[tested] = (axes @ rows.take(d, tested).T >= np.cos(spread)[:, None]).any(axis=0)
     return np.flatnonzero(inside)
+
+
+_RUN = 16  # rays per sub-bundle (consecutive rays: a run of pixels in a row of the tile)
+_RUN_MARGIN = 1e-6  # radians: a run is dropped whole only this far clear of every cone (rounding)
+
+
+def _sub_bundle_cones(d):
+    """(axes (b, 3), cosines and sines of the half-angles (b,)) of cones holding each run of
+    ``_RUN`` consecutive directions d (the rays past the last whole run are left out)."""
+    count = len(d) // _RUN
+    # one axis at a time: numpy is slow along a length-3 last axis
+    columns = [d[:count * _RUN, axis].reshape(count, _RUN) for axis in range(3)]
+    axes = np.stack([column.sum(axis=1) for column in columns], axis=1)
+    length = np.linalg.norm(axes, axis=1)
+    spread_out = length < 1e-9 * _RUN  # directions that cancel: no axis, the cone holds every direction
+    axes /= np.where(spread_out, 1.0, length)[:, None]
+    cosines = columns[0] * axes[:, :1]
+    cosines += columns[1] * axes[:, 1:2]
+    cosines += columns[2] * axes[:, 2:]
+    run_cos = np.where(spread_out, -1.0, np.clip(cosines.min(axis=1), -1.0, 1.0))
+    return axes, run_cos, np.sqrt(1.0 - run_cos * run_cos)
 
 
 def _bundle_cone(d):
@@ -488,43 +531,66 @@ def _bundle_cone(d):
     return axis, float(np.arccos(np.clip((d @ axis).min(), -1.0, 1.0)))
 
 
-def _cones(frames: FrameSet, src: int, k: int, origin_event):
-    """(axes (m, 3), half-angles (m,)) in frame src of the cones that frame k's bounding spheres
-    subtend at one event, or None when the event is inside one.
+def _frame_cones(frames: FrameSet, src: int, ks, origin_event, cache: TraceCache | None) -> list:
+    """The cones of the frames ``ks`` seen from one event (:func:`_cones`), from the thread's
+    cache where it has them: they depend on the event alone, so every tile of a perspective
+    camera shares them."""
+    if cache is None:
+        return _cones(frames, src, ks, origin_event)
+    event = (origin_event[0], *origin_event[1].tolist())
+    return cache.cones([(src, k, *event) for k in ks],
+                       lambda missing: _cones(frames, src, [ks[i] for i in missing], origin_event))
+
+
+def _cones(frames: FrameSet, src: int, ks, origin_event) -> list:
+    """Per frame k of ``ks``: (axes (m, 3), half-angles (m,)) in frame src of the cones that
+    frame k's bounding spheres subtend at one event, or None when the event is inside one.
 
     Each cone is built in frame k and mapped to frame src by aberration, which maps circles
     on the sky to circles: its image is found from ``_CONE_SAMPLES`` rim directions around
-    the mapped axis, widened by a margin for the sampling.
+    the mapped axis, widened by a margin for the sampling.  All frames' spheres at once, but
+    for the two maps of each frame.
     """
-    frame = frames.frames[k]
-    geometry = frame.geometry
-    _, x_k = frames.map(src, k).events(np.array(origin_event[0]), origin_event[1])
-    if frame.spin is not None:  # any pose: the sphere about the pivot
-        spheres = np.array([[*frame.offset, geometry.radius]])
-    else:
-        spheres = geometry.clusters + np.append(frame.offset, 0.0)
-    pad = 2 * _PAD * geometry.extent + 1e-9 * (1.0 + float(np.max(np.abs(spheres[:, :3]))))
-    offset = spheres[:, :3] - x_k
+    spheres, eyes, pads = [], [], []
+    for k in ks:
+        frame = frames.frames[k]
+        geometry = frame.geometry
+        _, x_k = frames.map(src, k).events(np.array(origin_event[0]), origin_event[1])
+        if frame.spin is not None:  # any pose: the sphere about the pivot
+            frame_spheres = np.array([[*frame.offset, geometry.radius]])
+        else:
+            frame_spheres = geometry.clusters + np.append(frame.offset, 0.0)
+        spheres.append(frame_spheres)
+        eyes.append(x_k)
+        pads.append(2 * _PAD * geometry.extent + 1e-9 * (1.0 + float(np.max(np.abs(frame_spheres[:, :3])))))
+    counts = np.array([len(frame_spheres) for frame_spheres in spheres])
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    spheres = np.concatenate(spheres)
+    offset = spheres[:, :3] - np.repeat(np.array(eyes), counts, axis=0)
     distance = np.linalg.norm(offset, axis=1)
-    radius = spheres[:, 3] + pad
-    cones = None
-    if not np.any(distance <= radius * 1.01):
+    radius = spheres[:, 3] + np.repeat(pads, counts)
+    inside = np.add.reduceat(distance <= radius * 1.01, starts[:-1]) > 0
+    with np.errstate(divide="ignore", invalid="ignore"):  # (at a sphere's centre: the frame has no cones)
         axes = offset / distance[:, None]
-        half = np.arcsin(radius / distance)
+        half = np.arcsin(np.minimum(radius / distance, 1.0))
         t1 = np.cross(axes, np.where(np.abs(axes[:, :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
         t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-        t2 = np.cross(axes, t1)
-        phi = np.linspace(0.0, 2 * np.pi, _CONE_SAMPLES, endpoint=False)
-        rim = (np.cos(half)[:, None, None] * axes[:, None, :]
-               + np.sin(half)[:, None, None] * (np.cos(phi)[None, :, None] * t1[:, None, :]
-                                                + np.sin(phi)[None, :, None] * t2[:, None, :]))
-        directions = np.concatenate([axes[:, None, :], rim], axis=1).reshape(-1, 3)
-        src_dirs, _ = frames.map(k, src).rays(directions)
-        src_dirs = src_dirs.reshape(len(spheres), _CONE_SAMPLES + 1, 3)
-        centre_dirs = src_dirs[:, 0]
-        spread = np.max(np.arccos(np.clip(np.einsum("kij,kj->ki", src_dirs[:, 1:], centre_dirs), -1.0, 1.0)), axis=1)
-        cones = centre_dirs, np.minimum(spread * 1.05 + 1e-9, np.pi)
-    return cones
+    t2 = np.cross(axes, t1)
+    phi = np.linspace(0.0, 2 * np.pi, _CONE_SAMPLES, endpoint=False)
+    rim = (np.cos(half)[:, None, None] * axes[:, None, :]
+           + np.sin(half)[:, None, None] * (np.cos(phi)[None, :, None] * t1[:, None, :]
+                                            + np.sin(phi)[None, :, None] * t2[:, None, :]))
+    directions = np.concatenate([axes[:, None, :], rim], axis=1)
+    src_dirs = np.zeros_like(directions)
+    for i, k in enumerate(ks):
+        if not inside[i]:
+            frame_dirs = directions[starts[i]:starts[i + 1]].reshape(-1, 3)
+            src_dirs[starts[i]:starts[i + 1]] = frames.map(k, src).rays(frame_dirs)[0].reshape(-1, _CONE_SAMPLES + 1, 3)
+    centre_dirs = src_dirs[:, 0]
+    spread = np.max(np.arccos(np.clip(np.einsum("kij,kj->ki", src_dirs[:, 1:], centre_dirs), -1.0, 1.0)), axis=1)
+    spread = np.minimum(spread * 1.05 + 1e-9, np.pi)
+    return [None if inside[i] else (centre_dirs[starts[i]:starts[i + 1]], spread[starts[i]:starts[i + 1]])
+            for i in range(len(ks))]
 
 
 def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None = None,
