@@ -452,6 +452,9 @@ class Shader:
 
     def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample, lam, cache):
         frame = self.frames.frames[k]
+        secondary = self.materials.traces_secondary and depth < self.max_bounces
+        if not self.lights and not secondary:  # emission alone: no normals, texture or base colour needed
+            return self._emission(frame, tau, prim, self.materials.clamp(frame.geometry.tri_material[prim]), lam)
         position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau)
         uv = hit_uv(frame, prim, u, v)
         base = self.colour.base_color(mat, uv, lam)
@@ -459,14 +462,23 @@ class Shader:
         if self.lights and one is not None and not self.materials.emits[one]:  # the direct light alone
             values = self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
         else:
-            values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
-            if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
-                values *= self.materials.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
+            values = self._emission(frame, tau, prim, mat, lam)
             if self.lights:
                 values += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
-        if self.materials.traces_secondary and depth < self.max_bounces:
+        if secondary:
             values += self._secondary(k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam,
                                       cache)
+        return values
+
+    def _emission(self, frame, tau, prim, mat, lam):
+        """The surfaces' own emission at hits of one frame (a new array)."""
+        one = _only_material(mat)
+        if not self.materials.emission_curves and not (self.materials.emits[one] if one is not None
+                                                       else self.materials.emits[mat].any()):
+            return np.zeros((len(mat), self.colour.channels))  # (a spectrum scaled by 0 is 0 at every wavelength)
+        values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
+        if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
+            values *= self.materials.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
         return values
 
     def shading_normals(self, k: int, prim, u, v, d_k, tau_hit=None):
