@@ -370,10 +370,12 @@ class Shader:
             if sel is None:
                 continue
             fmap = self.frames.map(src, int(k))
-            d_k, w = _take(hits.d_frame, sel), _take(hits.w, sel)
+            frame = self.frames.frames[k]
+            # the directions only where they matter: shading beyond emission, a spinning surface's Doppler factor
+            d_k = None if self._emission_only(depth) and frame.spin is None else _take(hits.d_frame, sel)
+            w = _take(hits.w, sel)
             tau_hit = hit_times(hits, sel)
             prim, u, v = _take(hits.prim, sel), _take(hits.u, sel), _take(hits.v, sel)
-            frame = self.frames.frames[k]
             if fmap.is_identity and frame.spin is None:  # at rest with the viewer: D = 1
                 values[sel] = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, _take(pixel, sel),
                                                   _take(sample, sel), _rows(lam, sel), cache)
@@ -452,8 +454,7 @@ class Shader:
 
     def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample, lam, cache):
         frame = self.frames.frames[k]
-        secondary = self.materials.traces_secondary and depth < self.max_bounces
-        if not self.lights and not secondary:  # emission alone: no normals, texture or base colour needed
+        if self._emission_only(depth):  # no normals, texture or base colour needed
             return self._emission(frame, tau, prim, self.materials.clamp(frame.geometry.tri_material[prim]), lam)
         position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau)
         uv = hit_uv(frame, prim, u, v)
@@ -465,10 +466,18 @@ class Shader:
             values = self._emission(frame, tau, prim, mat, lam)
             if self.lights:
                 values += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
-        if secondary:
+        if self._bounces(depth):
             values += self._secondary(k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam,
                                       cache)
         return values
+
+    def _emission_only(self, depth: int) -> bool:
+        """Whether hits at this depth give their emission alone (no lights, no secondary rays)."""
+        return not self.lights and not self._bounces(depth)
+
+    def _bounces(self, depth: int) -> bool:
+        """Whether hits at this depth may send secondary (mirror, glass) rays."""
+        return self.materials.traces_secondary and depth < self.max_bounces
 
     def _emission(self, frame, tau, prim, mat, lam):
         """The surfaces' own emission at hits of one frame (a new array)."""

@@ -385,7 +385,8 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
                         s_frame=np.where(nearer, t, np.inf), w=np.ones(n) if w is None else w,
                         prim=np.where(nearer, prim, np.int32(-1)), u=u, v=v,
                         d_frame=dk if last else np.array(dk), tau_frame=tau_k if last else np.array(tau_k))
-            best = np.minimum(best, s)
+            if not last:  # (the later frames' bound)
+                best = np.minimum(best, s)
             continue
         if hits is None:
             hits = _no_hits(n)
