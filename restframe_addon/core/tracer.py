@@ -717,16 +717,20 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None):
     geometry = frame.geometry
     corners = rows.take(geometry.triangles, prim)
     p0, p1, p2 = (rows.take(geometry.vertices, corners[:, i]) for i in range(3))
-    u = np.asarray(u, dtype=np.float64)
-    v = np.asarray(v, dtype=np.float64)
     p1 -= p0  # the edges out of the first corner
     p2 -= p0
-    position = rows.add_scaled(rows.add_scaled(p0, u, p1), v, p2)
+    # p0 + u e1 + v e2, summed into p0's own array column by column (float32 u, v widen exactly)
+    position, term = p0, np.empty(len(p0))
+    for axis in range(3):
+        position[:, axis] += np.multiply(u, p1[:, axis], out=term)
+        position[:, axis] += np.multiply(v, p2[:, axis], out=term)
     ng = triangle_normals(p1, p2)  # Geometry.face_normals, from the edges at hand
     if geometry.corner_normals is None:
         ns = ng
     else:
         cn = rows.take(geometry.corner_normals, prim)
+        u = np.asarray(u, dtype=np.float64)
+        v = np.asarray(v, dtype=np.float64)
         ns = rows.normalized(rows.add_scaled(rows.add_scaled(rows.scale(cn[:, 0], 1.0 - u - v), u, cn[:, 1]), v, cn[:, 2]))
     position, ng = frame.to_frame(position, ng, tau)
     if frame.spin is not None:
