@@ -82,8 +82,8 @@ def facing_normals(frame: RestFrame, prim, u, v, d_k, tau_hit=None):
     for normals in (ng,) if ns is ng else (ng, ns):  # (hit_geometry's own arrays: turned in place)
         for axis in range(3):
             np.negative(normals[:, axis], out=normals[:, axis], where=back)
-    if ns is ng:
-        ns = ng.copy()
+    if ns is ng:  # flat: the turned normal faces the viewer (or grazes it)
+        return position, ng, ng.copy(), back
     away = rows.dot(ns, d_k) >= 0.0
     if away.any():
         ns[away] = rows.take(ng, away)

@@ -407,8 +407,16 @@ def _per_ray(value, n: int) -> np.ndarray:
 
 
 def frames_hit(hits: Hits) -> np.ndarray:
-    """The frames that some ray hit (a count per frame: no sort of the whole bundle)."""
-    return np.flatnonzero(np.bincount(hits.frame + 1)[1:])
+    """The frames that some ray hit, in increasing order (a count per frame: no sort of the whole bundle)."""
+    frame = hits.frame
+    if len(frame) == 0:
+        return np.zeros(0, dtype=np.intp)
+    highest = int(frame.max())
+    # read as unsigned, a miss (-1) is the largest number: the minimum is the lowest frame hit
+    lowest = int(frame.view(np.dtype(f"u{frame.itemsize}")).min())
+    if highest < 0 or lowest == highest:  # nothing hit, or one frame (the common case): two fast reductions
+        return np.arange(max(highest, 0), highest + 1, dtype=np.intp)
+    return np.flatnonzero(np.bincount(frame + 1)[1:])
 
 
 def _no_hits(n: int) -> Hits:
