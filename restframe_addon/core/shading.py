@@ -369,13 +369,18 @@ class Shader:
             sel = _selection(hits.frame == k if held is None else (hits.frame == k) & ~held)
             if sel is None:
                 continue
-            fmap = self.frames.map(src, int(k))
             frame = self.frames.frames[k]
+            prim = _take(hits.prim, sel)
+            emission_only = self._emission_only(depth)
+            if emission_only and self._dark(frame, prim):  # black whatever its Doppler factor (it is finite)
+                values[sel] = 0.0
+                continue
+            fmap = self.frames.map(src, int(k))
             # the directions only where they matter: shading beyond emission, a spinning surface's Doppler factor
-            d_k = None if self._emission_only(depth) and frame.spin is None else _take(hits.d_frame, sel)
+            d_k = None if emission_only and frame.spin is None else _take(hits.d_frame, sel)
             w = _take(hits.w, sel)
             tau_hit = hit_times(hits, sel)
-            prim, u, v = _take(hits.prim, sel), _take(hits.u, sel), _take(hits.v, sel)
+            u, v = _take(hits.u, sel), _take(hits.v, sel)
             if fmap.is_identity and frame.spin is None:  # at rest with the viewer: D = 1
                 values[sel] = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, _take(pixel, sel),
                                                   _take(sample, sel), _rows(lam, sel), cache)
@@ -479,12 +484,16 @@ class Shader:
         """Whether hits at this depth may send secondary (mirror, glass) rays."""
         return self.materials.traces_secondary and depth < self.max_bounces
 
+    def _dark(self, frame, prim) -> bool:
+        """Whether none of these hits' surfaces emits (their emission is 0 at every wavelength)."""
+        if self.materials.emission_curves:
+            return False
+        mat = self.materials.clamp(frame.geometry.tri_material[prim])
+        one = _only_material(mat)
+        return not (self.materials.emits[one] if one is not None else self.materials.emits[mat].any())
+
     def _emission(self, frame, tau, prim, mat, lam):
         """The surfaces' own emission at hits of one frame (a new array)."""
-        one = _only_material(mat)
-        if not self.materials.emission_curves and not (self.materials.emits[one] if one is not None
-                                                       else self.materials.emits[mat].any()):
-            return np.zeros((len(mat), self.colour.channels))  # (a spectrum scaled by 0 is 0 at every wavelength)
         values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
         if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
             values *= self.materials.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
