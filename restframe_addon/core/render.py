@@ -110,10 +110,13 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     held /= samples
     # holdouts are holes in the image whether or not the film is transparent (as in Cycles)
     alpha = coverage - held if settings.film_transparent else 1.0 - held
-    passes["Combined"] = np.concatenate([rgb, alpha[:, None]], axis=1)
+    combined = np.empty((n, 4), dtype=np.float32)  # rounded to float32 once, as every pass
+    combined[:, :3], combined[:, 3] = rgb, alpha
+    passes["Combined"] = combined
     for name, total in denoising.items():
         passes[name] = total / samples
-    return Tile(x0, y0, x1, y1, {k: v.reshape(h, w, -1).astype(np.float32) for k, v in passes.items()}, complete)
+    return Tile(x0, y0, x1, y1, {k: v.reshape(h, w, -1).astype(np.float32, copy=False) for k, v in passes.items()},
+                complete)
 
 
 def _per_pixel(values, m: int, count: int):
