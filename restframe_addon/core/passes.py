@@ -119,7 +119,7 @@ def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
     if "Emission Time" in wanted:
         # world time of the hit event: back along the ray in the camera frame, then into S
         s_hit = hits.s[hit]
-        shared = n > 0 and x.strides[0] == 0 and tau.strides[0] == 0  # one observation event (broadcast views): no gathers
+        shared = n > 0 and x.strides[0] == 0 and tau.strides[0] == 0  # one event (broadcast views): no gathers
         world_tau, _ = frames.map(frames.camera, frames.world).events(
             (tau[0] if shared else tau[hit]) - s_hit,
             rows.add_scaled(x[0] if shared else rows.take(x, hit), s_hit, rows.take(d, hit)))
