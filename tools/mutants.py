@@ -196,6 +196,21 @@ MUTANTS = (
            (Patch(CORE + "integrator.py", "lam = colour.shift(state.lam, doppler)", "lam = state.lam"),),
            ("tests/core/test_integrator.py::test_emitter_samples_and_bounce_rays_agree_across_frames",
             "tests/core/test_integrator.py::test_moving_wall_bleeds_doppler_shifted_colour_onto_a_static_floor")),
+    Mutant("lamp-hit-searchlight", "a moving lamp found by a bounce ray brings its radiance times D^2, not D^4",
+           (Patch(CORE + "integrator.py", "weight = radiance * self.shader.searchlight_power(doppler, 4) * mis.",
+                  "weight = radiance * self.shader.searchlight_power(doppler, 2) * mis."),),
+           ("tests/core/test_integrator.py::test_lamp_samples_and_bounce_rays_agree_across_frames",)),
+    Mutant("lamp-mis-jacobian", "a bounce ray's MIS weight against a moving lamp's samples uses the lamp's density "
+                                "in its own frame (no aberration Jacobian D^2)",
+           (Patch(CORE + "integrator.py", "state.pdf[sel], frame_pdf(pdf_j, doppler))", "state.pdf[sel], pdf_j)"),),
+           ("tests/core/test_integrator.py::test_lamp_samples_and_bounce_rays_agree_across_frames",)),
+    Mutant("rough-glass-fresnel-dropped", "light refracted through a rough microfacet not weighed by 1 - Fresnel",
+           (Patch(CORE + "bsdf.py", "through = 1.0 - fresnel_dielectric(rows.dot(view, h), eta)",
+                  "through = np.ones(len(n))"),),
+           ("tests/core/test_bsdf_glass.py",)),
+    Mutant("coat-does-not-dim", "the lobes under a coat get all the light the coat also reflects",
+           (Patch(CORE + "integrator.py", "under = (1.0 - albedo)[:, None]", "under = np.ones((n, 1))"),),
+           ("tests/core/test_bsdf_glass.py::test_a_clear_coat_over_white_keeps_the_furnace_white",)),
 )
 
 

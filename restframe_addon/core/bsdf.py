@@ -256,6 +256,26 @@ def refract(view, h, eta):
     return out, ok
 
 
+def sample_ggx_transmission(n, view, eta, alpha, u1, u2):
+    """Directions through a rough dielectric interface (the transmission half of
+    :func:`dielectric_eval`, Walter et al. 2007): a visible microfacet normal h, the view refracted
+    through it.  eta = n_view / n_other per ray.
+
+    Returns (light, weight): the scalar throughput weight f_t |cos_l| / pdf_t = (1 - F(v.h)) G2 / G1(v)
+    (0 where h reflects totally or sends the ray back to the viewer's side: such samples are lost),
+    pdf_t the density of this sampler alone, :func:`dielectric_eval`'s pdf / (1 - F).
+    """
+    h = sample_ggx_vndf(n, view, alpha, u1, u2)
+    light, ok = refract(view, h, eta)
+    cos_v = np.maximum(rows.dot(n, view), _MIN_COS)
+    cos_l = -rows.dot(n, light)
+    ok &= cos_l > 0.0
+    masking = 1.0 + ggx_lambda(cos_v, alpha)  # 1 / G1(v)
+    through = 1.0 - fresnel_dielectric(rows.dot(view, h), eta)
+    weight = np.where(ok, through * masking / (masking + ggx_lambda(np.maximum(cos_l, _MIN_COS), alpha)), 0.0)
+    return light, weight
+
+
 def _glass_half_vector(n, view, light, eta):
     """Microfacet normal joining view and light (reflection or refraction), on n's side."""
     transmitted = rows.dot(n, light) < 0.0
@@ -354,7 +374,7 @@ def fresnel_average_dielectric(eta):
 
 def _microfacet_quadrature(alpha, mu, strata):
     """Nodes of the integral over microfacet normals h about n = z, seen from cos_v = mu (in the
-    x-z plane): (v.h, cos_l, cos_h, weight), each broadcast to (mu, s, phi), where weight
+    x-z plane): (v.h, cos_l of the reflection, weight, cos_h), each broadcast to (mu, s, phi), where weight
     includes D(h) dOmega_h.  tan(theta_h) = alpha tan(pi s / 2), Gauss-Legendre in s, makes
     D(h) dOmega_h bounded and smooth, heavy GGX tail included (a midpoint grid of the
     visible-normal sampler misses that tail)."""
@@ -370,7 +390,7 @@ def _microfacet_quadrature(alpha, mu, strata):
     cos_l = 2.0 * v_h * cos_h - mu
     # D(h) sin(theta_h) dtheta_h / ds, simplified, times the Gauss-Legendre and phi weights
     weight = t / (2.0 * cos_h * (1.0 + t * t)) * (0.5 * w_s)[None, :, None] * (np.pi / strata)
-    return v_h, cos_l, weight
+    return v_h, cos_l, weight, cos_h
 
 
 def _albedo_integrand(alpha, mu, v_h, cos_l):
@@ -388,7 +408,7 @@ def _albedo_tables():
     albedo = np.empty((len(knots), len(knots)))
     for i, roughness in enumerate(knots):
         alpha = max(roughness * roughness, 1e-4)
-        v_h, cos_l, weight = _microfacet_quadrature(alpha, mu, _ALBEDO_STRATA)
+        v_h, cos_l, weight, _ = _microfacet_quadrature(alpha, mu, _ALBEDO_STRATA)
         albedo[i] = np.sum(_albedo_integrand(alpha, mu[:, None, None], v_h, cos_l) * weight, axis=(1, 2))
     x, w = np.polynomial.legendre.leggauss(24)
     nodes = 0.5 * (x + 1.0)
@@ -435,7 +455,7 @@ def _dielectric_albedo_table():
     table = np.empty((len(knots), len(knots), len(knots)))
     for i, roughness in enumerate(knots):
         alpha = max(roughness * roughness, 1e-4)
-        v_h, cos_l, weight = _microfacet_quadrature(alpha, mu, _SPECULAR_STRATA)
+        v_h, cos_l, weight, _ = _microfacet_quadrature(alpha, mu, _SPECULAR_STRATA)
         albedo = _albedo_integrand(alpha, mu[:, None, None], v_h, cos_l) * weight
         shape = np.clip((fresnel_dielectric(v_h[None], eta) - real_f0) / (1.0 - real_f0), 0.0, 1.0)
         table[i] = (np.sum(shape * albedo[None], axis=(2, 3)) / np.sum(albedo, axis=(1, 2))[None, :]).T
@@ -482,3 +502,44 @@ def ggx_energy_compensation(cos_v, alpha, fresnel_average):
     e_avg = ggx_average_albedo(alpha)[:, None]
     f_ms = fresnel_average * e_avg / (1.0 - fresnel_average * (1.0 - e_avg))
     return 1.0 + f_ms * (1.0 - e) / e
+
+
+@lru_cache(maxsize=1)
+def _glass_albedo_tables():
+    """E(roughness, cos_v, z) of single-scattering GGX glass (reflection and refraction, Fresnel of
+    the interface, as :func:`dielectric_eval`), for light arriving from outside (eta = n_view / n_other
+    = 1 / ior) and from inside (eta = ior), ior = (1 + z^2) / (1 - z^2)."""
+    knots = np.linspace(0.0, 1.0, _SPECULAR_KNOTS)
+    mu = np.maximum(knots, 1e-4)
+    z = np.minimum(knots, 0.99)[:, None, None, None]
+    ior = (1.0 + z * z) / (1.0 - z * z)
+    tables = []
+    for eta in (1.0 / ior, ior):
+        table = np.empty((len(knots), len(knots), len(knots)))
+        for i, roughness in enumerate(knots):
+            alpha = max(roughness * roughness, 1e-4)
+            v_h, cos_r, weight, cos_h = _microfacet_quadrature(alpha, mu, _SPECULAR_STRATA)
+            m = mu[:, None, None]
+            fresnel = fresnel_dielectric(v_h[None], eta)
+            k2 = 1.0 - eta**2 * (1.0 - v_h[None] ** 2)
+            cos_t = -eta * m + (eta * v_h[None] - np.sqrt(np.maximum(k2, 0.0))) * cos_h  # the refracted ray's
+            g1 = 1.0 + ggx_lambda(m, alpha)
+            g2_r = 1.0 / (g1 + ggx_lambda(np.maximum(cos_r, _MIN_COS), alpha))
+            g2_t = 1.0 / (g1 + ggx_lambda(np.maximum(-cos_t, _MIN_COS), alpha))
+            visible = np.where(v_h > 0.0, v_h / m, 0.0)[None] * weight[None]  # D (v.h) / cos_v dOmega_h
+            integrand = (np.where(cos_r[None] > 0.0, fresnel * g2_r, 0.0)
+                         + np.where((k2 > 0.0) & (cos_t < 0.0), (1.0 - fresnel) * g2_t, 0.0))
+            table[i] = np.sum(integrand * visible, axis=(2, 3)).T
+        tables.append(table)
+    return knots, tables
+
+
+def ggx_glass_albedo(cos_v, alpha, eta):
+    """Directional albedo of single-scattering GGX glass seen from cos_v (reflection plus
+    transmission, < 1 by what the microfacets scatter more than once); eta = n_view / n_other
+    (below 1: from outside).  Cycles scales its multiscatter glass by 1 / this (energy preserved)."""
+    knots, (outside, inside) = _glass_albedo_tables()
+    ior = np.where(eta < 1.0, 1.0 / eta, eta)
+    z = np.sqrt(np.abs((ior - 1.0) / (ior + 1.0)))
+    a = np.sqrt(alpha)
+    return np.where(eta < 1.0, _trilinear(outside, knots, a, cos_v, z), _trilinear(inside, knots, a, cos_v, z))

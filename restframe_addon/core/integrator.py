@@ -21,7 +21,9 @@ past a limit only adds what the ray found (emission, world), Russian roulette af
 (indirect) scatterings.
 
 All paths of a batch advance together (one numpy call per frame and bounce); random
-numbers are keyed by (pixel, sample, dimension), so tiles stay independent.
+numbers are keyed by (pixel, sample, dimension), so tiles stay independent, and the world
+sample and the scattering direction of each vertex are stratified over a pixel's samples
+(:func:`~.sampling.stratified_pair`: per sample uniform, together even, as Cycles' sequences).
 """
 
 from __future__ import annotations
@@ -29,20 +31,24 @@ from __future__ import annotations
 import numpy as np
 
 from . import mis, rows, sampling
-from .emitters import EmitterTable, solid_angle_pdf
-from .bsdf import diffuse_pdf, ggx_reflection_pdf, reflect, refract, sample_diffuse, sample_ggx_reflection
+from .emitters import EmitterTable, LampShape, solid_angle_pdf
+from .bsdf import (dielectric_f0, diffuse_pdf, fresnel_average_dielectric, fresnel_dielectric, ggx_dielectric_albedo,
+                   ggx_energy_compensation, ggx_g2, ggx_glass_albedo, ggx_ndf, ggx_reflection_pdf, reflect, refract,
+                   sample_diffuse, sample_ggx_reflection, sample_ggx_transmission)
 from .passes import hit_doppler, hit_times
 from .scene import RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_TRANSMISSION, RenderSettings, Scene
-from .shading import LayeredLobes, Shader, _cutout_dimension, hit_uv
+from .shading import _MIN_ALPHA, MIRROR_ROUGHNESS, LayeredLobes, PreparedLight, Shader, _cutout_dimension, hit_uv
 from .tracer import Hits, TraceCache, frames_hit, occluded
 from .world import EnvironmentWorld, UniformWorld, frame_pdf, mapping_rotation
 
 RR_START = 3  # bounces without Russian roulette
 _DIMENSION = 1 << 20  # first random-number dimension of the path tracer (the direct light uses 1000 + ...)
 _DIMENSIONS_PER_BOUNCE = 16
-_DIFFUSE, _GLOSSY, _MIRROR, _TRANSMIT = range(4)  # lobes
-_KIND_OF_LOBE = np.array([1, 2, 2, 3])  # bounce counters: 0 total, 1 diffuse, 2 glossy (mirror too), 3 transmission
-_RAY_OF_LOBE = np.array([RAY_DIFFUSE, RAY_GLOSSY, RAY_GLOSSY, RAY_TRANSMISSION])  # what the bounce ray is (visibility)
+_DIFFUSE, _GLOSSY, _MIRROR, _TRANSMIT, _COAT, _COAT_MIRROR = range(6)  # lobes
+# bounce counters: 0 total, 1 diffuse, 2 glossy (mirror and coat too), 3 transmission
+_KIND_OF_LOBE = np.array([1, 2, 2, 3, 2, 2])
+_RAY_OF_LOBE = np.array([RAY_DIFFUSE, RAY_GLOSSY, RAY_GLOSSY, RAY_TRANSMISSION, RAY_GLOSSY,
+                         RAY_GLOSSY])  # what the bounce ray is (visibility)
 _WORLD_STREAM, _EMITTER_STREAM = 6, 7  # cut-out streams of the shadow rays toward the world and the emitters
 
 
@@ -69,14 +75,18 @@ class PathTracer:
                                 settings.transmission_bounces])
         self.clamp_direct = float(settings.clamp_direct)
         self.clamp_indirect = float(settings.clamp_indirect)
+        self.samples = max(int(settings.samples), 1)  # camera samples per pixel: the strata of light samples
         mats = self.materials
         self.emissive = bool(np.any(mats.emission > 0.0))
         self.emitters = _emitter_tables(self.frames, mats) if self.emissive else {}
         power = np.array([table.total for table, _ in self.emitters.values()])
         self.emitter_frames = np.array(list(self.emitters), dtype=np.int64)
         self.emitter_choice = power / power.sum() if len(power) else power  # probability of each frame
+        # lamps with an extent, sampled by shadow rays and found by bounce rays (None: a delta lamp)
+        self.lamp_shapes = [LampShape.of(pl.light, pl.axes) for pl in shader.lights]
+        self.lamps_found = any(shape is not None and shape.use_mis for shape in self.lamp_shapes)
         # a ray past the limits is still traced for what it finds: only worth it if there is something
-        self.findable = self.emissive or not world.is_black
+        self.findable = self.emissive or not world.is_black or self.lamps_found
 
     # ------------------------------------------------------------------ paths
     def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, pixel, sample, lam, hits=None,
@@ -96,7 +106,11 @@ class PathTracer:
             counts=np.zeros((n, 4), dtype=np.int64), terminal=np.zeros(n, dtype=bool), reference=np.ones(n),
             ray=np.full(n, RAY_CAMERA, dtype=np.int64))
         bounce = 0
+        rays = (np.broadcast_to(tau0, (n,)), np.broadcast_to(x0, (n, 3)), state.d, np.broadcast_to(s_lo, (n,)),
+                np.broadcast_to(s_hi, (n,)))
         while len(path):
+            if self.lamps_found:
+                path, state, hits = self._add_lamps(out, path, state, rays, hits, bounce)
             self._add_world(out, path, state, hits, bounce)
             path, state, rays = self._vertices(out, path, state, hits, bounce, pixel, sample, cache)
             bounce += 1
@@ -156,7 +170,7 @@ class PathTracer:
                       cache):
         """Next-event estimate of the world at vertices of frame k: a direction drawn from the
         world's own density in the world frame, seen from frame k (density times D^2)."""
-        u1, u2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
+        u1, u2 = sampling.stratified_pair(pixel, sample, self.samples, dim)
         d_world, pdf = self.world.sample(u1, u2)
         to_frame = self.frames.map(self.frames.world, k)
         if to_frame.is_identity:
@@ -181,6 +195,126 @@ class PathTracer:
         weight = mis.power_heuristic(pdf[sel], mix.pdf(sel, ns[sel], view[sel], light[sel])) * cos[sel] / pdf[sel]
         total[sel] = rows.scale(f * values, weight)
         return total
+
+    # ------------------------------------------------------------------ lamps
+    def _lamp_view(self, pl: PreparedLight, k, tau, position):
+        """A lamp seen from events of frame k, in its rest frame (an animated lamp's momentary rest
+        frame at the retarded event of each, as the shadow rays see it): the events there, the
+        lamp's place, the maps of backward directions from frame k there and back (each with its
+        path-length ratio s_to / s_from) and the lamp's clock minus that frame's time."""
+        if pl.light.trajectory is not None:
+            tau_j, x_j, centre, back, clock_zero, forward = self.shader._momentary(pl, k, tau, position)
+            return tau_j, x_j, centre, forward, back, clock_zero
+        into = self.frames.map(k, pl.frame)
+        tau_j, x_j = into.events(tau, position)
+        return (tau_j, x_j, np.broadcast_to(pl.position, (len(tau), 3)), into.rays, self.frames.map(pl.frame, k).rays,
+                pl.clock_offset)
+
+    def _lamp_clock(self, pl: PreparedLight, tau_j, x_j, length, clock_zero):
+        """The lamp's own clock (c*t) when it sent light reaching events (tau_j, x_j) of its frame
+        from path length ``length`` there (None unless its output is keyed; a sun's plane wave
+        passed the lamp's place (P - x).e before reaching x)."""
+        if pl.keyed is None:
+            return None
+        if pl.light.kind == "SUN":
+            return tau_j - (pl.position - x_j) @ pl.axes[:, 2] + pl.clock_offset
+        return tau_j - length + clock_zero
+
+    def _sample_lamps(self, k, tau, position, ng, ns, view, base, mat, lobes, depth, pixel, sample, lam, cache):
+        """Next-event estimate of the lamps at vertices of frame k: a delta lamp by the direct-light
+        integrator's shadow ray (:meth:`~.shading.Shader._incident`), a lamp with an extent by a
+        direction drawn from its shape in its rest frame (:class:`~.emitters.LampShape`), density
+        carried into frame k by D^2, radiance by D^4 (D^5 at lambda D), weighed against the bounce
+        rays that find it by the power heuristic."""
+        shader = self.shader
+        eps = shader.epsilon[k]
+        origin = position + eps * ng
+        total = np.zeros_like(base)
+        for index, (pl, shape) in enumerate(zip(shader.lights, self.lamp_shapes)):
+            dim = 1000 + 100 * depth + 4 * index  # the direct-light integrator's dimensions
+            if shape is None:  # a delta lamp (or an area lamp of no area: a point of it)
+                xi1 = xi2 = None
+                if pl.sampled:
+                    xi1, xi2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
+                e_k, strength, doppler, s_max, clock = shader._incident(pl, k, tau, position, xi1, xi2)
+                s_max = np.broadcast_to(s_max, (len(tau),))  # one number for a sun
+            else:
+                u1, u2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
+                tau_j, x_j, centre, _, back, clock_zero = self._lamp_view(pl, k, tau, position)
+                e_j = shape.sample(centre, x_j, u1, u2)
+                length, pdf_j, radiance = shape.hit(centre, x_j, e_j)
+                e_k, doppler = back(e_j)  # s_k / s_lamp: the Doppler factor of the lamp seen here
+                pdf = frame_pdf(pdf_j, doppler)
+                strength = np.where(pdf > 0.0, radiance * shader.searchlight_power(doppler, 4)
+                                    / np.where(pdf > 0.0, pdf, 1.0), 0.0)
+                s_max = doppler * length
+                clock = self._lamp_clock(pl, tau_j, x_j, length, clock_zero)
+            cos = rows.dot(ns, e_k)
+            sel = np.flatnonzero((cos > 0.0) & (rows.dot(ng, e_k) > 0.0) & (strength > 0.0))
+            if not len(sel):
+                continue
+            blocked = occluded(self.frames, k, tau[sel], origin[sel], e_k[sel], eps, s_max[sel] - 2.0 * eps, cache,
+                               see_through=shader.cutouts(pixel[sel], sample[sel], _cutout_dimension(depth, 8 + index)))
+            sel = sel[~blocked]
+            if not len(sel):
+                continue
+            weight = strength[sel] * cos[sel]
+            if shape is not None and shape.use_mis:
+                weight = weight * mis.power_heuristic(pdf[sel], lobes.pdf(sel, ns[sel], view[sel], e_k[sel]))
+            f = shader.brdf(ns[sel], view[sel], e_k[sel], base[sel], mat[sel], lobes.take(sel))
+            emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel),
+                                        None if clock is None else clock[sel])
+            total[sel] += rows.scale(f * emitted, weight)
+        return total
+
+    def _add_lamps(self, out, path, state, rays, hits, bounce):
+        """What camera and bounce rays ``rays`` (tau, origin, d, s_lo, ...) of the paths find of the
+        lamps with an extent that they see (MIS-weighted against the lamp samples of the vertex they
+        left): a sphere or area lamp nearer than the surface hit ends its path there, a sun adds
+        to the world where the ray leaves the scene.  Returns the paths, states and hits that go on."""
+        tau, origin, d, s_lo = rays[:4]
+        n = len(path)
+        nearest = hits.s.copy() if len(rays) < 5 else np.minimum(hits.s, rays[4])
+        found = np.zeros((n, self.colour.channels))
+        absorbed = np.zeros(n, dtype=bool)
+        found_by = [i for i, shape in enumerate(self.lamp_shapes) if shape is not None and shape.use_mis]
+        for index in sorted(found_by, key=lambda i: self.lamp_shapes[i].is_sun):  # suns last: behind the others
+            pl, shape = self.shader.lights[index], self.lamp_shapes[index]
+            seen = (state.ray & shape.visibility) != 0
+            if shape.is_sun:
+                seen &= (hits.frame < 0) & ~absorbed
+            for k in np.unique(state.src[seen]):
+                sel = np.flatnonzero(seen & (state.src == k))
+                tau_j, x_j, centre, forward, _, clock_zero = self._lamp_view(pl, int(k), tau[sel], origin[sel])
+                d_j, ratio = forward(d[sel])  # s_lamp / s_k
+                length, pdf_j, radiance = shape.hit(centre, x_j, d_j)
+                hit = pdf_j > 0.0
+                if not shape.is_sun:
+                    s_k = length / ratio
+                    hit &= (s_k > s_lo[sel]) & (s_k < nearest[sel])
+                    nearest[sel[hit]] = s_k[hit]  # a nearer lamp hides a farther one
+                sel, d_j, ratio, length, pdf_j, radiance, tau_j, x_j = (
+                    a[hit] for a in (sel, d_j, ratio, length, pdf_j, radiance, tau_j, x_j))
+                if not len(sel):
+                    continue
+                doppler = 1.0 / ratio  # nu_k / nu_lamp
+                clock = self._lamp_clock(pl, tau_j, x_j, length, clock_zero)
+                emitted = self.colour.light(index, self.colour.shift(_rows(state.lam, sel), doppler), len(sel), clock)
+                weight = radiance * self.shader.searchlight_power(doppler, 4) * mis.power_heuristic(
+                    state.pdf[sel], frame_pdf(pdf_j, doppler))
+                value = state.throughput[sel] * rows.scale(np.asarray(emitted, dtype=np.float64), weight)
+                if shape.is_sun:
+                    found[sel] += value
+                else:  # the nearest lamp so far: replaces what a farther one gave
+                    found[sel] = value
+                    absorbed[sel] = True
+        lit = np.flatnonzero(np.any(found != 0.0, axis=1))
+        if len(lit):
+            self._accumulate(out, path[lit], found[lit], None, bounce)
+        if not absorbed.any():
+            return path, state, hits
+        go = np.flatnonzero(~absorbed)
+        return path[go], state.take(go), hits.take(go)
 
     # ------------------------------------------------------------------ emissive surfaces
     def _emitter_pdf(self, j, prim, distance, cos_emit, doppler):
@@ -302,11 +436,11 @@ class PathTracer:
         # next-event estimation: lamps (the direct-light integrator's own code) and the world
         direct = None
         if shader.lights:
-            direct = shader._direct(k, tau, position, ng, ns, view, base, mat, bounce, pixel, sample, lam, cache,
-                                    lobes)
+            direct = self._sample_lamps(k, tau, position, ng, ns, view, base, mat, lobes, bounce, pixel, sample, lam,
+                                        cache)
         if not self.world.is_black and lobes.any_smooth:
             world = self._sample_world(k, tau, origin, ng, ns, view, base, mat, lobes, eps, pixel, sample, lam,
-                                       dim + 3, bounce, cache)
+                                       dim + 10, bounce, cache)
             direct = world if direct is None else direct + world
         if self.emitters and lobes.any_smooth:
             glow = self._sample_emitters(k, tau, origin, ng, ns, view, base, mat, lobes, pixel, sample, lam,
@@ -316,7 +450,7 @@ class PathTracer:
             self._accumulate(out, path, throughput * direct, None, bounce + 1)
         # scattering: one lobe chosen by its weight, a direction from its sampler
         lobe, probability = lobes.choose(sampling.uniform(pixel, sample, dim))
-        u1, u2 = sampling.uniform(pixel, sample, dim + 1), sampling.uniform(pixel, sample, dim + 2)
+        u1, u2 = sampling.stratified_pair(pixel, sample, self.samples, dim + 1)
         light, weight, pdf = lobes.sample(lobe, probability, u1, u2)
         transmitted = lobe == _TRANSMIT
         side = np.where(transmitted, -1.0, 1.0)
@@ -403,17 +537,91 @@ class _Paths:
 
 class _Lobes(LayeredLobes):
     """The surfaces' lobes at some vertices with the weights that choose among them: diffuse,
-    rough specular (multiscatter GGX), mirror and refraction (:class:`~.shading.LayeredLobes`)."""
+    rough specular (multiscatter GGX), mirror and refraction (:class:`~.shading.LayeredLobes`):
+    Snell's through smooth glass, GGX microfacet transmission (Walter et al. 2007) through rough
+    glass, whose reflection and refraction are scaled by 1 / their single-scattering albedo as
+    Cycles' multiscatter glass preserves energy (mixed by Transmission with the opaque
+    dielectric's compensation of the reflection).  Transmitted light is found by the refracted
+    rays alone (no samples of lights through the surface), so their MIS density is that of a
+    delta lobe.  A coat (Coat Weight) is a clear dielectric layer over all of it, as Cycles'
+    Principled BSDF: a multiscatter GGX lobe (or a mirror below ``MIRROR_ROUGHNESS``) of the
+    coat's IOR, which dims everything under it by 1 - weight x its directional albedo."""
 
     def __init__(self, mats, base, mat, ns, view, back):
         super().__init__(mats, base, mat, ns, view, back)
+        share = mats.transmission[mat]
+        self.transmission = share * (1.0 - self.metallic)
+        self.glass_compensation = np.ones(len(mat))
+        rough = np.flatnonzero((share > 0.0) & ~self.mirror)
+        if len(rough):
+            self.glass_compensation[rough] = 1.0 / np.maximum(
+                ggx_glass_albedo(self.cos_v[rough], self.alpha[rough], self.eta[rough]), 1e-6)
+            mixed = rows.scale(self.compensation_dielectric[rough], 1.0 - share[rough])
+            self.compensation_dielectric = self.compensation_dielectric.copy()
+            self.compensation_dielectric[rough] = mixed + (share[rough] * self.glass_compensation[rough])[:, None]
+        coat_albedo = self._coat(mats, mat)
         glossy_albedo = np.where(self.glossy[:, None], self.fresnel(self.cos_v), 0.0)
         weights = np.stack([(self.diffuse * np.pi).mean(axis=1), glossy_albedo.mean(axis=1),
-                            self.reflect_weight.mean(axis=1), self.transmit_weight.mean(axis=1)], axis=1)
+                            self.reflect_weight.mean(axis=1), self.transmit_weight.mean(axis=1),
+                            np.where(self.coat_rough, coat_albedo, 0.0), np.where(self.coat_mirror, coat_albedo, 0.0)],
+                           axis=1)
         weights = np.maximum(weights, 0.0)
         total = weights.sum(axis=1)
         self.probability = np.where(total[:, None] > 0.0, weights / np.where(total > 0.0, total, 1.0)[:, None], 0.0)
-        self.any_smooth = bool(np.any(self.probability[:, _DIFFUSE] + self.probability[:, _GLOSSY] > 0.0))
+        self.any_smooth = bool(np.any(self.probability[:, [_DIFFUSE, _GLOSSY, _COAT]].sum(axis=1) > 0.0))
+
+    def _coat(self, mats, mat):
+        """Sets up the coat layer (none on the inside of a transmissive body) and dims the lobes
+        under it; returns its directional albedo (n,), weight included."""
+        n = len(mat)
+        self.coat = np.where(self.eta > 1.0, 0.0, mats.coat_weight[mat])
+        coated = self.coat > 0.0
+        self.coat_rough = coated & (mats.coat_roughness[mat] >= MIRROR_ROUGHNESS)
+        self.coat_mirror = coated & ~self.coat_rough
+        self.coat_alpha = np.maximum(mats.coat_roughness[mat] ** 2, _MIN_ALPHA)
+        self.coat_eta = 1.0 / mats.coat_ior[mat]
+        self.coat_compensation = np.ones(n)
+        albedo = np.zeros(n)
+        if not coated.any():
+            return albedo
+        rough = np.flatnonzero(self.coat_rough)
+        if len(rough):
+            ior, cos_v, alpha = mats.coat_ior[mat[rough]], self.cos_v[rough], self.coat_alpha[rough]
+            albedo[rough] = ggx_dielectric_albedo(cos_v, alpha, 1.0 / ior, dielectric_f0(ior)[:, None],
+                                                  np.ones(len(rough)))[:, 0]
+            self.coat_compensation[rough] = ggx_energy_compensation(cos_v, alpha,
+                                                                    fresnel_average_dielectric(ior)[:, None])[:, 0]
+        smooth = np.flatnonzero(self.coat_mirror)
+        albedo[smooth] = fresnel_dielectric(self.cos_v[smooth], self.coat_eta[smooth])
+        albedo *= self.coat
+        under = (1.0 - albedo)[:, None]
+        self.diffuse = self.diffuse * under
+        self.compensation_dielectric = self.compensation_dielectric * under
+        self.compensation_metal = self.compensation_metal * under
+        self.reflect_weight = self.reflect_weight * under
+        self.transmit_weight = self.transmit_weight * under
+        self.glass_compensation = self.glass_compensation * under[:, 0]
+        return albedo
+
+    def _coat_specular(self, index, light):
+        """The rough coat's f (without the cosine) at vertices ``index`` toward ``light``."""
+        ns, view = self.ns[index], self.view[index]
+        h = rows.normalized(view + light)
+        cos_l = rows.dot(ns, light)
+        above = (rows.dot(ns, view) > 0.0) & (cos_l > 0.0)
+        cos_l = np.clip(cos_l, 1e-6, 1.0)
+        alpha, cos_v = self.coat_alpha[index], self.cos_v[index]
+        single = ggx_ndf(rows.dot(ns, h), alpha) * ggx_g2(cos_v, cos_l, alpha) / (4.0 * cos_v * cos_l)
+        fresnel = fresnel_dielectric(rows.dot(view, h), self.coat_eta[index])
+        return np.where(above, self.coat[index] * self.coat_compensation[index] * fresnel * single, 0.0)
+
+    def value(self, light):
+        """f (n, C) without the cosine: the lobes under the coat and the rough coat."""
+        value = super().value(light)
+        r = np.flatnonzero(self.coat_rough)
+        if len(r):
+            value[r] += self._coat_specular(r, light[r])[:, None]
+        return value
 
     def pdf(self, index, ns, view, light):
         """Density per unit solid angle with which :meth:`sample` draws ``light`` at vertices
@@ -424,12 +632,16 @@ class _Lobes(LayeredLobes):
         if len(glossy):
             pdf[glossy] += p[glossy, _GLOSSY] * ggx_reflection_pdf(ns[glossy], view[glossy], light[glossy],
                                                                    self.alpha[index][glossy])
+        coat = np.flatnonzero(self.coat_rough[index])
+        if len(coat):
+            pdf[coat] += p[coat, _COAT] * ggx_reflection_pdf(ns[coat], view[coat], light[coat],
+                                                             self.coat_alpha[index][coat])
         return pdf
 
     def choose(self, u):
         """A lobe per vertex drawn by the weights, and its probability (0: nothing scatters)."""
         cdf = np.cumsum(self.probability, axis=1)
-        lobe = np.minimum((u[:, None] >= cdf).sum(axis=1), 3)
+        lobe = np.minimum((u[:, None] >= cdf).sum(axis=1), len(_KIND_OF_LOBE) - 1)
         return lobe, self.probability[np.arange(len(lobe)), lobe]
 
     def sample(self, lobe, probability, u1, u2):
@@ -455,11 +667,27 @@ class _Lobes(LayeredLobes):
         if len(sel):
             light[sel] = reflect(view[sel], ns[sel])
             weight[sel] = rows.scale(self.reflect_weight[sel], scale[sel])
-        sel = np.flatnonzero(lobe == _TRANSMIT)
+        sel = np.flatnonzero((lobe == _TRANSMIT) & self.mirror)
         if len(sel):
             light[sel], ok = refract(view[sel], ns[sel], self.eta[sel])
             weight[sel] = rows.scale(self.transmit_weight[sel], np.where(ok, scale[sel], 0.0))
-        smooth = np.flatnonzero((lobe == _DIFFUSE) | (lobe == _GLOSSY))
+        sel = np.flatnonzero((lobe == _TRANSMIT) & ~self.mirror)
+        if len(sel):
+            light[sel], through = sample_ggx_transmission(ns[sel], view[sel], self.eta[sel], self.alpha[sel], u1[sel],
+                                                          u2[sel])
+            weight[sel] = (through * self.transmission[sel] * self.glass_compensation[sel] * scale[sel])[:, None]
+        sel = np.flatnonzero(lobe == _COAT)
+        if len(sel):
+            light[sel], _, g = sample_ggx_reflection(ns[sel], view[sel], self.coat_alpha[sel], u1[sel], u2[sel])
+            fresnel = fresnel_dielectric(rows.dot(view[sel], rows.normalized(view[sel] + light[sel])),
+                                         self.coat_eta[sel])
+            weight[sel] = (self.coat[sel] * self.coat_compensation[sel] * fresnel * g * scale[sel])[:, None]
+        sel = np.flatnonzero(lobe == _COAT_MIRROR)
+        if len(sel):
+            light[sel] = reflect(view[sel], ns[sel])
+            fresnel = fresnel_dielectric(self.cos_v[sel], self.coat_eta[sel])
+            weight[sel] = (self.coat[sel] * fresnel * scale[sel])[:, None]
+        smooth = np.flatnonzero((lobe == _DIFFUSE) | (lobe == _GLOSSY) | (lobe == _COAT))
         if len(smooth):
             pdf[smooth] = self.pdf(smooth, ns[smooth], view[smooth], light[smooth])
         return light, weight, pdf

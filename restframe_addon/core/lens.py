@@ -22,16 +22,6 @@ LENS_DIMENSION = 10
 SHUTTER_DIMENSION = 13
 
 
-def stratified_pair(pixel, sample, count: int, dimension: int):
-    """Two numbers in [0, 1) per camera sample keyed by (pixel, sample): sample k of a pixel's
-    ``count`` in its own cell of a ceil(sqrt(count))-square grid, jittered inside it (a single
-    sample: anywhere)."""
-    side = int(np.ceil(np.sqrt(count)))
-    cell = sampling.shuffled_strata(pixel, sample, side * side, dimension)
-    return ((cell % side + sampling.uniform(pixel, sample, dimension + 1)) / side,
-            (cell // side + sampling.uniform(pixel, sample, dimension + 2)) / side)
-
-
 def stratified_single(pixel, sample, count: int, dimension: int):
     """One number in [0, 1) per camera sample: sample k of a pixel's ``count`` in its own of
     ``count`` equal intervals, jittered inside it."""
@@ -77,7 +67,7 @@ def aperture_offsets(camera, pixel, sample, count: int):
     """Aperture points (x across, y up the camera; scene units, camera rest frame) of camera
     samples keyed by (pixel, sample), ``count`` per pixel: the disc or polygon of the camera's
     aperture, stratified over each pixel's samples."""
-    u1, u2 = stratified_pair(pixel, sample, count, LENS_DIMENSION)
+    u1, u2 = sampling.stratified_pair(pixel, sample, count, LENS_DIMENSION)
     if camera.aperture_blades >= 3:
         x, y = regular_polygon(u1, u2, int(camera.aperture_blades), camera.aperture_rotation)
     else:

@@ -86,6 +86,18 @@ def stratified_offsets(pixel: np.ndarray, sample: np.ndarray, count: int):
     return x, y
 
 
+def stratified_pair(pixel: np.ndarray, sample: np.ndarray, count: int, dimension: int):
+    """Two numbers in [0, 1) per camera sample keyed by (pixel, sample), from dimensions
+    ``dimension`` to ``dimension + 2``: sample k of a pixel's ``count`` in its own cell of a
+    ceil(sqrt(count))-square grid, jittered inside it (a single sample: anywhere).  Each sample
+    alone stays uniform (unbiased); a pixel's samples cover the square evenly (the lens
+    aperture, the path tracer's light and scattering directions)."""
+    side = int(np.ceil(np.sqrt(count)))
+    cell = shuffled_strata(pixel, sample, side * side, dimension)
+    jx, jy = uniforms(pixel, sample, (dimension + 1, dimension + 2))
+    return (cell % side + jx) / side, (cell // side + jy) / side
+
+
 def strata(pixel: np.ndarray, sample: np.ndarray, cells: int, dimension: int):
     """Which of ``cells`` strata sample k < ``cells`` of a pixel falls in: ``(k * step + start) mod
     cells``, the start per pixel (from ``dimension``), the step coprime to ``cells`` near the golden

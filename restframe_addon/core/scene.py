@@ -62,6 +62,11 @@ class Material:
     ior: float = 1.5
     specular_ior_level: float = 0.5  # Principled "Specular IOR Level": 0.5 = Fresnel of the IOR, 0 = none
     transmission: float = 0.0
+    # the Principled coat (Path Tracing): a clear dielectric GGX layer over everything else (Cycles'
+    # Coat Weight, Roughness and IOR; untinted)
+    coat_weight: float = 0.0
+    coat_roughness: float = 0.03
+    coat_ior: float = 1.5
     emission: tuple[float, float, float] = (0.0, 0.0, 0.0)  # colour * strength, rest-frame radiance
     # animated emission: (times in seconds of the body's own clock, multipliers), evaluated at the
     # clock reading of each seen event (optical clocks); linear between keys, constant beyond
@@ -130,6 +135,11 @@ class Light:
     # linear between samples, constant beyond; None = ``power`` / ``color`` at every time
     power_curve: tuple[np.ndarray, np.ndarray] | None = None
     color_curve: tuple[np.ndarray, np.ndarray] | None = None
+    # Path Tracing, as Cycles: the ray types that see a lamp with an extent (its Ray Visibility;
+    # Blender makes new lamps invisible to the camera), and whether bounce rays find it at all,
+    # weighed against its samples (Multiple Importance)
+    visibility: int = RAY_ALL & ~RAY_CAMERA
+    use_mis: bool = True
 
     @property
     def is_keyed(self) -> bool:

@@ -72,6 +72,9 @@ class MaterialTable:
         self.ior = np.maximum([m.ior for m in materials], 1e-3)
         self.specular_scale = 2.0 * np.clip([m.specular_ior_level for m in materials], 0.0, None)
         self.transmission = np.clip([m.transmission for m in materials], 0.0, 1.0)
+        self.coat_weight = np.clip([m.coat_weight for m in materials], 0.0, 1.0)
+        self.coat_roughness = np.clip([m.coat_roughness for m in materials], 0.0, 1.0)
+        self.coat_ior = np.maximum([m.coat_ior for m in materials], 1.0 + 1e-6)
         self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
         self.emits = np.any(self.emission != 0.0, axis=1)
         # images kept contiguous: looked up from flat indices without a copy (world.image_lookup)
@@ -288,7 +291,7 @@ class LayeredLobes:
 
     def take(self, index) -> "LayeredLobes":
         """The lobes of some of the points (an index array)."""
-        part = object.__new__(LayeredLobes)
+        part = object.__new__(type(self))
         for name, value in vars(self).items():
             setattr(part, name, value[index] if isinstance(value, np.ndarray) else value)
         return part
@@ -641,7 +644,7 @@ class Shader:
             back = self.frames.map(pl.frame, k).rays
             clock_zero = pl.clock_offset
         else:
-            tau_j, x_j, sample, back, clock_zero = self._momentary(pl, k, tau, position)
+            tau_j, x_j, sample, back, clock_zero, _ = self._momentary(pl, k, tau, position)
         if light.kind == "AREA":
             sx, sy = light.area_size
             if light.area_shape in ("DISK", "ELLIPSE"):
@@ -675,11 +678,13 @@ class Shader:
         """An animated lamp seen from hit events of frame k, in its momentary rest frame at the
         retarded event of each (where its world line crosses the hit's past light cone, solved
         as for animated bodies): the hit events there (tau_j, x_j), the lamp's place, the map of
-        backward directions from there to frame k (d, s_k / s_lamp), and its clock minus that
-        frame's time (None unless keyed).  Static in that frame near the event: exact for a
-        point lamp, an area lamp's other points as if moving inertially."""
+        backward directions from there to frame k (d, s_k / s_lamp), its clock minus that
+        frame's time (None unless keyed), and the map of directions from frame k there (d,
+        s_lamp / s_k; the path tracer's bounce rays).  Static in that frame near the event: exact
+        for a point lamp, an area lamp's other points as if moving inertially."""
         trajectory = pl.light.trajectory
-        tau_w, x_w = self.frames.map(k, self.frames.world).events(tau, position)
+        from_frame = self.frames.map(k, self.frames.world)
+        tau_w, x_w = from_frame.events(tau, position)
         emitted = trajectory.light_cone_crossing(tau_w, x_w)
         lamp_w, beta = trajectory.state(emitted)
         into_lamp = RowBoosts(beta)
@@ -692,8 +697,13 @@ class Shader:
             e_k, w_frame = to_frame.rays(e_w)
             return e_k, w_world * w_frame
 
+        def forward(d_k):
+            d_w, w_world = from_frame.rays(d_k)
+            d_j, w_lamp = into_lamp.rays(d_w)
+            return d_j, w_world * w_lamp
+
         clock_zero = None if pl.keyed is None else trajectory.proper_time(emitted) - tau_lamp
-        return tau_j, x_j, lamp, back, clock_zero
+        return tau_j, x_j, lamp, back, clock_zero, forward
 
     # ------------------------------------------------------------------ mirror and glass
     def _secondary(self, k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam, cache):

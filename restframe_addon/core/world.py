@@ -34,6 +34,7 @@ LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709, Blender's scene-
 INTERPOLATIONS = ("Linear", "Closest")
 _IDENTITY = np.eye(3)
 _FOUR_PI = 4.0 * np.pi
+_MAP_COLUMNS = 1024  # least columns of a Linear environment's sampling map (Cycles' default map is 1024 wide)
 
 
 # ---------------------------------------------------------------------------- mapping
@@ -173,11 +174,13 @@ class EnvironmentWorld:
     directions (:func:`mapping_rotation`), ``interpolation`` Blender's Linear or Closest.
 
     Sampling: the sphere is cut into cells uniform in (phi, cos theta) of texture space
-    whose corners are the pixel centres (Linear) or the pixel edges (Closest), so the
-    looked-up radiance inside a cell lies between its corner (pixel) values.  A cell is
-    chosen with probability proportional to its solid angle x the mean luminance of its
-    corners, then a point uniformly in its solid angle: the density is constant per cell,
-    and radiance / pdf stays within a factor 4 of the mean, however bright a pixel.
+    whose corners are the pixel edges (Closest) or lie on the bilinear lookup's patches
+    between pixel centres (Linear: each patch split so the map has at least
+    ``_MAP_COLUMNS`` columns), so the looked-up radiance inside a cell lies between its corner
+    values.  A cell is chosen with probability proportional to its solid angle x the mean
+    luminance of its corners, then a point uniformly in its solid angle: the density is
+    constant per cell, and radiance / pdf stays within a factor 4 of the mean however bright
+    a pixel, close to 1 where the corners of the fine cells are close.
     """
 
     def __init__(self, image, strength: float = 1.0, mapping=None, interpolation: str = "Linear",
@@ -201,18 +204,26 @@ class EnvironmentWorld:
         h, w = self.image.shape[:2]
         luminance = self.image @ LUMINANCE_RGB
         if interpolation == "Linear":
-            # cell rows between pixel-centre rows, the two caps wrapping as Cycles' lookup does
-            v_edges = np.concatenate([[0.0], (np.arange(h) + 0.5) / h, [1.0]])
-            below, above = np.roll(luminance, 1, axis=0), luminance  # pixel rows r - 1 and r
-            corner_rows = np.concatenate([below, below[:1]], axis=0) + np.concatenate([above, above[:1]], axis=0)
-            cell_luminance = 0.25 * (corner_rows + np.roll(corner_rows, -1, axis=1))
+            # cell rows between pixel-centre rows, the two caps wrapping as Cycles' lookup does, each
+            # split into ``split`` x ``split`` sub-cells: the bilinear radiance inside a cell lies
+            # between its corner values, which are close on a fine grid (a pdf as fine as the pixels
+            # leaves radiance / pdf anywhere in 0..4x its mean across a bright pixel's cells)
+            split = max(1, -(-_MAP_COLUMNS // w))
+            coarse_v = np.concatenate([[0.0], (np.arange(h) + 0.5) / h, [1.0]])
+            v_edges = np.append((coarse_v[:-1, None] + np.diff(coarse_v)[:, None] * (np.arange(split) / split)).ravel(),
+                                1.0)
             self._u_offset = 0.5 / w
+            corners = _refined_lattice(luminance, v_edges, split)
+            corner_rows = corners[:-1] + corners[1:]
+            cell_luminance = 0.25 * (corner_rows[:, :-1] + corner_rows[:, 1:])
         else:
             v_edges = np.arange(h + 1) / h
             cell_luminance = luminance
             self._u_offset = 0.0
+        self._columns = cell_luminance.shape[1]
         self._z_edges = -np.cos(np.pi * v_edges)
         self._v_edges = v_edges
+        w = self._columns
         cell_omega = (2.0 * np.pi / w) * np.diff(self._z_edges)[:, None]
         weight = cell_luminance * cell_omega
         total = float(weight.sum())
@@ -241,7 +252,7 @@ class EnvironmentWorld:
         return image_lookup(self.image, u, v, self.interpolation)
 
     def _cell(self, t):
-        h, w = self.image.shape[:2]
+        w = self._columns
         u, v = direction_to_equirectangular(t)
         column = np.floor((u - self._u_offset) * w).astype(np.int64) % w
         row = np.clip(np.searchsorted(self._v_edges, v, side="right") - 1, 0, len(self._v_edges) - 2)
@@ -258,7 +269,7 @@ class EnvironmentWorld:
         u1 picks the cell row and, rescaled, cos(theta) inside it; u2 likewise the column
         and phi: strata of (u1, u2) stay compact on the sphere.
         """
-        w = self.image.shape[1]
+        w = self._columns
         rows_count = len(self._row_probability)
         row = np.minimum(np.searchsorted(self._row_cdf, u1, side="right"), rows_count - 1)
         row_start = np.where(row > 0, self._row_cdf[np.maximum(row - 1, 0)], 0.0)
@@ -269,6 +280,23 @@ class EnvironmentWorld:
         u = self._u_offset + (column + along_phi) / w
         t = _polar(z, np.pi * (1.0 - 2.0 * u))
         return _rotate(self._unmapping, t), self._cell_pdf[row, column]
+
+
+def _refined_lattice(values, v_edges, split: int):
+    """The bilinear lookup of :func:`image_lookup` (Linear) of an (H, W) image at rows ``v_edges``
+    and columns ``u = (j / split + 1/2) / W``, j = 0 .. W split: the pixel centres and ``split - 1``
+    points between neighbours.  On this lattice bilinear interpolation is one linear
+    interpolation along v, then one along u (a general lookup per corner takes longer than the
+    rest of the sampling map)."""
+    h, w = values.shape
+    y = v_edges * h - 0.5
+    y0 = np.floor(y)
+    fy = (y - y0)[:, None]
+    y0 = y0.astype(np.int64)
+    along_v = (1.0 - fy) * values[y0 % h] + fy * values[(y0 + 1) % h]
+    j = np.arange(w * split + 1)
+    x0, fx = j // split, (j % split) / split
+    return (1.0 - fx) * along_v[:, x0 % w] + fx * along_v[:, (x0 + 1) % w]
 
 
 def _rotate(matrix, d):

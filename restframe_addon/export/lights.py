@@ -54,6 +54,8 @@ def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Calla
         velocity=velocity,
         pivot=pivot,
         trajectory=trajectory,
+        # Cycles' Multiple Importance: bounce rays find the lamp, weighed against its samples
+        use_mis=bool(getattr(getattr(data, "cycles", None), "use_multiple_importance_sampling", True)),
     )
     if scene is not None:
         light.power_curve, light.color_curve = keyed_output(data, scene, tint, strength)

@@ -128,6 +128,12 @@ class MaterialExporter:
         out.ior = self._value(mat, inputs["IOR"])
         out.specular_ior_level = self._value(mat, inputs["Specular IOR Level"])
         out.transmission = self._value(mat, inputs["Transmission Weight"])
+        out.coat_weight = self._value(mat, inputs["Coat Weight"])
+        out.coat_roughness = self._value(mat, inputs["Coat Roughness"])
+        out.coat_ior = self._value(mat, inputs["Coat IOR"])
+        if out.coat_weight > 0.0 and (upstream(inputs["Coat Tint"]) is not None
+                                      or any(v != 1.0 for v in inputs["Coat Tint"].default_value[:3])):
+            self.warn(f"Material '{mat.name}': Coat Tint is not supported, the coat is clear")
         out.emission = self._emission(mat, inputs["Emission Color"], inputs["Emission Strength"], out)
         out.alpha, out.alpha_texture = principled_alpha(mat, node, self.warn)
         out.normal_texture, out.normal_strength = principled_normal_map(

@@ -176,7 +176,9 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
             elif animated:  # the lamp rides on its assembly's keyed world line
                 trajectory = point_trajectory(assembly_root(source), scene, camera_position, matrix[:3, 3], name,
                                               should_stop=should_stop, warn=warn_once)
-            lights.append(export_light(obj, matrix, velocity, pivot, warn_once, scene=scene, trajectory=trajectory))
+            light = export_light(obj, matrix, velocity, pivot, warn_once, scene=scene, trajectory=trajectory)
+            light.visibility = ray_visibility(inst, view_layer)  # which rays see a lamp with an extent
+            lights.append(light)
             continue
         body = None
         if animated:
