@@ -82,8 +82,8 @@ def facing_normals(frame: RestFrame, prim, u, v, d_k, tau_hit=None):
     for normals in (ng,) if ns is ng else (ng, ns):  # (hit_geometry's own arrays: turned in place)
         for axis in range(3):
             np.negative(normals[:, axis], out=normals[:, axis], where=back)
-    if ns is ng:
-        ns = ng.copy()
+    if ns is ng:  # flat: the turned normal faces the viewer (or grazes it)
+        return position, ng, ng.copy(), back
     away = rows.dot(ns, d_k) >= 0.0
     if away.any():
         ns[away] = rows.take(ng, away)
@@ -119,8 +119,10 @@ def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
     if "Emission Time" in wanted:
         # world time of the hit event: back along the ray in the camera frame, then into S
         s_hit = hits.s[hit]
+        shared = n > 0 and x.strides[0] == 0 and tau.strides[0] == 0  # one event (broadcast views): no gathers
         world_tau, _ = frames.map(frames.camera, frames.world).events(
-            tau[hit] - s_hit, rows.add_scaled(rows.take(x, hit), s_hit, rows.take(d, hit)))
+            (tau[0] if shared else tau[hit]) - s_hit,
+            rows.add_scaled(x[0] if shared else rows.take(x, hit), s_hit, rows.take(d, hit)))
         passes["Emission Time"] = np.zeros(n)
         passes["Emission Time"][hit] = world_tau / light_speed
     per_frame = wanted & {"Doppler", "Normal", "IndexOB", "Object Time"}
@@ -131,8 +133,10 @@ def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
     for k in frames_hit(hits):
         sel = np.flatnonzero(hits.frame == k)
         frame = frames.frames[int(k)]
-        d_k, tau_hit = rows.take(hits.d_frame, sel), hit_times(hits, sel)
+        tau_hit = hit_times(hits, sel)
         prim, u, v = hits.prim[sel], hits.u[sel], hits.v[sel]
+        # the directions only where they matter: a spinning surface's Doppler factor, the normals
+        d_k = rows.take(hits.d_frame, sel) if frame.spin is not None or "Normal" in wanted else None
         if "Doppler" in wanted:
             passes["Doppler"][sel, 0] = hit_doppler(frame, prim, u, v, tau_hit, d_k, hits.w[sel])
         if "Normal" in wanted:

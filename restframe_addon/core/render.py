@@ -96,23 +96,34 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
             rays, observed = prepared.sample_rays(px, py, keys=(pix, smp, samples))
             hits = shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache)
         color, hit, hole = _sample(prepared, rays, hits, pix, smp, cache, observed)
-        rgb[part] += color.reshape(m, count, 3).sum(axis=1)
+        rgb[part] += _per_pixel(color, m, count)
         if denoising:
             for name, values in prepared.shader.denoising_data(hits).items():
                 if name in denoising:
-                    denoising[name][part] += values.reshape(m, count, 3).sum(axis=1)
-        coverage[part] += hit.reshape(m, count).sum(axis=1)
+                    denoising[name][part] += _per_pixel(values, m, count)
+        coverage[part] += _per_pixel(hit, m, count)
         if hole is not None:
-            held[part] += hole.reshape(m, count).sum(axis=1)
+            held[part] += _per_pixel(hole, m, count)
     rgb *= prepared.exposure / samples
     coverage /= samples
     held /= samples
     # holdouts are holes in the image whether or not the film is transparent (as in Cycles)
     alpha = coverage - held if settings.film_transparent else 1.0 - held
-    passes["Combined"] = np.concatenate([rgb, alpha[:, None]], axis=1)
+    combined = np.empty((n, 4), dtype=np.float32)  # rounded to float32 once, as every pass
+    combined[:, :3], combined[:, 3] = rgb, alpha
+    passes["Combined"] = combined
     for name, total in denoising.items():
         passes[name] = total / samples
-    return Tile(x0, y0, x1, y1, {k: v.reshape(h, w, -1).astype(np.float32) for k, v in passes.items()}, complete)
+    return Tile(x0, y0, x1, y1, {k: v.reshape(h, w, -1).astype(np.float32, copy=False) for k, v in passes.items()},
+                complete)
+
+
+def _per_pixel(values, m: int, count: int):
+    """Sums of ``count`` consecutive samples' values for each of ``m`` pixels (one sample: the values as
+    they are, which adding to a sum gives the same bits)."""
+    if count == 1:
+        return values
+    return values.reshape(m, count, *values.shape[1:]).sum(axis=1)
 
 
 def _sample(prepared: PreparedScene, rays, hits, pixel, sample, cache: TraceCache, observed=None):

@@ -372,11 +372,18 @@ class Shader:
             sel = _selection(hits.frame == k if held is None else (hits.frame == k) & ~held)
             if sel is None:
                 continue
-            fmap = self.frames.map(src, int(k))
-            d_k, w = _take(hits.d_frame, sel), _take(hits.w, sel)
-            tau_hit = hit_times(hits, sel)
-            prim, u, v = _take(hits.prim, sel), _take(hits.u, sel), _take(hits.v, sel)
             frame = self.frames.frames[k]
+            prim = _take(hits.prim, sel)
+            emission_only = self._emission_only(depth)
+            if emission_only and self._dark(frame, prim):  # black whatever its Doppler factor (it is finite)
+                values[sel] = 0.0
+                continue
+            fmap = self.frames.map(src, int(k))
+            # the directions only where they matter: shading beyond emission, a spinning surface's Doppler factor
+            d_k = None if emission_only and frame.spin is None else _take(hits.d_frame, sel)
+            w = _take(hits.w, sel)
+            tau_hit = hit_times(hits, sel)
+            u, v = _take(hits.u, sel), _take(hits.v, sel)
             if fmap.is_identity and frame.spin is None:  # at rest with the viewer: D = 1
                 values[sel] = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, _take(pixel, sel),
                                                   _take(sample, sel), _rows(lam, sel), cache)
@@ -455,6 +462,8 @@ class Shader:
 
     def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample, lam, cache):
         frame = self.frames.frames[k]
+        if self._emission_only(depth):  # no normals, texture or base colour needed
+            return self._emission(frame, tau, prim, self.materials.clamp(frame.geometry.tri_material[prim]), lam)
         position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau)
         uv = hit_uv(frame, prim, u, v)
         base = self.colour.base_color(mat, uv, lam)
@@ -462,14 +471,35 @@ class Shader:
         if self.lights and one is not None and not self.materials.emits[one]:  # the direct light alone
             values = self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
         else:
-            values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
-            if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
-                values *= self.materials.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
+            values = self._emission(frame, tau, prim, mat, lam)
             if self.lights:
                 values += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
-        if self.materials.traces_secondary and depth < self.max_bounces:
+        if self._bounces(depth):
             values += self._secondary(k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam,
                                       cache)
+        return values
+
+    def _emission_only(self, depth: int) -> bool:
+        """Whether hits at this depth give their emission alone (no lights, no secondary rays)."""
+        return not self.lights and not self._bounces(depth)
+
+    def _bounces(self, depth: int) -> bool:
+        """Whether hits at this depth may send secondary (mirror, glass) rays."""
+        return self.materials.traces_secondary and depth < self.max_bounces
+
+    def _dark(self, frame, prim) -> bool:
+        """Whether none of these hits' surfaces emits (their emission is 0 at every wavelength)."""
+        if self.materials.emission_curves:
+            return False
+        mat = self.materials.clamp(frame.geometry.tri_material[prim])
+        one = _only_material(mat)
+        return not (self.materials.emits[one] if one is not None else self.materials.emits[mat].any())
+
+    def _emission(self, frame, tau, prim, mat, lam):
+        """The surfaces' own emission at hits of one frame (a new array)."""
+        values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
+        if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
+            values *= self.materials.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
         return values
 
     def shading_normals(self, k: int, prim, u, v, d_k, tau_hit=None):

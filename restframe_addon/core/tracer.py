@@ -393,7 +393,8 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
                         s_frame=np.where(nearer, t, np.inf), w=np.ones(n) if w is None else w,
                         prim=np.where(nearer, prim, np.int32(-1)), u=u, v=v,
                         d_frame=dk if last else np.array(dk), tau_frame=tau_k if last else np.array(tau_k))
-            best = np.minimum(best, s)
+            if not last:  # (the later frames' bound)
+                best = np.minimum(best, s)
             continue
         if hits is None:
             hits = _no_hits(n)
@@ -414,8 +415,16 @@ def _per_ray(value, n: int) -> np.ndarray:
 
 
 def frames_hit(hits: Hits) -> np.ndarray:
-    """The frames that some ray hit (a count per frame: no sort of the whole bundle)."""
-    return np.flatnonzero(np.bincount(hits.frame + 1)[1:])
+    """The frames that some ray hit, in increasing order (a count per frame: no sort of the whole bundle)."""
+    frame = hits.frame
+    if len(frame) == 0:
+        return np.zeros(0, dtype=np.intp)
+    highest = int(frame.max())
+    # read as unsigned, a miss (-1) is the largest number: the minimum is the lowest frame hit
+    lowest = int(frame.view(np.dtype(f"u{frame.itemsize}")).min())
+    if highest < 0 or lowest == highest:  # nothing hit, or one frame (the common case): two fast reductions
+        return np.arange(max(highest, 0), highest + 1, dtype=np.intp)
+    return np.flatnonzero(np.bincount(frame + 1)[1:])
 
 
 def _no_hits(n: int) -> Hits:
@@ -782,16 +791,20 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None):
     geometry = frame.geometry
     corners = rows.take(geometry.triangles, prim)
     p0, p1, p2 = (rows.take(geometry.vertices, corners[:, i]) for i in range(3))
-    u = np.asarray(u, dtype=np.float64)
-    v = np.asarray(v, dtype=np.float64)
     p1 -= p0  # the edges out of the first corner
     p2 -= p0
-    position = rows.add_scaled(rows.add_scaled(p0, u, p1), v, p2)
+    # p0 + u e1 + v e2, summed into p0's own array column by column (float32 u, v widen exactly)
+    position, term = p0, np.empty(len(p0))
+    for axis in range(3):
+        position[:, axis] += np.multiply(u, p1[:, axis], out=term)
+        position[:, axis] += np.multiply(v, p2[:, axis], out=term)
     ng = triangle_normals(p1, p2)  # Geometry.face_normals, from the edges at hand
     if geometry.corner_normals is None:
         ns = ng
     else:
         cn = rows.take(geometry.corner_normals, prim)
+        u = np.asarray(u, dtype=np.float64)
+        v = np.asarray(v, dtype=np.float64)
         ns = rows.normalized(rows.add_scaled(rows.add_scaled(rows.scale(cn[:, 0], 1.0 - u - v), u, cn[:, 1]), v, cn[:, 2]))
     position, ng = frame.to_frame(position, ng, tau)
     if frame.spin is not None:

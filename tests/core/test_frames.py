@@ -14,7 +14,7 @@ from restframe_addon.core import embree_direct, frames, tracer
 from restframe_addon.core.frames import build_frames
 from restframe_addon.core.motion import Trajectory
 from restframe_addon.core.scene import Mesh, Scene, Velocity
-from restframe_addon.core.tracer import occluded, trace_nearest
+from restframe_addon.core.tracer import Hits, frames_hit, occluded, trace_nearest
 
 CELLS = 40  # the grid has CELLS x CELLS unit squares, two triangles each (3200)
 PIECE = 64  # triangles per embree geometry in these tests: 50 pieces
@@ -308,3 +308,16 @@ def test_face_normals_are_the_triangles_unit_normals_and_the_hits_normals():
     frame = build_frames(grid_scene((vertices, triangles))).frames[0]
     _, ng, _ = tracer.hit_geometry(frame, prim, np.full(len(prim), 0.2), np.full(len(prim), 0.3))
     np.testing.assert_array_equal(ng, geometry.face_normals(prim))
+
+
+@pytest.mark.parametrize("dtype", [np.int32, np.int64])
+def test_frames_hit_lists_each_hit_frame_once_in_order(dtype):
+    """frames_hit against a plain reference: misses only, one frame (with and without misses), several."""
+    rng = np.random.default_rng(5)
+    cases = [[], [-1, -1], [3, 3, 3], [-1, 3, -1, 3], [0, -1], [2, 0, -1, 5, 2], rng.integers(-1, 7, 500)]
+    for frame in cases:
+        frame = np.asarray(frame, dtype=dtype)
+        n = len(frame)
+        hits = Hits(frame, np.zeros(n), np.zeros(n), np.ones(n), np.zeros(n, dtype=np.int32), np.zeros(n),
+                    np.zeros(n), np.zeros((n, 3)), np.zeros(n))
+        assert frames_hit(hits).tolist() == sorted({int(k) for k in frame if k >= 0})
