@@ -107,6 +107,18 @@ def ggx_g2(cos_v, cos_l, alpha):
     return 1.0 / (1.0 + ggx_lambda(cos_v, alpha) + ggx_lambda(cos_l, alpha))
 
 
+def ggx_single_scattering(n, view, light, alpha, cos_v):
+    """One GGX lobe's D G2 / (4 cos_v cos_l) toward ``light`` (without Fresnel), given the view's
+    cosine ``cos_v`` already clipped; returns it with the mask of pairs above the horizon and the
+    half vector's cosine with the view (for the caller's Fresnel term)."""
+    h = rows.normalized(view + light)
+    cos_l = rows.dot(n, light)
+    above = (rows.dot(n, view) > 0.0) & (cos_l > 0.0)
+    cos_l = np.clip(cos_l, 1e-6, 1.0)
+    single = ggx_ndf(rows.dot(n, h), alpha) * ggx_g2(cos_v, cos_l, alpha) / (4.0 * cos_v * cos_l)
+    return single, above, rows.dot(view, h)
+
+
 def ggx_reflection(n, view, light, alpha, f0, f90):
     """GGX specular BRDF value f (n, C), without the cosine: D G2 F / (4 cos_v cos_l), Schlick
     Fresnel from f0 (n, C) to f90 (n,) at the half vector.  0 where either direction is below."""

@@ -33,7 +33,7 @@ import numpy as np
 from . import mis, rows, sampling
 from .emitters import EmitterTable, LampShape, solid_angle_pdf
 from .bsdf import (dielectric_f0, diffuse_pdf, fresnel_average_dielectric, fresnel_dielectric, ggx_dielectric_albedo,
-                   ggx_energy_compensation, ggx_g2, ggx_glass_albedo, ggx_ndf, ggx_reflection_pdf, reflect, refract,
+                   ggx_energy_compensation, ggx_glass_albedo, ggx_reflection_pdf, ggx_single_scattering, reflect, refract,
                    sample_diffuse, sample_ggx_reflection, sample_ggx_transmission)
 from .passes import hit_doppler, hit_times
 from .scene import RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_TRANSMISSION, RenderSettings, Scene
@@ -605,14 +605,9 @@ class _Lobes(LayeredLobes):
 
     def _coat_specular(self, index, light):
         """The rough coat's f (without the cosine) at vertices ``index`` toward ``light``."""
-        ns, view = self.ns[index], self.view[index]
-        h = rows.normalized(view + light)
-        cos_l = rows.dot(ns, light)
-        above = (rows.dot(ns, view) > 0.0) & (cos_l > 0.0)
-        cos_l = np.clip(cos_l, 1e-6, 1.0)
-        alpha, cos_v = self.coat_alpha[index], self.cos_v[index]
-        single = ggx_ndf(rows.dot(ns, h), alpha) * ggx_g2(cos_v, cos_l, alpha) / (4.0 * cos_v * cos_l)
-        fresnel = fresnel_dielectric(rows.dot(view, h), self.coat_eta[index])
+        single, above, cos_vh = ggx_single_scattering(self.ns[index], self.view[index], light,
+                                                      self.coat_alpha[index], self.cos_v[index])
+        fresnel = fresnel_dielectric(cos_vh, self.coat_eta[index])
         return np.where(above, self.coat[index] * self.coat_compensation[index] * fresnel * single, 0.0)
 
     def value(self, light):

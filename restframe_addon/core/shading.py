@@ -26,7 +26,8 @@ import numpy as np
 
 from . import rows, sampling, spectral
 from .bsdf import (dielectric_f0, fresnel_average_f82_tint, fresnel_average_principled_dielectric, fresnel_dielectric,
-                   fresnel_f82_tint, ggx_dielectric_albedo, ggx_energy_compensation, ggx_g2, ggx_ndf, ggx_reflection)
+                   fresnel_f82_tint, ggx_dielectric_albedo, ggx_energy_compensation, ggx_reflection,
+                   ggx_single_scattering)
 from .frames import FrameSet, clock_shift, shift_into_frame
 from .lorentz import RowBoosts
 from .passes import facing_normals, hit_doppler, hit_times
@@ -279,14 +280,9 @@ class LayeredLobes:
         value = self.diffuse.copy()
         r = np.flatnonzero(self.glossy)
         if len(r):
-            ns, view, light_r = self.ns[r], self.view[r], light[r]
-            h = rows.normalized(view + light_r)
-            cos_l = rows.dot(ns, light_r)
-            above = (rows.dot(ns, view) > 0.0) & (cos_l > 0.0)
-            cos_l = np.clip(cos_l, 1e-6, 1.0)
-            alpha, cos_v = self.alpha[r], self.cos_v[r]
-            single = ggx_ndf(rows.dot(ns, h), alpha) * ggx_g2(cos_v, cos_l, alpha) / (4.0 * cos_v * cos_l)
-            value[r] += rows.scale(self.take(r).fresnel(rows.dot(view, h)), np.where(above, single, 0.0))
+            single, above, cos_vh = ggx_single_scattering(self.ns[r], self.view[r], light[r], self.alpha[r],
+                                                          self.cos_v[r])
+            value[r] += rows.scale(self.take(r).fresnel(cos_vh), np.where(above, single, 0.0))
         return value
 
     def take(self, index) -> "LayeredLobes":

@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from bench_common import Context, Goal, Section, interleaved, load, look_at_camera, quad, uv_sphere
+from bench_common import Context, Goal, Section, interleaved, load, look_at_camera, print_section, quad, standalone_context, uv_sphere
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 from restframe_addon.core import embree_direct, frames
@@ -142,9 +142,4 @@ def run(ctx: Context) -> Section:
 
 
 if __name__ == "__main__":
-    context = Context(smoke="--smoke" in sys.argv, out_dir=None, plot_prefix="",
-                      log=lambda *a: print(*a, file=sys.stderr, flush=True))
-    section = run(context)
-    print("\n".join([f"## {section.title}", "", *section.body]))
-    for goal in section.goals:
-        print(f"- {goal.name}: {goal.target}, measured {goal.measured}, met: {goal.met}")
+    print_section(run(standalone_context("--smoke" in sys.argv)))

@@ -90,6 +90,18 @@ class Context:
         return smoke if self.smoke else full
 
 
+def standalone_context(smoke: bool) -> Context:
+    """The context of a section run on its own: no plots, progress on stderr."""
+    return Context(smoke=smoke, out_dir=None, plot_prefix="", log=lambda *a: print(*a, file=sys.stderr, flush=True))
+
+
+def print_section(section: Section) -> None:
+    """A section run on its own, printed as Markdown, then its goals."""
+    print("\n".join([f"## {section.title}", "", *section.body]))
+    for goal in section.goals:
+        print(f"- {goal.name}: {goal.target}, measured {goal.measured}, met: {goal.met}")
+
+
 def load() -> float:
     return os.getloadavg()[0]
 

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench_common import ROOT, Context, Goal, Section, load, rel_rmse
+from bench_common import ROOT, Context, Goal, Section, load, print_section, rel_rmse, standalone_context
 from bench_cycles import equal_error_time
 
 ENGINES = ("CYCLES", "RESTFRAME")
@@ -232,11 +232,7 @@ def main(argv=None) -> None:
         out, size, repeats, jobs = args.worker
         worker(Path(out), int(size), json.loads(jobs), int(repeats))
         return
-    context = Context(smoke=args.smoke, out_dir=None, plot_prefix="", log=lambda *a: print(*a, file=sys.stderr, flush=True))
-    section = run(context)
-    print("\n".join([f"## {section.title}", "", *section.body]))
-    for goal in section.goals:
-        print(f"- {goal.name}: {goal.target}, measured {goal.measured}, met: {goal.met}")
+    print_section(run(standalone_context(args.smoke)))
 
 
 if __name__ == "__main__":

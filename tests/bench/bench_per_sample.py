@@ -28,7 +28,7 @@ import time
 
 import numpy as np
 
-from bench_common import Context, Goal, Section, fmt, load, settings
+from bench_common import Context, Goal, Section, fmt, load, print_section, settings, standalone_context
 from bench_build import raw_build, sphere_scene
 from bench_parallel import cpu_seconds, export_blend
 from bench_throughput import raw_batches, raw_primary
@@ -320,9 +320,4 @@ def run(ctx: Context) -> Section:
 
 
 if __name__ == "__main__":
-    context = Context(smoke="--smoke" in sys.argv, out_dir=None, plot_prefix="",
-                      log=lambda *a: print(*a, file=sys.stderr, flush=True))
-    section = run(context)
-    print("\n".join([f"## {section.title}", "", *section.body]))
-    for goal in section.goals:
-        print(f"- {goal.name}: {goal.target}, measured {goal.measured}, met: {goal.met}")
+    print_section(run(standalone_context("--smoke" in sys.argv)))

@@ -12,13 +12,12 @@ the best of two single-threaded runs, interleaved across modes so all see the sa
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from dataclasses import replace
 
 import numpy as np
 
-from bench_common import Context, Section, load, look_at_camera, quad, uv_sphere  # (puts the repository on sys.path)
+from bench_common import Context, Section, load, look_at_camera, print_section, quad, standalone_context, uv_sphere  # (puts the repository on sys.path)
 from restframe_addon.core.render import render_image
 from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity
 
@@ -100,9 +99,7 @@ def main():
     parser.add_argument("--width", type=int)
     parser.add_argument("--reference", type=int)
     args = parser.parse_args()
-    context = Context(smoke=args.smoke, out_dir=None, plot_prefix="", log=lambda *a: print(*a, file=sys.stderr, flush=True))
-    section = run(context, args.width, args.reference)
-    print("\n".join([f"## {section.title}", "", *section.body]))
+    print_section(run(standalone_context(args.smoke), args.width, args.reference))
 
 
 if __name__ == "__main__":

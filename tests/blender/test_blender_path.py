@@ -205,9 +205,8 @@ def test_default_scene_with_its_principled_material_is_near_cycles(addon, tmp_pa
     assert np.max(np.abs(ours[lit] / reference[lit] - 1.0)) < 0.015
 
 
-def cornell_box():
-    """A closed-off Cornell box (white floor, ceiling and back wall, red left and green right
-    walls, a white block), lit by a soft point lamp under the ceiling, black world."""
+def empty_black_scene():
+    """Factory settings with no objects and a black world (Background strength 0)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     world = bpy.data.worlds.new("Black")
@@ -216,6 +215,13 @@ def cornell_box():
         world.use_nodes = True
     world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
     scene.world = world
+    return scene
+
+
+def cornell_box():
+    """A closed-off Cornell box (white floor, ceiling and back wall, red left and green right
+    walls, a white block), lit by a soft point lamp under the ceiling, black world."""
+    scene = empty_black_scene()
 
     def material(name, color):
         m = principled(name, color, 0.0, 1.0)
@@ -258,14 +264,7 @@ def glossy_lamps_scene(roughness):
     """A metal floor reflecting an area lamp and a large soft point lamp (black world), the lamps
     just above the camera's view: what the floor shows of them comes from their samples and from
     the glossy bounce rays that find them, weighed by MIS (a mirror: from the rays alone)."""
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    world = bpy.data.worlds.new("Black")
-    world.color = (0.0, 0.0, 0.0)
-    if bpy.app.version < (5, 0, 0):
-        world.use_nodes = True
-    world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
-    scene.world = world
+    scene = empty_black_scene()
     bpy.ops.mesh.primitive_plane_add(size=8.0)
     bpy.context.active_object.data.materials.append(principled("Metal", (0.9, 0.9, 0.9), 1.0, roughness))
     area = bpy.data.lights.new("Panel", 'AREA')
@@ -298,14 +297,7 @@ def test_glossy_reflections_of_lamps_match_cycles(addon, tmp_path, roughness):
 def rough_glass_scene(roughness):
     """A pane of rough glass (Principled Transmission 1, IOR 1.5) half covering a wall of glowing
     stripes (black world): the stripes seen through it are blurred by the microfacets."""
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    world = bpy.data.worlds.new("Black")
-    world.color = (0.0, 0.0, 0.0)
-    if bpy.app.version < (5, 0, 0):
-        world.use_nodes = True
-    world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
-    scene.world = world
+    scene = empty_black_scene()
     for i, color in enumerate([(1.0, 0.2, 0.1), (0.1, 0.3, 1.0)] * 4):
         glow = principled(f"Glow{i}", (0.0, 0.0, 0.0), 0.0, 1.0)
         inputs = glow.node_tree.nodes["Principled BSDF"].inputs
