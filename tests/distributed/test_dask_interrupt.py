@@ -91,7 +91,9 @@ def test_an_interrupted_render_child_is_a_crash_to_retry_not_a_result(tiled_blen
     raises TaskCrashed (Dask retries it) instead of returning bytes."""
     blend = tmp_path / "interrupt_me.blend"
     shutil.copy(tiled_blend, blend)
-    task = distributed.Task(blend=str(blend), copy="unused", scene="", frame=1, ext=".exr", samples=4096)
+    # 65536 samples: tens of seconds to render whole (4096 came to 1.3 s once the renderer got faster),
+    # so the signal below lands mid-render on any machine
+    task = distributed.Task(blend=str(blend), copy="unused", scene="", frame=1, ext=".exr", samples=65536)
     box = {}
 
     def run():
