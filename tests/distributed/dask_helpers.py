@@ -12,9 +12,19 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 SAMPLE = os.path.join(ROOT, "sample_blends", "moving_sphere.blend")
 
 
+def cli_command(*args) -> list[str]:
+    """The headless ``render`` command with ``args``, run from the repository."""
+    return [sys.executable, "-m", "restframe_addon", "render", *map(str, args)]
+
+
 def run_cli(*args, timeout=240):
-    return subprocess.run([sys.executable, "-m", "restframe_addon", "render", *map(str, args)],
-                          cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(cli_command(*args), cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+
+
+def start_cli(*args) -> subprocess.Popen:
+    """The ``render`` command started in the background, its output captured as text (for a test
+    that signals or kills parts of it while it runs)."""
+    return subprocess.Popen(cli_command(*args), cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 def exr_channels(path) -> dict[str, np.ndarray]:

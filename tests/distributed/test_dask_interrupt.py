@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from dask_helpers import ROOT, assert_same_exr, run_cli
+from dask_helpers import ROOT, assert_same_exr, run_cli, start_cli
 from restframe_addon import distributed
 
 
@@ -52,9 +52,8 @@ def test_ctrl_c_on_a_render_child_retries_the_task_and_writes_only_complete_fram
     # tiles in, most still to come (the cluster's two workers share the cores, so each is slower)
     delay = 0.5 * min(float(seconds) for seconds in re.findall(r"frame \d -> .* \((\d+\.\d+) s\)", result.stdout))
     out = tmp_path / "interrupted"
-    command = [sys.executable, "-m", "restframe_addon", "render", str(tiled_blend), "-o", str(out / "f_#.exr"),
-               "--frames", "1-2", "--samples", "1024", "--scheduler", cluster_.scheduler_address]
-    job = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    job = start_cli(tiled_blend, "-o", out / "f_#.exr", "--frames", "1-2", "--samples", "1024",
+                    "--scheduler", cluster_.scheduler_address)
     interrupted = {}
 
     def interrupt_a_rendering_child():

@@ -14,7 +14,7 @@ import time
 import numpy as np
 import pytest
 
-from dask_helpers import ROOT, assert_same_exr, exr_channels, png_pixels, run_cli
+from dask_helpers import ROOT, assert_same_exr, exr_channels, png_pixels, run_cli, start_cli
 from restframe_addon.distributed import DistributedError, Progress, Task, bundle_dir, render_task, split_regions
 from restframe_addon.headless import write_bytes
 
@@ -162,9 +162,8 @@ def test_killed_worker_loses_no_frame(tiny_blend, cluster, tmp_path):
     result = run_cli(tiny_blend, "-o", reference / "f_#.exr", "--frames", "1-4", "--samples", "512")
     assert result.returncode == 0, result.stderr
     out = tmp_path / "killed"
-    command = [sys.executable, "-m", "restframe_addon", "render", str(tiny_blend), "-o", str(out / "f_#.exr"),
-               "--frames", "1-4", "--samples", "512", "--scheduler", cluster_.scheduler_address]
-    job = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    job = start_cli(tiny_blend, "-o", out / "f_#.exr", "--frames", "1-4", "--samples", "512",
+                    "--scheduler", cluster_.scheduler_address)
     killed = {}
 
     def kill_a_busy_worker():
