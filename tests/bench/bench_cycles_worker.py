@@ -17,11 +17,12 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))
+sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "blender")]
 
 
 def build_scene(size):
     import bpy
+    from blender_helpers import principled
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
@@ -37,21 +38,11 @@ def build_scene(size):
         world.use_nodes = False
     scene.world = world
 
-    def material(name, color, roughness):
-        m = bpy.data.materials.new(name)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", DeprecationWarning)
-            m.use_nodes = True
-        bsdf = m.node_tree.nodes["Principled BSDF"]
-        bsdf.inputs["Base Color"].default_value = (*color, 1.0)
-        bsdf.inputs["Roughness"].default_value = roughness
-        return m
-
     bpy.ops.mesh.primitive_uv_sphere_add(segments=64, ring_count=32, radius=1.0, location=(0.0, 0.0, 0.0))
     ball = bpy.context.active_object
-    ball.data.materials.append(material("Ball", (0.8, 0.3, 0.2), 0.5))
+    ball.data.materials.append(principled("Ball", (0.8, 0.3, 0.2), 0.0, 0.5))
     bpy.ops.mesh.primitive_plane_add(size=12.0, location=(0.0, 0.0, -1.0))
-    bpy.context.active_object.data.materials.append(material("Floor", (0.7, 0.7, 0.7), 0.8))
+    bpy.context.active_object.data.materials.append(principled("Floor", (0.7, 0.7, 0.7), 0.0, 0.8))
     lamp = bpy.data.lights.new("Lamp", 'POINT')
     lamp.energy = 2500.0
     lamp.shadow_soft_size = 0.6

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import bpy
 import numpy as np
@@ -43,6 +44,19 @@ def add_sun(scene, strength=2.0, rotation=(math.radians(20), 0.0, 0.0)):
     obj.rotation_euler = rotation
     scene.collection.objects.link(obj)
     return obj
+
+
+def principled(name, color, metallic, roughness):
+    """A new material whose Principled BSDF has this base colour, metallic and roughness."""
+    m = bpy.data.materials.new(name)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        m.use_nodes = True
+    bsdf = m.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Base Color"].default_value = (*color, 1.0)
+    bsdf.inputs["Metallic"].default_value = metallic
+    bsdf.inputs["Roughness"].default_value = roughness
+    return m
 
 
 def use_multilayer_exr(scene, path):

@@ -18,31 +18,17 @@ checked to 1.5 %.
 from __future__ import annotations
 
 import math
-import warnings
 
 import bpy
 import numpy as np
 import pytest
-from blender_helpers import add_camera, export_now, render_rgba
+from blender_helpers import add_camera, export_now, principled, render_rgba
 
 SIZE = 32  # pixels per side
 BLOCK = 8  # region size of the comparison
 
 
 # --------------------------------------------------------------------------- settings and world export
-def principled(name, color, metallic, roughness):
-    """A new material whose Principled BSDF has this base colour, metallic and roughness."""
-    m = bpy.data.materials.new(name)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        m.use_nodes = True
-    bsdf = m.node_tree.nodes["Principled BSDF"]
-    bsdf.inputs["Base Color"].default_value = (*color, 1.0)
-    bsdf.inputs["Metallic"].default_value = metallic
-    bsdf.inputs["Roughness"].default_value = roughness
-    return m
-
-
 def test_new_scenes_path_trace_with_cycles_light_path_defaults(addon):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     rf = bpy.context.scene.restframe
