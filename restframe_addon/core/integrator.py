@@ -36,7 +36,7 @@ from .bsdf import (dielectric_f0, diffuse_pdf, fresnel_average_dielectric, fresn
                    ggx_energy_compensation, ggx_glass_albedo, ggx_reflection_pdf, ggx_single_scattering, reflect, refract,
                    sample_diffuse, sample_ggx_reflection, sample_ggx_transmission)
 from .passes import hit_doppler, hit_times
-from .scene import RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_TRANSMISSION, RenderSettings, Scene
+from .scene import RAY_ALL, RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_TRANSMISSION, RenderSettings, Scene
 from .shading import _MIN_ALPHA, MIRROR_ROUGHNESS, LayeredLobes, PreparedLight, Shader, _cutout_dimension, hit_uv
 from .tracer import Hits, TraceCache, frames_hit, occluded
 from .world import EnvironmentWorld, UniformWorld, frame_pdf, mapping_rotation
@@ -49,6 +49,7 @@ _DIFFUSE, _GLOSSY, _MIRROR, _TRANSMIT, _COAT, _COAT_MIRROR = range(6)  # lobes
 _KIND_OF_LOBE = np.array([1, 2, 2, 3, 2, 2])
 _RAY_OF_LOBE = np.array([RAY_DIFFUSE, RAY_GLOSSY, RAY_GLOSSY, RAY_TRANSMISSION, RAY_GLOSSY,
                          RAY_GLOSSY])  # what the bounce ray is (visibility)
+_RAY_KINDS = RAY_ALL + 1  # frame * _RAY_KINDS + ray type: one key per trace of a bounce
 _WORLD_STREAM, _EMITTER_STREAM = 6, 7  # cut-out streams of the shadow rays toward the world and the emitters
 
 
@@ -123,10 +124,14 @@ class PathTracer:
         """Nearest hits of bounce rays starting in different frames, of different types (one
         trace per frame and type: ray visibility and cut-outs as the shader's)."""
         n = len(d)
+        groups = np.unique(state.src * _RAY_KINDS + state.ray)
+        if len(groups) == 1:  # one frame and type (the common case): no gathers
+            k, ray = divmod(int(groups[0]), _RAY_KINDS)
+            return self.shader.trace(k, tau, origin, d, s_lo, np.inf, ray, pixel, sample, depth, cache)
         hits = Hits(frame=np.full(n, -1, dtype=np.int32), s=np.full(n, np.inf), s_frame=np.full(n, np.inf),
                     w=np.ones(n), prim=np.full(n, -1, dtype=np.int32), u=np.zeros(n, dtype=np.float32),
                     v=np.zeros(n, dtype=np.float32), d_frame=d.copy(), tau_frame=tau.copy())
-        for k, ray in {(int(k), int(r)) for k, r in zip(state.src, state.ray)}:
+        for k, ray in (divmod(int(group), _RAY_KINDS) for group in groups):
             sel = np.flatnonzero((state.src == k) & (state.ray == ray))
             part = self.shader.trace(k, tau[sel], origin[sel], d[sel], s_lo[sel], np.inf, ray, pixel[sel],
                                      sample[sel], depth, cache)
@@ -386,8 +391,11 @@ class PathTracer:
             sel = np.flatnonzero(hits.frame == k if held is None else (hits.frame == k) & ~held)
             if not len(sel):
                 continue
-            piece = self._vertex(int(k), out, path[sel], state.take(sel), hits.take(sel), bounce,
-                                 pixel[path[sel]], sample[path[sel]], cache)
+            if len(sel) == len(path):  # every path is here (one frame hit, the common case): no gathers
+                piece = self._vertex(int(k), out, path, state, hits, bounce, pixel[path], sample[path], cache)
+            else:
+                piece = self._vertex(int(k), out, path[sel], state.take(sel), hits.take(sel), bounce,
+                                     pixel[path[sel]], sample[path[sel]], cache)
             if piece is not None:
                 pieces.append(piece)
         if not pieces:
@@ -422,12 +430,13 @@ class PathTracer:
         live = np.flatnonzero(~state.terminal)
         if not len(live):
             return None
-        keep = lambda a: a[live] if a is not None else None  # noqa: E731
-        path, throughput, lam, state = path[live], throughput[live], keep(lam), state.take(live)
-        d_k, tau, position, ng, ns, mat, back = d_k[live], tau[live], position[live], ng[live], ns[live], \
-            mat[live], back[live]
-        pixel, sample = pixel[live], sample[live]
-        base = colour.base_color(mat, keep(uv), lam)
+        if len(live) < len(path):  # (all live, the common case: no gathers)
+            keep = lambda a: a[live] if a is not None else None  # noqa: E731
+            path, throughput, lam, state, uv = path[live], throughput[live], keep(lam), state.take(live), keep(uv)
+            d_k, tau, position, ng, ns, mat, back = d_k[live], tau[live], position[live], ng[live], ns[live], \
+                mat[live], back[live]
+            pixel, sample = pixel[live], sample[live]
+        base = colour.base_color(mat, uv, lam)
         view = -d_k
         eps = shader.epsilon[k]
         origin = position + eps * ng
