@@ -194,7 +194,7 @@ class PathTracer:
         sel = sel[~blocked]
         if not len(sel):
             return total
-        f = self.shader.brdf(ns[sel], view[sel], light[sel], base[sel], mat[sel], mix.take(sel))
+        f = mix.value(light[sel], sel)
         values = self._world_values(d_world[sel], self.colour.shift(_rows(lam, sel), doppler[sel]))
         values = rows.scale(values, self.shader.searchlight_power(doppler[sel], 4))
         weight = mis.power_heuristic(pdf[sel], mix.pdf(sel, ns[sel], view[sel], light[sel])) * cos[sel] / pdf[sel]
@@ -266,7 +266,7 @@ class PathTracer:
             weight = strength[sel] * cos[sel]
             if shape is not None and shape.use_mis:
                 weight = weight * mis.power_heuristic(pdf[sel], lobes.pdf(sel, ns[sel], view[sel], e_k[sel]))
-            f = shader.brdf(ns[sel], view[sel], e_k[sel], base[sel], mat[sel], lobes.take(sel))
+            f = lobes.value(e_k[sel], sel)
             emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel),
                                         None if clock is None else clock[sel])
             total[sel] += rows.scale(f * emitted, weight)
@@ -377,7 +377,7 @@ class PathTracer:
                 clock = self.frames.frames[int(j)].object_clock(tau_j - r_j, table.prims[row])
                 emitted *= self.materials.emission_factor(emitter_mat, clock)[:, None]
             emitted = rows.scale(emitted, self.shader.searchlight_power(doppler, 4))
-            f = self.shader.brdf(ns[sel], view[sel], light, base[sel], mat[sel], lobes.take(sel))
+            f = lobes.value(light, sel)
             weight = mis.power_heuristic(pdf, lobes.pdf(sel, ns[sel], view[sel], light)) * cos / pdf
             total[sel] = rows.scale(f * emitted, weight)
         return total
@@ -569,7 +569,10 @@ class _Lobes(LayeredLobes):
             self.compensation_dielectric = self.compensation_dielectric.copy()
             self.compensation_dielectric[rough] = mixed + (share[rough] * self.glass_compensation[rough])[:, None]
         coat_albedo = self._coat(mats, mat)
-        glossy_albedo = np.where(self.glossy[:, None], self.fresnel(self.cos_v), 0.0)
+        glossy_albedo = np.zeros(self.base.shape)
+        glossy = np.flatnonzero(self.glossy)
+        if len(glossy):
+            glossy_albedo[glossy] = self.fresnel(self.cos_v[glossy], index=glossy)
         weights = np.stack([(self.diffuse * np.pi).mean(axis=1), glossy_albedo.mean(axis=1),
                             self.reflect_weight.mean(axis=1), self.transmit_weight.mean(axis=1),
                             np.where(self.coat_rough, coat_albedo, 0.0), np.where(self.coat_mirror, coat_albedo, 0.0)],
@@ -619,12 +622,13 @@ class _Lobes(LayeredLobes):
         fresnel = fresnel_dielectric(cos_vh, self.coat_eta[index])
         return np.where(above, self.coat[index] * self.coat_compensation[index] * fresnel * single, 0.0)
 
-    def value(self, light):
-        """f (n, C) without the cosine: the lobes under the coat and the rough coat."""
-        value = super().value(light)
-        r = np.flatnonzero(self.coat_rough)
+    def value(self, light, index=None):
+        """f (n, C) without the cosine: the lobes under the coat and the rough coat; at the points
+        ``index`` (default: all), one light direction each."""
+        value = super().value(light, index)
+        r = np.flatnonzero(self.coat_rough if index is None else self.coat_rough[index])
         if len(r):
-            value[r] += self._coat_specular(r, light[r])[:, None]
+            value[r] += self._coat_specular(r if index is None else index[r], light[r])[:, None]
         return value
 
     def pdf(self, index, ns, view, light):
@@ -665,7 +669,7 @@ class _Lobes(LayeredLobes):
         if len(sel):
             light[sel], _, g = sample_ggx_reflection(ns[sel], view[sel], self.alpha[sel], u1[sel], u2[sel])
             h = rows.normalized(view[sel] + light[sel])
-            fresnel = self.take(sel).fresnel(rows.dot(view[sel], h))
+            fresnel = self.fresnel(rows.dot(view[sel], h), index=sel)
             weight[sel] = rows.scale(fresnel, g * scale[sel])
         sel = np.flatnonzero(lobe == _MIRROR)
         if len(sel):

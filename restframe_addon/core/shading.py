@@ -251,38 +251,64 @@ class LayeredLobes:
         self.eta = np.where(inside, ior, 1.0 / ior)
         cos_v = np.clip(rows.dot(ns, view), 1e-6, 1.0)
         self.cos_v = cos_v
-        f0 = np.broadcast_to(mats.f0_adjusted[mat][:, None], (n, channels))
-        ones = np.ones(n)
-        white = np.ones((n, channels))
-        dielectric_albedo = ggx_dielectric_albedo(cos_v, self.alpha, ior, f0, ones)
-        self.diffuse = rows.scale(base, mats.diffuse_weight[mat]) * (1.0 - dielectric_albedo)  # f, not albedo
-        average = np.broadcast_to(mats.fresnel_average_dielectric[mat][:, None], (n, channels))
-        self.compensation_dielectric = ggx_energy_compensation(cos_v, self.alpha, average)
-        self.compensation_metal = ggx_energy_compensation(cos_v, self.alpha, fresnel_average_f82_tint(base, white))
-        self.white = white
+        self.white = np.ones((n, channels))
+        # each lobe worked out where a material has it (elsewhere it is 0, or its factor 1)
+        self.diffuse = rows.scale(base, mats.diffuse_weight[mat])  # f, not albedo
+        layer = np.flatnonzero(mats.f0_adjusted[mat] > 0.0)  # a specular layer dims it (none where F0 = 0)
+        if len(layer):
+            f0 = np.broadcast_to(mats.f0_adjusted[mat[layer]][:, None], (len(layer), channels))
+            self.diffuse[layer] *= 1.0 - ggx_dielectric_albedo(cos_v[layer], self.alpha[layer], ior[layer], f0,
+                                                               np.ones(len(layer)))
+        self.compensation_dielectric = np.ones((n, channels))
+        self.compensation_metal = np.ones((n, channels))
+        glossy = np.flatnonzero(self.glossy)
+        if len(glossy):
+            average = np.broadcast_to(mats.fresnel_average_dielectric[mat[glossy]][:, None], (len(glossy), channels))
+            self.compensation_dielectric[glossy] = ggx_energy_compensation(cos_v[glossy], self.alpha[glossy], average)
+            metal = glossy[self.metallic[glossy] > 0.0]
+            if len(metal):
+                average = fresnel_average_f82_tint(rows.take(base, metal), self.white[metal])
+                self.compensation_metal[metal] = ggx_energy_compensation(cos_v[metal], self.alpha[metal], average)
         # the delta lobes
-        reflectance = self.fresnel(cos_v, compensated=False)
-        self.reflect_weight = rows.scale(reflectance, self.mirror.astype(np.float64))
+        self.reflect_weight = np.zeros((n, channels))
+        mirror = np.flatnonzero(self.mirror)
+        if len(mirror):
+            self.reflect_weight[mirror] = self.fresnel(cos_v[mirror], compensated=False, index=mirror)
         transmission = mats.transmission[mat] * (1.0 - self.metallic)
-        through = (1.0 - fresnel_dielectric(cos_v, self.eta)) * transmission
+        through = np.zeros(n)
+        glass = np.flatnonzero(transmission > 0.0)
+        if len(glass):
+            through[glass] = (1.0 - fresnel_dielectric(cos_v[glass], self.eta[glass])) * transmission[glass]
         self.transmit_weight = np.broadcast_to(through[:, None], (n, channels))
 
-    def fresnel(self, cos_h, compensated: bool = True):
-        """The specular reflectance (n, C) at microfacet angle cos_h: dielectric and metal mixed by Metallic."""
-        dielectric = fresnel_dielectric(cos_h, self.eta) * (1.0 - self.metallic)
-        metal = rows.scale(fresnel_f82_tint(cos_h, self.base, self.white), self.metallic)
+    def fresnel(self, cos_h, compensated: bool = True, index=None):
+        """The specular reflectance (n, C) at microfacet angle cos_h: dielectric and metal mixed by
+        Metallic; at the points ``index`` (default: all), one cos_h each."""
+        pick = (lambda a: a) if index is None else (lambda a: rows.take(a, index))  # noqa: E731
+        metallic = pick(self.metallic)
+        dielectric = fresnel_dielectric(cos_h, pick(self.eta)) * (1.0 - metallic)
         if compensated:
-            return self.compensation_dielectric * dielectric[:, None] + self.compensation_metal * metal
-        return metal + dielectric[:, None]
+            value = pick(self.compensation_dielectric) * dielectric[:, None]
+        else:
+            value = np.repeat(dielectric[:, None], self.base.shape[1], axis=1)
+        metal = np.flatnonzero(metallic > 0.0)
+        if len(metal):
+            at = metal if index is None else index[metal]
+            reflectance = rows.scale(fresnel_f82_tint(cos_h[metal], rows.take(self.base, at), self.white[at]),
+                                     metallic[metal])
+            value[metal] += self.compensation_metal[at] * reflectance if compensated else reflectance
+        return value
 
-    def value(self, light):
-        """f (n, C), without the cosine: the diffuse and the rough specular lobes."""
-        value = self.diffuse.copy()
-        r = np.flatnonzero(self.glossy)
-        if len(r):
-            single, above, cos_vh = ggx_single_scattering(self.ns[r], self.view[r], light[r], self.alpha[r],
+    def value(self, light, index=None):
+        """f (n, C), without the cosine: the diffuse and the rough specular lobes; at the points
+        ``index`` (default: all), one light direction each."""
+        value = self.diffuse.copy() if index is None else rows.take(self.diffuse, index)
+        glossy = np.flatnonzero(self.glossy if index is None else self.glossy[index])
+        if len(glossy):
+            r = glossy if index is None else index[glossy]
+            single, above, cos_vh = ggx_single_scattering(self.ns[r], self.view[r], light[glossy], self.alpha[r],
                                                           self.cos_v[r])
-            value[r] += rows.scale(self.take(r).fresnel(cos_vh), np.where(above, single, 0.0))
+            value[glossy] += rows.scale(self.fresnel(cos_vh, index=r), np.where(above, single, 0.0))
         return value
 
     def take(self, index) -> "LayeredLobes":
