@@ -197,7 +197,7 @@ class PathTracer:
         f = mix.value(light[sel], sel)
         values = self._world_values(d_world[sel], self.colour.shift(_rows(lam, sel), doppler[sel]))
         values = rows.scale(values, self.shader.searchlight_power(doppler[sel], 4))
-        weight = mis.power_heuristic(pdf[sel], mix.pdf(sel, ns[sel], view[sel], light[sel])) * cos[sel] / pdf[sel]
+        weight = mis.power_heuristic(pdf[sel], mix.pdf(sel, ns[sel], view[sel], light[sel], cos[sel])) * cos[sel] / pdf[sel]
         total[sel] = rows.scale(f * values, weight)
         return total
 
@@ -265,7 +265,7 @@ class PathTracer:
                 continue
             weight = strength[sel] * cos[sel]
             if shape is not None and shape.use_mis:
-                weight = weight * mis.power_heuristic(pdf[sel], lobes.pdf(sel, ns[sel], view[sel], e_k[sel]))
+                weight = weight * mis.power_heuristic(pdf[sel], lobes.pdf(sel, ns[sel], view[sel], e_k[sel], cos[sel]))
             f = lobes.value(e_k[sel], sel)
             emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel),
                                         None if clock is None else clock[sel])
@@ -378,7 +378,7 @@ class PathTracer:
                 emitted *= self.materials.emission_factor(emitter_mat, clock)[:, None]
             emitted = rows.scale(emitted, self.shader.searchlight_power(doppler, 4))
             f = lobes.value(light, sel)
-            weight = mis.power_heuristic(pdf, lobes.pdf(sel, ns[sel], view[sel], light)) * cos / pdf
+            weight = mis.power_heuristic(pdf, lobes.pdf(sel, ns[sel], view[sel], light, cos)) * cos / pdf
             total[sel] = rows.scale(f * emitted, weight)
         return total
 
@@ -569,17 +569,31 @@ class _Lobes(LayeredLobes):
             self.compensation_dielectric = self.compensation_dielectric.copy()
             self.compensation_dielectric[rough] = mixed + (share[rough] * self.glass_compensation[rough])[:, None]
         coat_albedo = self._coat(mats, mat)
-        glossy_albedo = np.zeros(self.base.shape)
+        # the weights that choose a lobe, worked out for the lobes some point has (the others: 0)
         glossy = np.flatnonzero(self.glossy)
+        weights = [(_DIFFUSE, (self.diffuse * np.pi).mean(axis=1))]
         if len(glossy):
+            glossy_albedo = np.zeros(self.base.shape)
             glossy_albedo[glossy] = self.fresnel(self.cos_v[glossy], index=glossy)
-        weights = np.stack([(self.diffuse * np.pi).mean(axis=1), glossy_albedo.mean(axis=1),
-                            self.reflect_weight.mean(axis=1), self.transmit_weight.mean(axis=1),
-                            np.where(self.coat_rough, coat_albedo, 0.0), np.where(self.coat_mirror, coat_albedo, 0.0)],
-                           axis=1)
-        weights = np.maximum(weights, 0.0)
-        total = weights.sum(axis=1)
-        self.probability = np.where(total[:, None] > 0.0, weights / np.where(total > 0.0, total, 1.0)[:, None], 0.0)
+            weights.append((_GLOSSY, glossy_albedo.mean(axis=1)))
+        if self.mirror.any():
+            weights.append((_MIRROR, self.reflect_weight.mean(axis=1)))
+        if np.any(self.transmission > 0.0):
+            weights.append((_TRANSMIT, self.transmit_weight.mean(axis=1)))
+        if self.coat_rough.any():
+            weights.append((_COAT, np.where(self.coat_rough, coat_albedo, 0.0)))
+        if self.coat_mirror.any():
+            weights.append((_COAT_MIRROR, np.where(self.coat_mirror, coat_albedo, 0.0)))
+        weights = [(lobe, np.maximum(weight, 0.0)) for lobe, weight in weights]
+        total = weights[0][1].copy()
+        for _, weight in weights[1:]:
+            total += weight
+        scatters = total > 0.0
+        total[~scatters] = 1.0
+        self.lobes_present = np.array([lobe for lobe, _ in weights])
+        self.probability = np.zeros((len(mat), len(_KIND_OF_LOBE)))
+        for lobe, weight in weights:
+            self.probability[:, lobe] = np.where(scatters, weight / total, 0.0)
         self.any_smooth = bool(np.any(self.probability[:, [_DIFFUSE, _GLOSSY, _COAT]].sum(axis=1) > 0.0))
 
     def _coat(self, mats, mat):
@@ -631,25 +645,26 @@ class _Lobes(LayeredLobes):
             value[r] += self._coat_specular(r if index is None else index[r], light[r])[:, None]
         return value
 
-    def pdf(self, index, ns, view, light):
+    def pdf(self, index, ns, view, light, cos=None):
         """Density per unit solid angle with which :meth:`sample` draws ``light`` at vertices
-        ``index`` (the non-delta lobes, each times its probability)."""
-        p = self.probability[index]
-        pdf = p[:, _DIFFUSE] * diffuse_pdf(ns, light)
+        ``index`` (the non-delta lobes, each times its probability); ``cos``: ns . light if known."""
+        probability = self.probability[index]
+        pdf = probability[:, _DIFFUSE] * (diffuse_pdf(ns, light) if cos is None else np.maximum(cos, 0.0) / np.pi)
         glossy = np.flatnonzero(self.glossy[index])
         if len(glossy):
-            pdf[glossy] += p[glossy, _GLOSSY] * ggx_reflection_pdf(ns[glossy], view[glossy], light[glossy],
-                                                                   self.alpha[index][glossy])
+            pdf[glossy] += probability[glossy, _GLOSSY] * ggx_reflection_pdf(ns[glossy], view[glossy], light[glossy],
+                                                                             self.alpha[index[glossy]])
         coat = np.flatnonzero(self.coat_rough[index])
         if len(coat):
-            pdf[coat] += p[coat, _COAT] * ggx_reflection_pdf(ns[coat], view[coat], light[coat],
-                                                             self.coat_alpha[index][coat])
+            pdf[coat] += probability[coat, _COAT] * ggx_reflection_pdf(ns[coat], view[coat], light[coat],
+                                                                       self.coat_alpha[index[coat]])
         return pdf
 
     def choose(self, u):
-        """A lobe per vertex drawn by the weights, and its probability (0: nothing scatters)."""
-        cdf = np.cumsum(self.probability, axis=1)
-        lobe = np.minimum((u[:, None] >= cdf).sum(axis=1), len(_KIND_OF_LOBE) - 1)
+        """A lobe per vertex drawn by the weights, and its probability (0: nothing scatters; past
+        the last lobe some point has: the last lobe, of probability 0 there)."""
+        cdf = np.cumsum(self.probability[:, self.lobes_present], axis=1)  # (the absent lobes add 0)
+        lobe = np.append(self.lobes_present, len(_KIND_OF_LOBE) - 1)[(u[:, None] >= cdf).sum(axis=1)]
         return lobe, self.probability[np.arange(len(lobe)), lobe]
 
     def sample(self, lobe, probability, u1, u2):
