@@ -10,7 +10,7 @@ kind, no clamping, as ``bench_path_cycles``), exported once per checkout in its 
 rendered on one thread on request; the driver asks the checkouts in turn, alternating the order.
 Times are CPU seconds of ``render_tiles`` (min over the repeats) per sample per pixel.  With
 ``--noise`` each checkout also renders a reference of REFERENCE samples and reports the relative
-RMSE of its renders against it: time x error^2 is what the time to equal noise compares.
+RMSE of its renders against it (``bench_common.rel_rmse``, as section 7): time x error^2 is what the time to equal noise compares.
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ def prepared_cornell_box(repo: str, samples: int):
     import restframe_addon
     from restframe_addon.core import prepared
 
+    assert Path(restframe_addon.__file__).is_relative_to(Path(repo).resolve()), restframe_addon.__file__
     restframe_addon.register()
     scene = path_tests.cornell_box()
     scene.render.resolution_x = scene.render.resolution_y = SIZE
@@ -63,6 +64,7 @@ def serve(repo: str, samples: int, noise: bool) -> None:
     """Render on request (a line on stdin), print the CPU seconds (and the error against the
     checkout's own reference with ``noise``) as JSON."""
     core_scene, settings, prepared = prepared_cornell_box(repo, samples)
+    from bench_common import rel_rmse  # (after the checkout's own restframe_addon is imported)
     from restframe_addon.core.render import render_tiles
 
     def render(spp):
@@ -79,7 +81,7 @@ def serve(repo: str, samples: int, noise: bool) -> None:
         seconds, image = render(samples)
         out = {"seconds": seconds}
         if reference is not None:
-            out["rmse"] = float(np.sqrt(np.mean((image - reference) ** 2)) / np.sqrt(np.mean(reference ** 2)))
+            out["rmse"] = rel_rmse(image, reference)
         print(json.dumps(out), flush=True)
 
 
