@@ -244,7 +244,7 @@ class PathTracer:
                 e_k, strength, doppler, s_max, clock = shader._incident(pl, k, tau, position, xi1, xi2)
                 s_max = np.broadcast_to(s_max, (len(tau),))  # one number for a sun
             else:
-                u1, u2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
+                u1, u2 = sampling.uniforms(pixel, sample, (dim, dim + 1))
                 tau_j, x_j, centre, _, back, clock_zero = self._lamp_view(pl, k, tau, position)
                 e_j = shape.sample(centre, x_j, u1, u2)
                 length, pdf_j, radiance = shape.hit(centre, x_j, e_j)
@@ -479,11 +479,16 @@ class PathTracer:
         go = np.flatnonzero(valid)
         if not len(go):
             return None
-        ray_origin = position[go] + rows.scale(ng[go], side[go] * eps)
-        nxt = _Paths(src=np.full(len(go), k, dtype=np.int64), d=light[go], lam=None if lam is None else lam[go],
-                     throughput=throughput[go], pdf=pdf[go], counts=counts[go], terminal=terminal[go],
-                     reference=state.reference[go], ray=_RAY_OF_LOBE[lobe[go]])
-        return path[go], nxt, (tau[go], ray_origin, light[go], np.full(len(go), eps))
+        if len(go) < len(path):  # (every path goes on: no gathers)
+            path, tau, position, ng, side, light, lam, throughput, pdf, counts, terminal, reference, lobe = (
+                None if a is None else a[go] for a in (path, tau, position, ng, side, light, lam, throughput, pdf,
+                                                       counts, terminal, state.reference, lobe))
+        else:
+            reference = state.reference
+        ray_origin = position + rows.scale(ng, side * eps)
+        nxt = _Paths(src=np.full(len(go), k, dtype=np.int64), d=light, lam=lam, throughput=throughput, pdf=pdf,
+                     counts=counts, terminal=terminal, reference=reference, ray=_RAY_OF_LOBE[lobe])
+        return path, nxt, (tau, ray_origin, light, np.full(len(go), eps))
 
     # ------------------------------------------------------------------ accumulation
     def _accumulate(self, out, path, values, weight, scatterings: int):
@@ -677,6 +682,9 @@ class _Lobes(LayeredLobes):
         pdf = np.full(n, np.inf)
         scale = 1.0 / np.where(probability > 0.0, probability, 1.0)
         sel = np.flatnonzero(lobe == _DIFFUSE)
+        if len(sel) == n:  # every vertex scatters diffusely (the common case): no gathers
+            light, _ = sample_diffuse(ns, u1, u2)
+            return light, rows.scale(self.diffuse, np.pi * scale), self.pdf(sel, ns, view, light)
         if len(sel):
             light[sel], _ = sample_diffuse(ns[sel], u1[sel], u2[sel])
             weight[sel] = rows.scale(self.diffuse[sel], np.pi * scale[sel])  # f cos / pdf = f pi
