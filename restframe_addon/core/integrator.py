@@ -110,10 +110,9 @@ class PathTracer:
         rays = (np.broadcast_to(tau0, (n,)), np.broadcast_to(x0, (n, 3)), state.d, np.broadcast_to(s_lo, (n,)),
                 np.broadcast_to(s_hi, (n,)))
         while len(path):
-            if self.lamps_found:
-                path, state, hits = self._add_lamps(out, path, state, rays, hits, bounce)
-            self._add_world(out, path, state, hits, bounce)
-            path, state, rays = self._vertices(out, path, state, hits, bounce, pixel, sample, cache)
+            absorbed = self._add_lamps(out, path, state, rays, hits, bounce) if self.lamps_found else None
+            self._add_world(out, path, state, hits, bounce, absorbed)
+            path, state, rays = self._vertices(out, path, state, hits, bounce, pixel, sample, cache, absorbed)
             bounce += 1
             if not len(path):
                 break
@@ -157,10 +156,10 @@ class PathTracer:
             return self.colour.world(lam, len(d_world))
         return self.colour.emitter_rgb(self.world.radiance(d_world), lam)
 
-    def _add_world(self, out, path, state, hits, bounce):
+    def _add_world(self, out, path, state, hits, bounce, absorbed=None):
         """What paths leaving the scene bring from the world (MIS-weighted against the world
-        samples of the vertex they left)."""
-        miss = np.flatnonzero(hits.frame < 0)
+        samples of the vertex they left), but those a lamp ``absorbed``."""
+        miss = np.flatnonzero(hits.frame < 0 if absorbed is None else (hits.frame < 0) & ~absorbed)
         if not len(miss) or self.world.is_black:
             return
         for k in np.unique(state.src[miss]):
@@ -276,7 +275,7 @@ class PathTracer:
         """What camera and bounce rays ``rays`` (tau, origin, d, s_lo, ...) of the paths find of the
         lamps with an extent that they see (MIS-weighted against the lamp samples of the vertex they
         left): a sphere or area lamp nearer than the surface hit ends its path there, a sun adds
-        to the world where the ray leaves the scene.  Returns the paths, states and hits that go on."""
+        to the world where the ray leaves the scene.  Returns which paths a lamp ended (None: none)."""
         tau, origin, d, s_lo = rays[:4]
         n = len(path)
         nearest = hits.s.copy() if len(rays) < 5 else np.minimum(hits.s, rays[4])
@@ -316,10 +315,7 @@ class PathTracer:
         lit = np.flatnonzero(np.any(found != 0.0, axis=1))
         if len(lit):
             self._accumulate(out, path[lit], found[lit], None, bounce)
-        if not absorbed.any():
-            return path, state, hits
-        go = np.flatnonzero(~absorbed)
-        return path[go], state.take(go), hits.take(go)
+        return absorbed if absorbed.any() else None
 
     # ------------------------------------------------------------------ emissive surfaces
     def _emitter_pdf(self, j, prim, distance, cos_emit, doppler):
@@ -383,8 +379,9 @@ class PathTracer:
         return total
 
     # ------------------------------------------------------------------ vertices
-    def _vertices(self, out, path, state, hits, bounce, pixel, sample, cache):
-        """Light at the surfaces hit and the scattered rays that continue the paths."""
+    def _vertices(self, out, path, state, hits, bounce, pixel, sample, cache, absorbed=None):
+        """Light at the surfaces hit and the scattered rays that continue the paths (but those a
+        lamp ``absorbed`` before the surface: they add nothing and end there)."""
         pieces = []
         held = self.shader.held_out(hits) if self.shader.has_holdouts else None  # holdouts end paths, dark
         for k in frames_hit(hits):
@@ -392,10 +389,11 @@ class PathTracer:
             if not len(sel):
                 continue
             if len(sel) == len(path):  # every path is here (one frame hit, the common case): no gathers
-                piece = self._vertex(int(k), out, path, state, hits, bounce, pixel[path], sample[path], cache)
+                piece = self._vertex(int(k), out, path, state, hits, bounce, pixel[path], sample[path], cache,
+                                     absorbed)
             else:
                 piece = self._vertex(int(k), out, path[sel], state.take(sel), hits.take(sel), bounce,
-                                     pixel[path[sel]], sample[path[sel]], cache)
+                                     pixel[path[sel]], sample[path[sel]], cache, _rows(absorbed, sel))
             if piece is not None:
                 pieces.append(piece)
         if not pieces:
@@ -405,13 +403,15 @@ class PathTracer:
         rays = tuple(np.concatenate([p[2][i] for p in pieces]) for i in range(4))
         return path, state, rays
 
-    def _vertex(self, k, out, path, state, hits, bounce, pixel, sample, cache):
+    def _vertex(self, k, out, path, state, hits, bounce, pixel, sample, cache, absorbed):
         shader, mats, colour = self.shader, self.materials, self.colour
         frame = self.frames.frames[k]
         d_k, tau = hits.d_frame, hit_times(hits, slice(None))
         prim, u, v = hits.prim, hits.u, hits.v
         doppler = hit_doppler(frame, prim, u, v, tau, d_k, hits.w)
         throughput = rows.scale(state.throughput, shader.searchlight_power(doppler, 4))
+        if absorbed is not None:  # (kept along, not gathered out: they bring nothing more)
+            throughput[absorbed] = 0.0
         lam = colour.shift(state.lam, doppler)
         if bounce == 0:  # Russian roulette compares throughputs with the camera hit's
             state.reference = np.maximum(throughput.max(axis=1), 1e-300)
@@ -476,6 +476,8 @@ class PathTracer:
             throughput = rows.scale(throughput, 1.0 / np.where(survive > 0.0, survive, 1.0))
         if not self.findable:
             valid &= ~terminal
+        if absorbed is not None:
+            valid &= ~absorbed
         go = np.flatnonzero(valid)
         if not len(go):
             return None
@@ -653,16 +655,18 @@ class _Lobes(LayeredLobes):
     def pdf(self, index, ns, view, light, cos=None):
         """Density per unit solid angle with which :meth:`sample` draws ``light`` at vertices
         ``index`` (the non-delta lobes, each times its probability); ``cos``: ns . light if known."""
-        probability = self.probability[index]
-        pdf = probability[:, _DIFFUSE] * (diffuse_pdf(ns, light) if cos is None else np.maximum(cos, 0.0) / np.pi)
+        probability = self.probability
+        pdf = probability[index, _DIFFUSE] * (diffuse_pdf(ns, light) if cos is None else np.maximum(cos, 0.0) / np.pi)
         glossy = np.flatnonzero(self.glossy[index])
         if len(glossy):
-            pdf[glossy] += probability[glossy, _GLOSSY] * ggx_reflection_pdf(ns[glossy], view[glossy], light[glossy],
-                                                                             self.alpha[index[glossy]])
+            at = index[glossy]
+            pdf[glossy] += probability[at, _GLOSSY] * ggx_reflection_pdf(ns[glossy], view[glossy], light[glossy],
+                                                                         self.alpha[at])
         coat = np.flatnonzero(self.coat_rough[index])
         if len(coat):
-            pdf[coat] += probability[coat, _COAT] * ggx_reflection_pdf(ns[coat], view[coat], light[coat],
-                                                                       self.coat_alpha[index[coat]])
+            at = index[coat]
+            pdf[coat] += probability[at, _COAT] * ggx_reflection_pdf(ns[coat], view[coat], light[coat],
+                                                                     self.coat_alpha[at])
         return pdf
 
     def choose(self, u):
