@@ -281,6 +281,7 @@ class PathTracer:
         nearest = hits.s.copy() if len(rays) < 5 else np.minimum(hits.s, rays[4])
         found = np.zeros((n, self.colour.channels))
         absorbed = np.zeros(n, dtype=bool)
+        lit = np.zeros(n, dtype=bool)
         found_by = [i for i, shape in enumerate(self.lamp_shapes) if shape is not None and shape.use_mis]
         for index in sorted(found_by, key=lambda i: self.lamp_shapes[i].is_sun):  # suns last: behind the others
             pl, shape = self.shader.lights[index], self.lamp_shapes[index]
@@ -307,12 +308,13 @@ class PathTracer:
                 weight = radiance * self.shader.searchlight_power(doppler, 4) * mis.power_heuristic(
                     state.pdf[sel], frame_pdf(pdf_j, doppler))
                 value = state.throughput[sel] * rows.scale(np.asarray(emitted, dtype=np.float64), weight)
+                lit[sel] = True
                 if shape.is_sun:
                     found[sel] += value
                 else:  # the nearest lamp so far: replaces what a farther one gave
                     found[sel] = value
                     absorbed[sel] = True
-        lit = np.flatnonzero(np.any(found != 0.0, axis=1))
+        lit = np.flatnonzero(lit)
         if len(lit):
             self._accumulate(out, path[lit], found[lit], None, bounce)
         return absorbed if absorbed.any() else None
