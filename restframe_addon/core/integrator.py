@@ -17,7 +17,7 @@ integrator) and of the world (sampled in the world frame, its density carried in
 frame k by the aberration Jacobian D^2, weighed against BSDF sampling by the power
 heuristic), then scatters.  Bounce limits follow Cycles' Light Paths: a vertex reached
 past a limit only adds what the ray found (emission, world), Russian roulette after
-``RR_START`` bounces, clamps on each sample's light after one (direct) and after more
+``RR_START`` bounces (survival the square root of the throughput, as Cycles'), clamps on each sample's light after one (direct) and after more
 (indirect) scatterings.
 
 All paths of a batch advance together (one numpy call per frame and bounce); random
@@ -472,8 +472,8 @@ class PathTracer:
         counts[np.arange(len(kind)), kind] += 1
         terminal = (counts[:, 0] > self.limits[0]) | (counts[np.arange(len(kind)), kind] > self.limits[kind])
         throughput = throughput * weight
-        if bounce + 1 > RR_START:  # Russian roulette
-            survive = np.clip(throughput.max(axis=1) / state.reference, 0.0, 1.0)
+        if bounce + 1 > RR_START:  # Russian roulette, Cycles' survival: sqrt of the throughput (relative here)
+            survive = np.clip(np.sqrt(throughput.max(axis=1) / state.reference), 0.0, 1.0)
             valid &= sampling.uniform(pixel, sample, dim + 5) < survive
             throughput = rows.scale(throughput, 1.0 / np.where(survive > 0.0, survive, 1.0))
         if not self.findable:
