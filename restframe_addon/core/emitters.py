@@ -152,15 +152,18 @@ class LampShape:
             point = rows.add_scaled(rows.add_scaled(centre, a * self.size[0], x_axis), b * self.size[1], y_axis)
             return rows.normalized(point - x)
         delta = centre - x
-        distance2 = rows.dot(delta, delta)
-        axes = rows.scale(delta, 1.0 / np.sqrt(np.maximum(distance2, 1e-300)))
-        sin2 = np.minimum(self.radius**2 / np.maximum(distance2, 1e-300), 1.0)
+        distance2 = np.maximum(rows.dot(delta, delta), 1e-300)
+        axes = rows.scale(delta, 1.0 / np.sqrt(distance2))
+        sin2 = np.minimum(self.radius**2 / distance2, 1.0)
         one_minus_cos = sin2 / (1.0 + np.sqrt(1.0 - sin2))  # of the cone the sphere fills
         t1, t2 = _orthonormal_basis(axes)
         cos_t = 1.0 - u1 * one_minus_cos
         sin_t = np.sqrt(np.maximum(1.0 - cos_t * cos_t, 0.0))
         phi = 2.0 * np.pi * u2
-        return rows.scale(t1, sin_t * np.cos(phi)) + rows.scale(t2, sin_t * np.sin(phi)) + rows.scale(axes, cos_t)
+        out = rows.scale(t1, sin_t * np.cos(phi))  # (t1 sin cos phi + t2 sin sin phi) + axis cos, in place
+        out += rows.scale(t2, sin_t * np.sin(phi))
+        out += rows.scale(axes, cos_t)
+        return out
 
     def hit(self, centre, x, d):
         """Where rays from x along unit d (n, 3) meet the lamp: (path length (n,), inf for the sun

@@ -257,15 +257,21 @@ class PathTracer:
             sel = np.flatnonzero((cos > 0.0) & (rows.dot(ng, e_k) > 0.0) & (strength > 0.0))
             if not len(sel):
                 continue
-            blocked = occluded(self.frames, k, tau[sel], origin[sel], e_k[sel], eps, s_max[sel] - 2.0 * eps, cache,
-                               see_through=shader.cutouts(pixel[sel], sample[sel], _cutout_dimension(depth, 8 + index)))
-            sel = sel[~blocked]
+            e_sel = rows.take(e_k, sel)
+            blocked = occluded(self.frames, k, tau[sel], rows.take(origin, sel), e_sel, eps, s_max[sel] - 2.0 * eps,
+                               cache, see_through=shader.cutouts(pixel[sel], sample[sel],
+                                                                 _cutout_dimension(depth, 8 + index)))
+            if blocked.any():
+                lit = np.flatnonzero(~blocked)
+                sel, e_sel = sel[lit], rows.take(e_sel, lit)
             if not len(sel):
                 continue
-            weight = strength[sel] * cos[sel]
+            cos_sel = cos[sel]
+            weight = strength[sel] * cos_sel
             if shape is not None and shape.use_mis:
-                weight = weight * mis.power_heuristic(pdf[sel], lobes.pdf(sel, ns[sel], view[sel], e_k[sel], cos[sel]))
-            f = lobes.value(e_k[sel], sel)
+                weight = weight * mis.power_heuristic(pdf[sel], lobes.pdf(sel, rows.take(ns, sel), rows.take(view, sel),
+                                                                          e_sel, cos_sel))
+            f = lobes.value(e_sel, sel)
             emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), doppler[sel]), len(sel),
                                         None if clock is None else clock[sel])
             total[sel] += rows.scale(f * emitted, weight)
