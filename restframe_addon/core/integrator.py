@@ -575,9 +575,10 @@ class _Lobes(LayeredLobes):
         super().__init__(mats, base, mat, ns, view, back)
         share = mats.transmission[mat]
         self.transmission = share * (1.0 - self.metallic)
-        self.glass_compensation = np.ones(len(mat))
+        self.glass_compensation = np.broadcast_to(1.0, (len(mat),))
         rough = np.flatnonzero((share > 0.0) & ~self.mirror)
         if len(rough):
+            self.glass_compensation = np.ones(len(mat))
             self.glass_compensation[rough] = 1.0 / np.maximum(
                 ggx_glass_albedo(self.cos_v[rough], self.alpha[rough], self.eta[rough]), 1e-6)
             mixed = rows.scale(self.compensation_dielectric[rough], 1.0 - share[rough])
@@ -621,10 +622,11 @@ class _Lobes(LayeredLobes):
         self.coat_mirror = coated & ~self.coat_rough
         self.coat_alpha = np.maximum(mats.coat_roughness[mat] ** 2, _MIN_ALPHA)
         self.coat_eta = 1.0 / mats.coat_ior[mat]
-        self.coat_compensation = np.ones(n)
+        self.coat_compensation = np.broadcast_to(1.0, (n,))
         albedo = np.zeros(n)
         if not coated.any():
             return albedo
+        self.coat_compensation = np.ones(n)
         rough = np.flatnonzero(self.coat_rough)
         if len(rough):
             ior, cos_v, alpha = mats.coat_ior[mat[rough]], self.cos_v[rough], self.coat_alpha[rough]

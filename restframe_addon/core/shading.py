@@ -251,7 +251,7 @@ class LayeredLobes:
         self.eta = np.where(inside, ior, 1.0 / ior)
         cos_v = np.clip(rows.dot(ns, view), 1e-6, 1.0)
         self.cos_v = cos_v
-        self.white = np.ones((n, channels))
+        self.white = np.broadcast_to(1.0, (n, channels))  # (read-only views of one number: no arrays of ones)
         # each lobe worked out where a material has it (elsewhere it is 0, or its factor 1)
         self.diffuse = rows.scale(base, mats.diffuse_weight[mat])  # f, not albedo
         layer = np.flatnonzero(mats.f0_adjusted[mat] > 0.0)  # a specular layer dims it (none where F0 = 0)
@@ -259,10 +259,10 @@ class LayeredLobes:
             f0 = np.broadcast_to(mats.f0_adjusted[mat[layer]][:, None], (len(layer), channels))
             self.diffuse[layer] *= 1.0 - ggx_dielectric_albedo(cos_v[layer], self.alpha[layer], ior[layer], f0,
                                                                np.ones(len(layer)))
-        self.compensation_dielectric = np.ones((n, channels))
-        self.compensation_metal = np.ones((n, channels))
+        self.compensation_dielectric = self.compensation_metal = self.white
         glossy = np.flatnonzero(self.glossy)
         if len(glossy):
+            self.compensation_dielectric, self.compensation_metal = np.ones((n, channels)), np.ones((n, channels))
             average = np.broadcast_to(mats.fresnel_average_dielectric[mat[glossy]][:, None], (len(glossy), channels))
             self.compensation_dielectric[glossy] = ggx_energy_compensation(cos_v[glossy], self.alpha[glossy], average)
             metal = glossy[self.metallic[glossy] > 0.0]
