@@ -166,8 +166,8 @@ def _concentric_disk(u1, u2):
     b = 2.0 * u2 - 1.0
     first = np.abs(a) > np.abs(b)
     r = np.where(first, a, b)
-    safe = np.where(first, a, np.where(b == 0.0, 1.0, b))
-    phi = np.where(first, (np.pi / 4.0) * (b / safe), np.pi / 2.0 - (np.pi / 4.0) * (a / safe))
+    quarter = (np.pi / 4.0) * (np.where(first, b, a) / np.where(r == 0.0, 1.0, r))  # (r = 0: any angle)
+    phi = np.where(first, quarter, np.pi / 2.0 - quarter)
     return r * np.cos(phi), r * np.sin(phi)
 
 
