@@ -89,6 +89,15 @@ class PathTracer:
         # a ray past the limits is still traced for what it finds: only worth it if there is something
         self.findable = self.emissive or not world.is_black or self.lamps_found
 
+    def _searchlit(self, values, doppler):
+        """Light ``values`` (n,) or (n, C) arriving with Doppler factors ``doppler``, times the
+        searchlight factor D^4 (D^5 at lambda D); as they are where every D is 1 (light from the
+        receiver's own frame, the common case: no powers to raise)."""
+        if not np.any(doppler != 1.0):
+            return values
+        power = self.shader.searchlight_power(doppler, 4)
+        return values * power if np.ndim(values) == 1 else rows.scale(values, power)
+
     # ------------------------------------------------------------------ paths
     def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, pixel, sample, lam, hits=None,
                  cache: TraceCache | None = None):
@@ -148,7 +157,7 @@ class PathTracer:
             d_world, w = to_world.rays(d)
             doppler = 1.0 / w  # nu_frame / nu_world
         values = self._world_values(d_world, self.colour.shift(lam, doppler))
-        radiance = rows.scale(values, self.shader.searchlight_power(doppler, 4))
+        radiance = self._searchlit(values, doppler)
         return radiance, frame_pdf(self.world.pdf(d_world), doppler)
 
     def _world_values(self, d_world, lam):
@@ -195,7 +204,7 @@ class PathTracer:
             return total
         f = mix.value(light[sel], sel)
         values = self._world_values(d_world[sel], self.colour.shift(_rows(lam, sel), doppler[sel]))
-        values = rows.scale(values, self.shader.searchlight_power(doppler[sel], 4))
+        values = self._searchlit(values, doppler[sel])
         weight = mis.power_heuristic(pdf[sel], mix.pdf(sel, ns[sel], view[sel], light[sel], cos[sel])) * cos[sel] / pdf[sel]
         total[sel] = rows.scale(f * values, weight)
         return total
@@ -249,7 +258,7 @@ class PathTracer:
                 length, pdf_j, radiance = shape.hit(centre, x_j, e_j)
                 e_k, doppler = back(e_j)  # s_k / s_lamp: the Doppler factor of the lamp seen here
                 pdf = frame_pdf(pdf_j, doppler)
-                strength = np.where(pdf > 0.0, radiance * shader.searchlight_power(doppler, 4)
+                strength = np.where(pdf > 0.0, self._searchlit(radiance, doppler)
                                     / np.where(pdf > 0.0, pdf, 1.0), 0.0)
                 s_max = doppler * length
                 clock = self._lamp_clock(pl, tau_j, x_j, length, clock_zero)
@@ -380,7 +389,7 @@ class PathTracer:
             if self.materials.emission_curves:  # the emitter's clock when the light left it
                 clock = self.frames.frames[int(j)].object_clock(tau_j - r_j, table.prims[row])
                 emitted *= self.materials.emission_factor(emitter_mat, clock)[:, None]
-            emitted = rows.scale(emitted, self.shader.searchlight_power(doppler, 4))
+            emitted = self._searchlit(emitted, doppler)
             f = lobes.value(light, sel)
             weight = mis.power_heuristic(pdf, lobes.pdf(sel, ns[sel], view[sel], light, cos)) * cos / pdf
             total[sel] = rows.scale(f * emitted, weight)
@@ -417,10 +426,14 @@ class PathTracer:
         d_k, tau = hits.d_frame, hit_times(hits, slice(None))
         prim, u, v = hits.prim, hits.u, hits.v
         doppler = hit_doppler(frame, prim, u, v, tau, d_k, hits.w)
-        throughput = rows.scale(state.throughput, shader.searchlight_power(doppler, 4))
+        if np.any(doppler != 1.0):
+            throughput = rows.scale(state.throughput, shader.searchlight_power(doppler, 4))
+            lam = colour.shift(state.lam, doppler)
+        else:  # light from the frame the ray started in (the common case): D = 1 exactly, nothing to scale
+            throughput, lam = state.throughput, state.lam
         if absorbed is not None:  # (kept along, not gathered out: they bring nothing more)
+            throughput = throughput.copy() if throughput is state.throughput else throughput
             throughput[absorbed] = 0.0
-        lam = colour.shift(state.lam, doppler)
         if bounce == 0:  # Russian roulette compares throughputs with the camera hit's
             state.reference = np.maximum(throughput.max(axis=1), 1e-300)
         position, ng, ns, mat, back = shader.surface_info(k, prim, u, v, d_k, tau)
