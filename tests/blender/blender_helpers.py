@@ -104,6 +104,24 @@ def render_rgba(scene, path) -> np.ndarray:
     return np.asarray(rgba, dtype=np.float64)[::-1]
 
 
+def render_eyes(scene, path) -> list[np.ndarray]:
+    """An F12 render of a stereo pair saved as one plain RGBA EXR per eye (``<path>_L.exr``,
+    ``_R``), read back: [left, right], each (H, W, 4), row 0 = bottom."""
+    settings = scene.render.image_settings
+    settings.file_format, settings.color_mode, settings.color_depth = 'OPEN_EXR', 'RGBA', '32'
+    settings.views_format = 'INDIVIDUAL'
+    scene.render.filepath = f"{path}.exr"
+    bpy.ops.render.render(write_still=True)
+    eyes = []
+    for eye in ("L", "R"):
+        with OpenEXR.File(f"{path}_{eye}.exr") as exr:
+            channels = exr.parts[0].channels
+            rgba = channels["RGBA"].pixels if "RGBA" in channels else np.stack(
+                [channels[c].pixels for c in "RGBA"], axis=-1)
+        eyes.append(np.asarray(rgba, dtype=np.float64)[::-1])
+    return eyes
+
+
 def render_direct_light(scene, path, engine, samples) -> np.ndarray:
     """RGB of an F12 render with Cycles (CPU, direct light only, no denoising, box-like pixels) or
     RESTframe at the same samples: the set-up of the tests that compare the two on lit surfaces."""

@@ -9,7 +9,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from blender_helpers import add_camera, add_plane, export_now, render_exr
+from blender_helpers import add_camera, add_plane, export_now, render_exr, render_eyes, render_rgba
 from restframe_addon import engine, motion_query
 from restframe_addon.core.prepared import prepare
 
@@ -245,3 +245,69 @@ def test_keyed_node_emission_strength_and_colour_enter_the_lamp_curves(scene):
     seconds, colours = light.color_curve
     np.testing.assert_allclose([np.interp(0.5, seconds, colours[:, i]) for i in range(3)], [0.5, 0.5, 0.125],
                                atol=1e-6)
+
+
+def stereo_rig_camera(scene):
+    """A stereo camera riding with an accelerating rig (Motion = Animation, the hyperbolic rocket's
+    keys), looking along +y with its eyes along x, the direction of the acceleration, at a row of
+    lit cards; two seconds into the acceleration (the rig at 0.63 c)."""
+    scene.render.fps, scene.render.fps_base = FPS, 1.0
+    scene.restframe.light_speed = C
+    scene.restframe.reference_frame = 1
+    scene.frame_start = 1
+    scene.render.resolution_x, scene.render.resolution_y = 32, 16
+    scene.restframe.samples = 2
+    rig = bpy.data.objects.new("Rig", None)
+    scene.collection.objects.link(rig)
+    key_every_frame(rig, lambda t: (hyperbolic_x(t), 0.0, 0.0), range(-30, 120))
+    rig.restframe.motion = 'ANIMATION'
+    camera = add_camera(scene, location=(0.0, 0.0, 0.0), rotation=(math.radians(90), 0.0, 0.0))
+    camera.parent = rig  # no motion of its own: it rides with the rig
+    camera.data.stereo.interocular_distance = 1.0
+    camera.data.stereo.convergence_mode, camera.data.stereo.pivot = 'PARALLEL', 'CENTER'  # eyes at x -+0.5
+    for index in range(7):  # behind the camera's x: aberration turns them into its view
+        card = add_plane(scene, f"Card{index}", size=1.0, location=(-2.0 + 1.5 * index, 6.0, 0.0))
+        card.rotation_euler = (math.radians(90), 0.0, 0.0)
+    add_point_lamp(scene, (2.5, 3.0, 2.0), watts=3000.0)
+    scene.frame_set(49)
+    return camera
+
+
+@pytest.mark.parametrize("parallelism", ['THREADS', 'PROCESSES'])
+def test_each_stereo_eye_of_an_accelerating_camera_observes_from_its_own_world_line(scene, tmp_path, monkeypatch,
+                                                                                    parallelism):
+    """Stereoscopy with Motion = Animation: each eye is a point of the camera's Born-rigid assembly
+    on a world line of its own (docs/physics.md#observer), so it sees what the camera moved to the
+    eye's place renders alone: the same observation event, momentary rest frame (0.632 c and
+    0.617 c: the eyes lie along the acceleration) and image, whether the second eye's rest frames
+    are shared with the first's (threads) or built again in each worker process."""
+    from restframe_addon import export
+    from restframe_addon.core.lorentz import Boost
+    from restframe_addon.core.observer import camera_velocity, observation_event
+
+    eyes = []
+    view_camera = export.view_camera
+    monkeypatch.setattr(export, "view_camera", lambda *args: eyes.append(view_camera(*args)) or eyes[-1])
+    camera = stereo_rig_camera(scene)
+    scene.restframe.parallelism = parallelism
+    scene.render.use_multiview = True
+    stereo = render_eyes(scene, tmp_path / "stereo")
+    assert len(eyes) == 2
+    assert all((image[..., 0] > 0.01).sum() > 20 for image in stereo)  # cards in view
+    assert not np.allclose(stereo[0], stereo[1], rtol=1e-3)  # the eyes see different images
+    left_beta, right_beta = (camera_velocity(eye, export_now(scene)[0].tau_obs).beta[0] for eye in eyes)
+    assert left_beta - right_beta > 0.01  # the eye ahead accelerates less (Born rigidity)
+
+    scene.render.use_multiview = False
+    for side, seen, seen_image in zip((-0.5, 0.5), eyes, stereo):
+        camera.location = (side, 0.0, 0.0)
+        out = export_now(scene)[0]
+        alone = out.camera
+        np.testing.assert_allclose(seen.matrix, alone.matrix, atol=1e-6)
+        velocity = camera_velocity(alone, out.tau_obs)
+        np.testing.assert_allclose(camera_velocity(seen, out.tau_obs).beta, velocity.beta, rtol=1e-9)
+        boost = Boost.from_velocity(velocity.beta)
+        np.testing.assert_allclose(np.hstack(observation_event(seen, boost, out.tau_obs)),
+                                   np.hstack(observation_event(alone, boost, out.tau_obs)), atol=1e-6)
+        np.testing.assert_allclose(seen_image, render_rgba(scene, tmp_path / f"alone{side}.exr"), rtol=1e-5,
+                                   atol=1e-7)

@@ -13,10 +13,9 @@ import math
 
 import bpy
 import numpy as np
-import OpenEXR
 import pytest
 
-from blender_helpers import add_camera, add_plane, render_exr, render_rgba
+from blender_helpers import add_camera, add_plane, render_exr, render_eyes, render_rgba
 
 SUN_TILT = math.radians(45)
 
@@ -261,17 +260,9 @@ def eye_centroids(scene, tmp_path, engine):
     cycles.samples = scene.restframe.samples = 64
     cycles.device, cycles.use_adaptive_sampling, cycles.use_denoising = 'CPU', False, False
     cycles.pixel_filter_type, cycles.filter_width = 'BOX', 1.0  # uniform over the pixel, as RESTframe's samples
-    settings = scene.render.image_settings
-    settings.file_format, settings.color_mode, settings.color_depth = 'OPEN_EXR', 'RGBA', '32'
-    settings.views_format = 'INDIVIDUAL'
-    scene.render.filepath = str(tmp_path / f"{engine}.exr")
-    bpy.ops.render.render(write_still=True)
     centroids = []
-    for eye in ("L", "R"):
-        with OpenEXR.File(str(tmp_path / f"{engine}_{eye}.exr")) as exr:
-            channels = exr.parts[0].channels
-            red = channels["RGBA"].pixels[..., 0] if "RGBA" in channels else channels["R"].pixels
-        weight = np.asarray(red, dtype=np.float64).sum(axis=0)
+    for image in render_eyes(scene, tmp_path / engine):
+        weight = image[..., 0].sum(axis=0)
         centroids.append(float(weight @ np.arange(len(weight)) / weight.sum()))
     return centroids
 
