@@ -56,7 +56,7 @@ T_SPECTRAL = "tests/core/test_spectral.py"
 T_OBSERVERS = "tests/core/test_observers.py"
 T_LIGHTS = "tests/core/test_moving_lights.py"
 T_STEREO_EYES = ("tests/blender/test_blender_observer.py::"
-                 "test_each_stereo_eye_of_an_accelerating_camera_observes_from_its_own_world_line")
+                 "test_each_stereo_eye_of_a_moving_camera_observes_from_its_own_world_line")
 
 
 MUTANTS = (
