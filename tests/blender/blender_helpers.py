@@ -46,16 +46,20 @@ def add_sun(scene, strength=2.0, rotation=(math.radians(20), 0.0, 0.0)):
     return obj
 
 
-def principled(name, color, metallic, roughness):
-    """A new material whose Principled BSDF has this base colour, metallic and roughness."""
+def principled(name, color=None, metallic=None, roughness=None, **inputs):
+    """A new material whose Principled BSDF has this base colour (RGB), metallic, roughness and
+    other ``inputs`` (by socket name, ``_`` for a space; they come last), Blender's defaults for
+    what is not given."""
     m = bpy.data.materials.new(name)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         m.use_nodes = True
     bsdf = m.node_tree.nodes["Principled BSDF"]
-    bsdf.inputs["Base Color"].default_value = (*color, 1.0)
-    bsdf.inputs["Metallic"].default_value = metallic
-    bsdf.inputs["Roughness"].default_value = roughness
+    given = {"Base Color": None if color is None else (*color, 1.0), "Metallic": metallic, "Roughness": roughness}
+    given.update((key.replace("_", " "), value) for key, value in inputs.items())
+    for key, value in given.items():
+        if value is not None:
+            bsdf.inputs[key].default_value = value
     return m
 
 
