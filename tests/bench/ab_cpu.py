@@ -16,10 +16,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import subprocess
 import sys
 import time
 from pathlib import Path
+
+from ab_servers import ask_in_turn
 
 HERE = Path(__file__).resolve()
 SCENES = {"moving_sphere": ("moving_sphere.blend", (960, 540), 8), "bars": ("bars_sideways.blend", None, None)}
@@ -82,22 +83,10 @@ def main() -> int:
     if args.serve:
         serve(args.serve, args.scene, args.stages)
         return 0
-    servers = {}
-    for name, repo in (("before", args.before), ("after", args.after)):
-        command = [sys.executable, str(HERE), "-", "--serve", repo, "--scene", args.scene] + (["--stages"] * args.stages)
-        servers[name] = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-    for server in servers.values():
-        while server.stdout.readline().strip() != "ready":
-            pass
-    times = {name: [] for name in servers}
-    for r in range(args.repeats):
-        for name in (list(servers) if r % 2 == 0 else list(servers)[::-1]):
-            servers[name].stdin.write("go\n")
-            servers[name].stdin.flush()
-            times[name].append(json.loads(servers[name].stdout.readline()))
-    for server in servers.values():
-        server.stdin.close()
-        server.wait()
+    command = lambda repo: [sys.executable, str(HERE), "-", "--serve", repo, "--scene", args.scene] + (  # noqa: E731
+        ["--stages"] * args.stages)
+    times = ask_in_turn({name: (command(repo), None) for name, repo in (("before", args.before), ("after", args.after))},
+                        args.repeats)
     print(f"{args.scene}, one thread, CPU seconds, min of {args.repeats} interleaved repeats")
     print("| | before | after | after / before |\n|---|---|---|---|")
     for key in times["before"][0]:

@@ -18,12 +18,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from ab_servers import ask_in_turn
 
 HERE = Path(__file__).resolve()
 SIZE, BOUNCES, REFERENCE = 32, 4, 1024
@@ -118,23 +119,9 @@ def main() -> None:
     repos = {"this": str(HERE.parents[2])}
     if args.base:
         repos = {"base": str(Path(args.base).resolve()), **repos}
-    servers = {}
-    for name, repo in repos.items():
-        command = [sys.executable, str(HERE), "--serve", repo, "--samples", str(args.samples)]
-        servers[name] = subprocess.Popen(command + (["--noise"] if args.noise else []), stdin=subprocess.PIPE,
-                                         stdout=subprocess.PIPE, text=True, cwd=repo)
-    for server in servers.values():
-        while server.stdout.readline().strip() != "ready":
-            pass
-    results = {name: [] for name in servers}
-    for r in range(args.repeats):
-        for name in (list(servers) if r % 2 == 0 else list(servers)[::-1]):
-            servers[name].stdin.write("go\n")
-            servers[name].stdin.flush()
-            results[name].append(json.loads(servers[name].stdout.readline()))
-    for server in servers.values():
-        server.stdin.close()
-        server.wait()
+    command = lambda repo: [sys.executable, str(HERE), "--serve", repo, "--samples", str(args.samples)] + (  # noqa: E731
+        ["--noise"] * args.noise)
+    results = ask_in_turn({name: (command(repo), repo) for name, repo in repos.items()}, args.repeats)
     pixels = SIZE * SIZE
     for name, runs in results.items():
         best = min(run["seconds"] for run in runs)
