@@ -17,8 +17,8 @@ integrator) and of the world (sampled in the world frame, its density carried in
 frame k by the aberration Jacobian D^2, weighed against BSDF sampling by the power
 heuristic), then scatters.  Bounce limits follow Cycles' Light Paths: a vertex reached
 past a limit only adds what the ray found (emission, world), Russian roulette after
-``RR_START`` bounces (survival the square root of the throughput, as Cycles'), clamps on each sample's light after one (direct) and after more
-(indirect) scatterings.
+``RR_START`` bounces (survival the square root of the throughput, as Cycles'), clamps on each
+sample's light after one (direct) and after more (indirect) scatterings.
 
 All paths of a batch advance together (one numpy call per frame and bounce); random
 numbers are keyed by (pixel, sample, dimension), so tiles stay independent, and the world
@@ -205,7 +205,8 @@ class PathTracer:
         f = mix.value(light[sel], sel)
         values = self._world_values(d_world[sel], self.colour.shift(_rows(lam, sel), doppler[sel]))
         values = self._searchlit(values, doppler[sel])
-        weight = mis.power_heuristic(pdf[sel], mix.pdf(sel, ns[sel], view[sel], light[sel], cos[sel])) * cos[sel] / pdf[sel]
+        mis_weight = mis.power_heuristic(pdf[sel], mix.pdf(sel, ns[sel], view[sel], light[sel], cos[sel]))
+        weight = mis_weight * cos[sel] / pdf[sel]
         total[sel] = rows.scale(f * values, weight)
         return total
 

@@ -10,7 +10,8 @@ kind, no clamping, as ``bench_path_cycles``), exported once per checkout in its 
 rendered on one thread on request; the driver asks the checkouts in turn, alternating the order.
 Times are CPU seconds of ``render_tiles`` (min over the repeats) per sample per pixel.  With
 ``--noise`` each checkout also renders a reference of REFERENCE samples and reports the relative
-RMSE of its renders against it (``bench_common.rel_rmse``, as section 7): time x error^2 is what the time to equal noise compares.
+RMSE of its renders against it (``bench_common.rel_rmse``, as section 7): time x error^2 is
+what the time to equal noise compares.
 """
 
 from __future__ import annotations
@@ -119,8 +120,8 @@ def main() -> None:
     repos = {"this": str(HERE.parents[2])}
     if args.base:
         repos = {"base": str(Path(args.base).resolve()), **repos}
-    command = lambda repo: [sys.executable, str(HERE), "--serve", repo, "--samples", str(args.samples)] + (  # noqa: E731
-        ["--noise"] * args.noise)
+    command = lambda repo: [sys.executable, str(HERE), "--serve", repo, "--samples",  # noqa: E731
+                            str(args.samples)] + ["--noise"] * args.noise
     results = ask_in_turn({name: (command(repo), repo) for name, repo in repos.items()}, args.repeats)
     pixels = SIZE * SIZE
     for name, runs in results.items():
