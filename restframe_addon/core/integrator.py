@@ -620,7 +620,7 @@ class _Lobes(LayeredLobes):
             total += weight
         scatters = total > 0.0
         total[~scatters] = 1.0
-        self.lobes_present = np.array([lobe for lobe, _ in weights])
+        self.lobes_present = [lobe for lobe, _ in weights]  # (of the whole batch: not an array of points)
         self.probability = np.zeros((len(mat), len(_KIND_OF_LOBE)))
         for lobe, weight in weights:
             self.probability[:, lobe] = np.where(scatters, weight / total, 0.0)
@@ -697,7 +697,7 @@ class _Lobes(LayeredLobes):
         """A lobe per vertex drawn by the weights, and its probability (0: nothing scatters; past
         the last lobe some point has: the last lobe, of probability 0 there)."""
         cdf = np.cumsum(self.probability[:, self.lobes_present], axis=1)  # (the absent lobes add 0)
-        lobe = np.append(self.lobes_present, len(_KIND_OF_LOBE) - 1)[(u[:, None] >= cdf).sum(axis=1)]
+        lobe = np.array(self.lobes_present + [len(_KIND_OF_LOBE) - 1])[(u[:, None] >= cdf).sum(axis=1)]
         return lobe, self.probability[np.arange(len(lobe)), lobe]
 
     def sample(self, lobe, probability, u1, u2):

@@ -186,3 +186,58 @@ def test_the_rough_coat_is_evaluated_as_it_is_sampled():
     up = (light @ NORMAL > 0.0) & (coat_pdf > 0.0)
     assert np.mean(np.where(up, 1.0 / np.where(up, coat_pdf, 1.0), 0.0)) == pytest.approx(2.0 * math.pi * up.mean(),
                                                                                               rel=0.02)
+
+
+def mixed_lobes(n, seed):
+    """The lobes of random points of every kind of surface (diffuse only, plastic, metal, mirror,
+    rough and smooth glass seen from both sides, rough and mirror coats), random views."""
+    mats = MaterialTable([Material("diffuse", (0.7, 0.2, 0.1), specular_ior_level=0.0, roughness=1.0),
+                          Material("plastic", (0.2, 0.5, 0.9), roughness=0.4),
+                          Material("metal", (0.9, 0.6, 0.3), metallic=1.0, roughness=0.3),
+                          Material("half metal", (0.4, 0.6, 0.8), metallic=0.4, roughness=0.5),
+                          Material("mirror", (0.9, 0.9, 0.9), metallic=1.0, roughness=0.0),
+                          Material("rough glass", roughness=0.3, transmission=1.0, ior=1.45),
+                          Material("glass", roughness=0.0, transmission=1.0),
+                          Material("coat", (0.7, 0.1, 0.1), roughness=0.6, coat_weight=1.0, coat_roughness=0.3),
+                          Material("mirror coat", (0.1, 0.5, 0.1), coat_weight=0.7, coat_roughness=0.0)])
+    rng = np.random.default_rng(seed)
+    mat = rng.integers(0, len(mats.materials), n)
+    view = rng.normal(size=(n, 3))
+    view[:, 2] = np.abs(view[:, 2])
+    view /= np.linalg.norm(view, axis=1)[:, None]
+    lobes = _Lobes(mats, mats.base_color(mat, None), mat, np.broadcast_to(NORMAL, (n, 3)).copy(), view,
+                   rng.random(n) < 0.3)
+    return lobes, mats, mat, rng
+
+
+def test_lobes_of_some_points_are_those_points_own():
+    """The lobes are worked out only where a material has them, and evaluated at some points by
+    index: the same numbers, bit for bit, as the lobes of just those points (``take``), and a
+    surface without a specular layer (Specular IOR Level 0) is its plain Lambertian base."""
+    n = 4000
+    lobes, mats, mat, rng = mixed_lobes(n, 5)
+    light = rng.normal(size=(n, 3))
+    light /= np.linalg.norm(light, axis=1)[:, None]
+    some = np.flatnonzero(rng.random(n) < 0.4)
+    own = lobes.take(some)
+    np.testing.assert_array_equal(lobes.value(light[some], some), own.value(light[some]))
+    np.testing.assert_array_equal(lobes.fresnel(lobes.cos_v[some], index=some), own.fresnel(own.cos_v))
+    np.testing.assert_array_equal(lobes.pdf(some, lobes.ns[some], lobes.view[some], light[some]),
+                                  own.pdf(np.arange(len(some)), own.ns, own.view, light[some]))
+    plain = mat == 0
+    np.testing.assert_array_equal(lobes.diffuse[plain], np.tile(mats.base[0] * mats.diffuse_weight[0], (plain.sum(), 1)))
+
+
+def test_a_lobe_is_chosen_by_its_probability_over_every_lobe():
+    """Choosing among the lobes some point has is choosing among all six by their cumulative
+    probabilities (the absent ones add 0); past the last (rounding, or nothing scatters) the
+    last lobe, of probability 0 there."""
+    n = 4000
+    lobes, _, _, rng = mixed_lobes(n, 6)
+    u = rng.random(n)
+    u[:10] = 1.0 - 1e-17  # (rounds to 1: past every cumulative probability)
+    lobe, probability = lobes.choose(u)
+    every = np.minimum((u[:, None] >= np.cumsum(lobes.probability, axis=1)).sum(axis=1), 5)
+    np.testing.assert_array_equal(lobe, every)
+    np.testing.assert_array_equal(probability, lobes.probability[np.arange(n), every])
+    assert set(np.unique(lobe)) >= {0, 1, 2, 3, 4}
