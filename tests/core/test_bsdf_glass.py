@@ -225,7 +225,8 @@ def test_lobes_of_some_points_are_those_points_own():
     np.testing.assert_array_equal(lobes.pdf(some, lobes.ns[some], lobes.view[some], light[some]),
                                   own.pdf(np.arange(len(some)), own.ns, own.view, light[some]))
     plain = mat == 0
-    np.testing.assert_array_equal(lobes.diffuse[plain], np.tile(mats.base[0] * mats.diffuse_weight[0], (plain.sum(), 1)))
+    lambertian = mats.base[0] * mats.diffuse_weight[0]
+    np.testing.assert_array_equal(lobes.diffuse[plain], np.tile(lambertian, (plain.sum(), 1)))
 
 
 def test_a_lobe_is_chosen_by_its_probability_over_every_lobe():
