@@ -567,10 +567,15 @@ class Shader:
             dim = 1000 + 100 * depth + 4 * index
             xi1 = xi2 = None  # a point light or sharp sun needs no random numbers
             if light.sampled:
-                xi1, xi2 = sampling.uniform(pixel, sample, dim), sampling.uniform(pixel, sample, dim + 1)
+                xi1, xi2 = sampling.uniforms(pixel, sample, (dim, dim + 1))
             e_k, strength, doppler, s_max, clock = self._incident(light, k, tau, position, xi1, xi2)
             cos_n = rows.dot(ns, e_k)
-            sel = _selection((cos_n > 0.0) & (rows.dot(ng, e_k) > 0.0) & (strength > 0.0))
+            lit = cos_n > 0.0
+            if ns is not ng:  # (flat shading: one array, the same test)
+                lit &= rows.dot(ng, e_k) > 0.0
+            if strength.strides != (0,) or not (strength[:1] > 0.0).all():  # (one broadcast number: tested once)
+                lit &= strength > 0.0
+            sel = _selection(lit)
             if sel is None:
                 continue
             e_sel = _take(e_k, sel)
