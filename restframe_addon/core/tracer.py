@@ -784,21 +784,41 @@ def _segments_meet_boxes(origin, direction, t_max: float, lo, hi) -> np.ndarray:
     return enter <= leave
 
 
+# meshes of up to this many triangles keep hit_geometry's rows of every triangle (96 bytes each,
+# made at the first hit): one gather per hit instead of four, no edges or normals worked out per hit
+_HIT_TABLE_TRIANGLES = 1 << 16
+
+
+def _triangle_rows(geometry, prim):
+    """The first corner, the two edges out of it and the unit normal (Geometry.face_normals, from
+    the edges at hand) of triangles ``prim``: four new (n, 3) arrays."""
+    corners = rows.take(geometry.triangles, prim)
+    p0, p1, p2 = (rows.take(geometry.vertices, corners[:, i]) for i in range(3))
+    p1 -= p0
+    p2 -= p0
+    return p0, p1, p2, triangle_normals(p1, p2)
+
+
 def hit_geometry(frame: RestFrame, prim, u, v, tau=None):
     """Float64 position, unit geometric normal and unit shading normal at hits of one frame
     (frame coordinates; ``tau``, the hits' frame times, poses a spinning body): new arrays, the
     caller's to write into (the two normals are one array where the mesh has no corner normals)."""
     geometry = frame.geometry
-    corners = rows.take(geometry.triangles, prim)
-    p0, p1, p2 = (rows.take(geometry.vertices, corners[:, i]) for i in range(3))
-    p1 -= p0  # the edges out of the first corner
-    p2 -= p0
+    if len(geometry.triangles) <= _HIT_TABLE_TRIANGLES:  # one gather of each hit's row of the table
+        table = geometry.hit_table
+        if table is None:  # (two threads may both make it: the same numbers)
+            table = np.concatenate(_triangle_rows(geometry, np.arange(len(geometry.triangles))), axis=1)
+            table.flags.writeable = False
+            geometry.hit_table = table
+        hit_rows = rows.take(table, prim)
+        p0, p1, p2, ng = (hit_rows[:, 3 * i:3 * i + 3] for i in range(4))
+    else:
+        p0, p1, p2, ng = _triangle_rows(geometry, prim)
     # p0 + u e1 + v e2, summed into p0's own array column by column (float32 u, v widen exactly)
     position, term = p0, np.empty(len(p0))
     for axis in range(3):
         position[:, axis] += np.multiply(u, p1[:, axis], out=term)
         position[:, axis] += np.multiply(v, p2[:, axis], out=term)
-    ng = triangle_normals(p1, p2)  # Geometry.face_normals, from the edges at hand
     if geometry.corner_normals is None:
         ns = ng
     else:
