@@ -104,8 +104,6 @@ class Geometry:
     tri_holdout: np.ndarray | None = None  # (M,) bool: holdout triangles; None: none
     radius: float = 0.0  # distance from the local origin (a moving body's pivot) to its farthest used vertex
     extent: float = field(init=False)  # the longest side of the bounds
-    # tracer.hit_geometry's per-triangle rows, made at the first hit that needs them (a cache, not input)
-    hit_table: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         self.extent = float(np.max(self.hi - self.lo))

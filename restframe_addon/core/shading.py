@@ -445,11 +445,11 @@ class Shader:
                 held[sel] |= geometry.tri_holdout[prim]
         return held
 
-    def surface_info(self, k: int, prim, u, v, d_k, tau_hit=None):
+    def surface_info(self, k: int, prim, u, v, d_k, tau_hit=None, cache: TraceCache | None = None):
         """Position, facing geometric and shading normals (normal maps applied), and material
-        index at hits of frame k."""
+        index at hits of frame k (``cache``: the calling thread's)."""
         frame = self.frames.frames[k]
-        position, ng, ns, back = facing_normals(frame, prim, u, v, d_k, tau_hit)
+        position, ng, ns, back = facing_normals(frame, prim, u, v, d_k, tau_hit, cache)
         material = self.materials.clamp(frame.geometry.tri_material[prim])
         if self.materials.normal_mapped and frame.geometry.corner_uvs is not None:
             ns = self._normal_mapped(frame, prim, material, hit_uv(frame, prim, u, v), ng, ns, back, d_k,
@@ -460,7 +460,7 @@ class Shader:
         frame = self.frames.frames[k]
         if self._emission_only(depth):  # no normals, texture or base colour needed
             return self._emission(frame, tau, prim, self.materials.clamp(frame.geometry.tri_material[prim]), lam)
-        position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau)
+        position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau, cache)
         uv = hit_uv(frame, prim, u, v)
         base = self.colour.base_color(mat, uv, lam)
         one = _only_material(mat)

@@ -267,7 +267,8 @@ def _ray_range(frame: RestFrame, tau, origin, d, s_lo, s_hi):
 class TraceCache:
     """What the tracer derives from a frame set and keeps for later bundles: the culling
     cones of frames seen from observation events (every tile of a perspective camera shares
-    its event) and the body boxes per source frame.
+    its event), the body boxes per source frame and the triangle rows of small meshes
+    (:func:`hit_geometry`).
 
     Not thread-safe: each render thread (or tile) owns one and passes it explicitly; the
     frame set itself stays read-only.
@@ -278,6 +279,7 @@ class TraceCache:
     def __init__(self):
         self._cones: dict = {}
         self._body_boxes: dict[int, tuple] = {}
+        self._hit_tables: dict[int, tuple] = {}  # id(geometry) -> (geometry, its rows for hit_geometry)
 
     def cones(self, keys: list, compute) -> list:
         """The cones kept under each key; ``compute(missing)`` works out, at once, those of the
@@ -295,6 +297,14 @@ class TraceCache:
         if src not in self._body_boxes:
             self._body_boxes[src] = frames.body_boxes(src)
         return self._body_boxes[src]
+
+    def hit_table(self, geometry) -> np.ndarray:
+        """:func:`hit_geometry`'s rows of every triangle of ``geometry``, made at its first lit hit."""
+        kept = self._hit_tables.get(id(geometry))
+        if kept is None or kept[0] is not geometry:
+            kept = self._hit_tables[id(geometry)] = (
+                geometry, np.concatenate(_triangle_rows(geometry, np.arange(len(geometry.triangles))), axis=1))
+        return kept[1]
 
 
 def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None = None,
@@ -784,8 +794,8 @@ def _segments_meet_boxes(origin, direction, t_max: float, lo, hi) -> np.ndarray:
     return enter <= leave
 
 
-# meshes of up to this many triangles keep hit_geometry's rows of every triangle (96 bytes each,
-# made at the first hit): one gather per hit instead of four, no edges or normals worked out per hit
+# a render thread keeps hit_geometry's rows of every triangle of meshes up to this size (96 bytes a
+# triangle, made at the first hit): one gather per hit instead of four, no edges or normals per hit
 _HIT_TABLE_TRIANGLES = 1 << 16
 
 
@@ -799,18 +809,14 @@ def _triangle_rows(geometry, prim):
     return p0, p1, p2, triangle_normals(p1, p2)
 
 
-def hit_geometry(frame: RestFrame, prim, u, v, tau=None):
+def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | None = None):
     """Float64 position, unit geometric normal and unit shading normal at hits of one frame
     (frame coordinates; ``tau``, the hits' frame times, poses a spinning body): new arrays, the
-    caller's to write into (the two normals are one array where the mesh has no corner normals)."""
+    caller's to write into (the two normals are one array where the mesh has no corner normals).
+    ``cache``: the calling thread's, which keeps the rows of small meshes' triangles."""
     geometry = frame.geometry
-    if len(geometry.triangles) <= _HIT_TABLE_TRIANGLES:  # one gather of each hit's row of the table
-        table = geometry.hit_table
-        if table is None:  # (two threads may both make it: the same numbers)
-            table = np.concatenate(_triangle_rows(geometry, np.arange(len(geometry.triangles))), axis=1)
-            table.flags.writeable = False
-            geometry.hit_table = table
-        hit_rows = rows.take(table, prim)
+    if cache is not None and len(geometry.triangles) <= _HIT_TABLE_TRIANGLES:  # one gather per hit
+        hit_rows = rows.take(cache.hit_table(geometry), prim)
         p0, p1, p2, ng = (hit_rows[:, 3 * i:3 * i + 3] for i in range(4))
     else:
         p0, p1, p2, ng = _triangle_rows(geometry, prim)
