@@ -15,7 +15,7 @@ import numpy as np
 
 from . import rows
 from .frames import FrameSet, RestFrame
-from .tracer import Hits, frames_hit, hit_geometry
+from .tracer import Hits, TraceCache, frames_hit, hit_geometry
 
 
 @dataclass(frozen=True)
@@ -73,17 +73,18 @@ def hit_doppler(frame: RestFrame, prim, u, v, tau_hit, d_k, w) -> np.ndarray:
     return surface_doppler(frame, prim, u, v, tau_hit, d_k) / w
 
 
-def facing_normals(frame: RestFrame, prim, u, v, d_k, tau_hit=None):
+def facing_normals(frame: RestFrame, prim, u, v, d_k, tau_hit=None, cache: TraceCache | None = None):
     """Position, geometric and shading normals turned toward the viewer, and whether the
     back was hit, at hits of one frame (frame coordinates).  A shading normal turned away
-    from the viewer falls back to the geometric one."""
-    position, ng, ns = hit_geometry(frame, prim, u, v, tau_hit)
+    from the viewer falls back to the geometric one.  Read-only for the caller: with flat
+    shading the two normals are one array.  ``cache``: the calling thread's (see hit_geometry)."""
+    position, ng, ns = hit_geometry(frame, prim, u, v, tau_hit, cache)
     back = rows.dot(ng, d_k) > 0.0
     for normals in (ng,) if ns is ng else (ng, ns):  # (hit_geometry's own arrays: turned in place)
         for axis in range(3):
             np.negative(normals[:, axis], out=normals[:, axis], where=back)
     if ns is ng:  # flat: the turned normal faces the viewer (or grazes it)
-        return position, ng, ng.copy(), back
+        return position, ng, ng, back
     away = rows.dot(ns, d_k) >= 0.0
     if away.any():
         ns[away] = rows.take(ng, away)

@@ -22,7 +22,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from . import blas, sampling
+from . import blas, malloc, sampling
 from .passes import (ALL_PASSES, DENOISING_PASSES, EXTRA_PASSES, PASSES, pixel_passes,  # noqa: F401 (PASSES: public)
                      ray_doppler)
 from .prepared import PreparedScene, prepare
@@ -199,6 +199,7 @@ def render_tiles(prepared: PreparedScene, should_stop: Callable[[], bool] = lamb
     core); return early once ``should_stop()`` is true (a tile cut short by it is never yielded).
     ``warn(message)`` hears why worker processes fell back to threads."""
     workers = render_workers(prepared.settings.threads if threads is None else threads)
+    malloc.tune()  # for render threads in this process (worker processes have it from their start)
     with blas.single_threaded():  # the render threads use the cores (see blas)
         if prepared.settings.parallelism == "PROCESSES":
             from . import workers as processes  # (it imports this module)

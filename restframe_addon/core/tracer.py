@@ -267,7 +267,8 @@ def _ray_range(frame: RestFrame, tau, origin, d, s_lo, s_hi):
 class TraceCache:
     """What the tracer derives from a frame set and keeps for later bundles: the culling
     cones of frames seen from observation events (every tile of a perspective camera shares
-    its event) and the body boxes per source frame.
+    its event), the body boxes per source frame and the triangle rows of small meshes
+    (:func:`hit_geometry`).
 
     Not thread-safe: each render thread (or tile) owns one and passes it explicitly; the
     frame set itself stays read-only.
@@ -278,6 +279,7 @@ class TraceCache:
     def __init__(self):
         self._cones: dict = {}
         self._body_boxes: dict[int, tuple] = {}
+        self._hit_tables: dict[int, tuple] = {}  # id(geometry) -> (geometry, its rows for hit_geometry)
 
     def cones(self, keys: list, compute) -> list:
         """The cones kept under each key; ``compute(missing)`` works out, at once, those of the
@@ -295,6 +297,14 @@ class TraceCache:
         if src not in self._body_boxes:
             self._body_boxes[src] = frames.body_boxes(src)
         return self._body_boxes[src]
+
+    def hit_table(self, geometry) -> np.ndarray:
+        """:func:`hit_geometry`'s rows of every triangle of ``geometry``, made at its first lit hit."""
+        kept = self._hit_tables.get(id(geometry))
+        if kept is None or kept[0] is not geometry:
+            kept = self._hit_tables[id(geometry)] = (
+                geometry, np.concatenate(_triangle_rows(geometry, np.arange(len(geometry.triangles))), axis=1))
+        return kept[1]
 
 
 def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None = None,
@@ -784,21 +794,37 @@ def _segments_meet_boxes(origin, direction, t_max: float, lo, hi) -> np.ndarray:
     return enter <= leave
 
 
-def hit_geometry(frame: RestFrame, prim, u, v, tau=None):
-    """Float64 position, unit geometric normal and unit shading normal at hits of one frame
-    (frame coordinates; ``tau``, the hits' frame times, poses a spinning body): new arrays, the
-    caller's to write into (the two normals are one array where the mesh has no corner normals)."""
-    geometry = frame.geometry
+# a render thread keeps hit_geometry's rows of every triangle of meshes up to this size (96 bytes a
+# triangle, made at the first hit): one gather per hit instead of four, no edges or normals per hit
+_HIT_TABLE_TRIANGLES = 1 << 16
+
+
+def _triangle_rows(geometry, prim):
+    """The first corner, the two edges out of it and the unit normal (Geometry.face_normals, from
+    the edges at hand) of triangles ``prim``: four new (n, 3) arrays."""
     corners = rows.take(geometry.triangles, prim)
     p0, p1, p2 = (rows.take(geometry.vertices, corners[:, i]) for i in range(3))
-    p1 -= p0  # the edges out of the first corner
+    p1 -= p0
     p2 -= p0
+    return p0, p1, p2, triangle_normals(p1, p2)
+
+
+def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | None = None):
+    """Float64 position, unit geometric normal and unit shading normal at hits of one frame
+    (frame coordinates; ``tau``, the hits' frame times, poses a spinning body): new arrays, the
+    caller's to write into (the two normals are one array where the mesh has no corner normals).
+    ``cache``: the calling thread's, which keeps the rows of small meshes' triangles."""
+    geometry = frame.geometry
+    if cache is not None and len(geometry.triangles) <= _HIT_TABLE_TRIANGLES:  # one gather per hit
+        hit_rows = rows.take(cache.hit_table(geometry), prim)
+        p0, p1, p2, ng = (hit_rows[:, 3 * i:3 * i + 3] for i in range(4))
+    else:
+        p0, p1, p2, ng = _triangle_rows(geometry, prim)
     # p0 + u e1 + v e2, summed into p0's own array column by column (float32 u, v widen exactly)
     position, term = p0, np.empty(len(p0))
     for axis in range(3):
         position[:, axis] += np.multiply(u, p1[:, axis], out=term)
         position[:, axis] += np.multiply(v, p2[:, axis], out=term)
-    ng = triangle_normals(p1, p2)  # Geometry.face_normals, from the edges at hand
     if geometry.corner_normals is None:
         ns = ng
     else:
