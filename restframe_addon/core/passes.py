@@ -120,9 +120,11 @@ def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
         # world time of the hit event: back along the ray in the camera frame, then into S
         s_hit = hits.s[hit]
         shared = n > 0 and x.strides[0] == 0 and tau.strides[0] == 0  # one event (broadcast views): no gathers
-        world_tau, _ = frames.map(frames.camera, frames.world).events(
-            (tau[0] if shared else tau[hit]) - s_hit,
-            rows.add_scaled(x[0] if shared else rows.take(x, hit), s_hit, rows.take(d, hit)))
+        to_world = frames.map(frames.camera, frames.world)
+        world_tau = (tau[0] if shared else tau[hit]) - s_hit
+        if not to_world.is_identity:  # (a camera at rest in S needs no hit positions)
+            world_tau, _ = to_world.events(world_tau, rows.add_scaled(x[0] if shared else rows.take(x, hit), s_hit,
+                                                                      rows.take(d, hit)))
         passes["Emission Time"] = np.zeros(n)
         passes["Emission Time"][hit] = world_tau / light_speed
     per_frame = wanted & {"Doppler", "Normal", "IndexOB", "Object Time"}
