@@ -84,7 +84,7 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
             complete = False
             break
         m = part.stop - part.start
-        pix = np.repeat(pixel[part], count)
+        pix = pixel[part] if count == 1 else np.repeat(pixel[part], count)  # (a view: nothing writes into it)
         smp = np.tile(np.arange(first, first + count), m)
         observed = None  # the Doppler factor of the camera frame seen by each sample's observer (None: 1)
         if samples == 1 and not prepared.samples_vary:  # the one sample is the pixel-centre ray
