@@ -9,7 +9,8 @@ Each checkout runs in its own process (a server that exports and prepares the sc
 renders on request); the driver asks them in turn, alternating the order, so both see the same
 machine. Times are CPU seconds of the render (one thread: other work on a shared machine inflates
 them less than wall time), min over the repeats. ``--stages`` adds the CPU time inside the tracer
-calls of the shading, the hit geometry, the sample jitter and the camera rays. ``--scene floor`` is
+calls of the shading, the hit geometry, the sample jitter, the camera rays, the boosts of rays into
+other frames (``FrameMap.rays``, inside the tracer calls) and the pixel-centre rays' passes. ``--scene floor`` is
 the primary-ray floor of ``bench_per_sample`` (261k-triangle sphere at (0.5, 0.2, 0) c, 1536^2, one
 sample, no lights); it adds the F12's ``prepare`` and their sum, ``F12``.
 """
@@ -29,7 +30,7 @@ SCENES = {"moving_sphere": ("moving_sphere.blend", (960, 540), 8), "bars": ("bar
           "floor": None}
 STAGES = (("shading", "occluded"), ("shading", "trace_nearest"), ("shading", "facing_normals"),
           ("sampling", "stratified_offsets"), ("sampling", "stratified_positions"),
-          ("prepared", "PreparedScene.sample_rays"))
+          ("prepared", "PreparedScene.sample_rays"), ("frames", "FrameMap.rays"), ("render", "pixel_passes"))
 LABELS = {"stratified_positions": "stratified_offsets"}  # the sample jitter, whichever of the two a checkout calls
 
 
@@ -38,7 +39,7 @@ def serve(repo: str, scene: str, stages: bool) -> None:
     from bench_parallel import export_blend
 
     import restframe_addon
-    from restframe_addon.core import prepared, sampling, shading
+    from restframe_addon.core import frames, prepared, render, sampling, shading
     from restframe_addon.core.render import render_tiles
 
     restframe_addon.register()
@@ -53,7 +54,7 @@ def serve(repo: str, scene: str, stages: bool) -> None:
     settings = dataclasses.replace(settings, parallelism="THREADS", threads=1)
     prep = prepared.prepare(core_scene, settings)
     totals: dict[str, float] = {}
-    modules = {"shading": shading, "sampling": sampling, "prepared": prepared}
+    modules = {"shading": shading, "sampling": sampling, "prepared": prepared, "frames": frames, "render": render}
     for module, name in STAGES if stages else ():
         owner = modules[module]
         *outer, attr = name.split(".")
