@@ -107,7 +107,8 @@ def ray_doppler(frames: FrameSet, hits: Hits) -> np.ndarray:
 def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
                  shading_normals=None) -> dict[str, np.ndarray]:
     """The passes ``wanted`` (names besides Combined) of camera rays ``rays`` = (tau, x, d, ...)
-    in the camera frame and their ``hits``, as (n, channels) float64 arrays.  ``shading_normals(k,
+    in the camera frame and their ``hits``, as (n, channels) float32 arrays (each value worked out
+    in float64 and rounded once, as it is written).  ``shading_normals(k,
     prim, u, v, d_k, tau_hit)``: the Normal pass's normals at hits of frame k (normal maps applied,
     as Cycles shows them; None: :func:`facing_normals`')."""
     tau, x, d = rays[:3]
@@ -116,19 +117,22 @@ def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
     hit = hits.frame >= 0
     passes = {}
     if "Depth" in wanted:
-        passes["Depth"] = np.where(hit, hits.s, _MISS_DEPTH)
+        passes["Depth"] = np.full(n, _MISS_DEPTH, dtype=np.float32)
+        np.copyto(passes["Depth"], hits.s, where=hit, casting="same_kind")
     if "Emission Time" in wanted:
         # world time of the hit event: back along the ray in the camera frame, then into S
         s_hit = hits.s[hit]
         shared = n > 0 and x.strides[0] == 0 and tau.strides[0] == 0  # one event (broadcast views): no gathers
-        world_tau, _ = frames.map(frames.camera, frames.world).events(
-            (tau[0] if shared else tau[hit]) - s_hit,
-            rows.add_scaled(x[0] if shared else rows.take(x, hit), s_hit, rows.take(d, hit)))
-        passes["Emission Time"] = np.zeros(n)
+        to_world = frames.map(frames.camera, frames.world)
+        world_tau = (tau[0] if shared else tau[hit]) - s_hit
+        if not to_world.is_identity:  # (a camera at rest in S needs no hit positions)
+            world_tau, _ = to_world.events(world_tau, rows.add_scaled(x[0] if shared else rows.take(x, hit), s_hit,
+                                                                      rows.take(d, hit)))
+        passes["Emission Time"] = np.zeros(n, dtype=np.float32)
         passes["Emission Time"][hit] = world_tau / light_speed
     per_frame = wanted & {"Doppler", "Normal", "IndexOB", "Object Time"}
     for name in per_frame:
-        passes[name] = np.zeros((n, len(BY_NAME[name].channels)))
+        passes[name] = np.zeros((n, len(BY_NAME[name].channels)), dtype=np.float32)
     if not per_frame:
         return passes
     for k in frames_hit(hits):

@@ -352,11 +352,12 @@ class Shader:
         if hits is None:
             hits = self.trace(src, tau0, x0, d, s_lo, s_hi, ray, pixel, sample, depth, cache)
         values = np.empty((n, self.colour.channels))
-        miss = np.flatnonzero(hits.frame < 0)
+        missed = hits.frame < 0
+        miss = np.flatnonzero(missed)
         if len(miss):
             to_world = self.frames.map(src, self.frames.world)
             if to_world.is_identity:  # the background is at rest with the viewer: D = 1
-                values[miss] = self.colour.world(_rows(lam, miss), len(miss))
+                _put_rows(values, missed, miss, self.colour.world(_rows(lam, miss), len(miss)))
             else:
                 doppler = 1.0 / to_world.rays(d[miss])[1]
                 world = self.colour.world(self.colour.shift(_rows(lam, miss), doppler), len(miss))
@@ -794,6 +795,16 @@ def uv_tangents(frame, prim, tau=None):
 def _rows(lam, index):
     """The wavelengths of some rays (None in RGB mode)."""
     return None if lam is None else _take(lam, index)
+
+
+def _put_rows(values, mask, index, new):
+    """``values[index] = new``, ``index`` the rows where ``mask`` holds: one row broadcast to all
+    of them is copied column by column under the mask (5x faster than assigning (n, C) rows)."""
+    if new.strides[0] != 0:
+        values[index] = new
+        return
+    for channel in range(values.shape[1]):
+        np.copyto(values[:, channel], new[0, channel], where=mask)
 
 
 def _take(a, sel):
