@@ -524,59 +524,58 @@ _RUN_MARGIN = 1e-6  # radians: a run is dropped whole only this far clear of eve
 
 def _sub_bundle_cones(d):
     """(axes (b, 3), cosines and sines of the half-angles (b,), lowest and highest direction
-    components (b, 3)) of cones and boxes holding each run of ``_RUN`` consecutive directions d
-    (the rays past the last whole run are left out).
-
-    Reduced run by run with ``reduceat`` on contiguous columns: numpy reduces the short last
-    axis of a (b, _RUN) array one row at a time, several times slower."""
+    components (3, b)) of cones and boxes holding each run of ``_RUN`` consecutive directions d
+    (the rays past the last whole run are left out)."""
     count = len(d) // _RUN
-    starts = np.arange(0, count * _RUN, _RUN)
     # one axis at a time: numpy is slow along a length-3 last axis
-    columns = [np.ascontiguousarray(d[:count * _RUN, axis]) for axis in range(3)]
-    axes = np.stack([np.add.reduceat(column, starts) for column in columns], axis=1)
+    columns = [d[:count * _RUN, axis] for axis in range(3)]
+    axes = np.stack([_per_run(np.add, column) for column in columns], axis=1)
     length = np.linalg.norm(axes, axis=1)
     spread_out = length < 1e-9 * _RUN  # directions that cancel: no axis, the cone holds every direction
     axes /= np.where(spread_out, 1.0, length)[:, None]
     cosines = columns[0].reshape(count, _RUN) * axes[:, :1]
     cosines += columns[1].reshape(count, _RUN) * axes[:, 1:2]
     cosines += columns[2].reshape(count, _RUN) * axes[:, 2:]
-    run_cos = np.where(spread_out, -1.0, np.clip(np.minimum.reduceat(cosines.ravel(), starts), -1.0, 1.0))
-    low = np.stack([np.minimum.reduceat(column, starts) for column in columns], axis=1)
-    high = np.stack([np.maximum.reduceat(column, starts) for column in columns], axis=1)
+    run_cos = np.where(spread_out, -1.0, np.clip(_per_run(np.minimum, cosines.ravel()), -1.0, 1.0))
+    low = np.stack([_per_run(np.minimum, column) for column in columns])
+    high = np.stack([_per_run(np.maximum, column) for column in columns])
     return axes, run_cos, np.sqrt(1.0 - run_cos * run_cos), low, high
+
+
+def _per_run(ufunc, values):
+    """``ufunc`` (add, minimum, maximum) over each run of ``_RUN`` consecutive values, by folding
+    neighbours pairwise: numpy reduces the short last axis of a (b, _RUN) array one row at a
+    time, several times slower."""
+    width = 1
+    while width < _RUN:
+        values = ufunc(values[0::2], values[1::2])
+        width *= 2
+    return values
 
 
 def _runs_near_body(frames: FrameSet, src: int, k: int, cache, reach, shared, run_bounds, path_range) -> np.ndarray:
     """Which runs of ``_RUN`` rays from one ``shared`` event may pass through frame k's body box
     (a mask, or a superset of it): :func:`_near_body` for a whole run at once.  ``reach`` as
     ``extent`` there; ``run_bounds`` = the runs' lowest and highest direction components
-    (:func:`_sub_bundle_cones`), ``path_range``
-    = (lowest s_lo, highest s_hi) of the rays.
+    (:func:`_sub_bundle_cones`); ``path_range`` = (lowest s_lo, highest s_hi) of the rays.
 
     Along each axis a ray passes the box's slab for path lengths between (+-half - offset) / e,
     e = d + v; those are monotonic in e, so for every e between a run's lowest and highest
     components they lie between their values at the two ends (floating-point rounding is
     monotonic too), unless e may be 0 there.  The run's range is the widest of its rays'.
     """
-    low, high = run_bounds
-    count = len(low)
+    low, high = run_bounds  # (3, b): all axes at once, the calls are what costs
     t_box, x_box, velocity, widen = _body_box(frames, src, k, cache, reach)
-    since = shared[0] - t_box
-    enter, leave = np.full(count, path_range[0]), np.full(count, path_range[1])
+    offset = (shared[1] - ((shared[0] - t_box) * velocity + x_box))[:, None]  # as _near_body works it out per ray
+    e_low, e_high = low + velocity[:, None], high + velocity[:, None]
+    before, after = -widen[:, None] - offset, widen[:, None] - offset
     with np.errstate(divide="ignore", invalid="ignore"):
-        for axis in range(3):
-            v = float(velocity[axis])
-            offset = shared[1][axis] - (since * v + x_box[axis])  # as _near_body works it out per ray
-            e_low, e_high = low[:, axis] + v, high[:, axis] + v
-            ends = [(-widen[axis] - offset) / e for e in (e_low, e_low, e_high, e_high)]
-            ends[1], ends[3] = (widen[axis] - offset) / e_low, (widen[axis] - offset) / e_high
-            near = np.minimum(np.minimum(ends[0], ends[1]), np.minimum(ends[2], ends[3]))
-            far = np.maximum(np.maximum(ends[0], ends[1]), np.maximum(ends[2], ends[3]))
-            either_way = (e_low <= 0.0) & (e_high >= 0.0)  # e may be 0: any path length
-            near[either_way], far[either_way] = -np.inf, np.inf
-            np.maximum(enter, near, out=enter)
-            np.minimum(leave, far, out=leave)
-    return enter <= leave
+        ends = before / e_low, after / e_low, before / e_high, after / e_high
+    near = np.minimum(np.minimum(ends[0], ends[1]), np.minimum(ends[2], ends[3]))
+    far = np.maximum(np.maximum(ends[0], ends[1]), np.maximum(ends[2], ends[3]))
+    either_way = (e_low <= 0.0) & (e_high >= 0.0)  # e may be 0 there: any path length
+    near[either_way], far[either_way] = -np.inf, np.inf
+    return np.maximum(near.max(axis=0), path_range[0]) <= np.minimum(far.min(axis=0), path_range[1])
 
 
 def _bundle_cone(d):
