@@ -365,7 +365,7 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
     if bundle is not None:
         bundle = (*bundle, _sub_bundle_cones(d))
         cones = dict(zip(candidates, _frame_cones(frames, src, candidates, shared, cache)))
-        reach = (float(np.max(np.abs(shared[1]))), abs(shared[0]))  # (for the rounding margin of the body boxes)
+        extent = (float(np.max(np.abs(shared[1]))), abs(shared[0]))  # (for the rounding margin of the body boxes)
         path_range = float(np.min(s_lo)), float(np.max(best))  # every ray's, for the body boxes
     for k in candidates:
         frame = frames.frames[k]
@@ -374,7 +374,7 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         # that miss the frame's body box first (a few numbers per run), then the sphere cones
         rays = None
         if bundle is not None and cones[k] is not None:
-            rays = _toward(cones[k], d, bundle, _runs_near_body(frames, src, k, cache, reach, shared, bundle[2][3:],
+            rays = _toward(cones[k], d, bundle, _runs_near_body(frames, src, k, cache, extent, shared, bundle[2][3:],
                                                                 path_range))
         if rays is not None and len(rays) == 0:
             continue
@@ -553,10 +553,10 @@ def _per_run(ufunc, values):
     return values
 
 
-def _runs_near_body(frames: FrameSet, src: int, k: int, cache, reach, shared, run_bounds, path_range) -> np.ndarray:
+def _runs_near_body(frames: FrameSet, src: int, k: int, cache, extent, shared, run_bounds, path_range) -> np.ndarray:
     """Which runs of ``_RUN`` rays from one ``shared`` event may pass through frame k's body box
-    (a mask, or a superset of it): :func:`_near_body` for a whole run at once.  ``reach`` as
-    ``extent`` there; ``run_bounds`` = the runs' lowest and highest direction components
+    (a mask, or a superset of it): :func:`_near_body` (``extent`` as there) for a whole run at
+    once.  ``run_bounds`` = the runs' lowest and highest direction components
     (:func:`_sub_bundle_cones`); ``path_range`` = (lowest s_lo, highest s_hi) of the rays.
 
     Along each axis a ray passes the box's slab for path lengths between (+-half - offset) / e,
@@ -565,7 +565,7 @@ def _runs_near_body(frames: FrameSet, src: int, k: int, cache, reach, shared, ru
     monotonic too), unless e may be 0 there.  The run's range is the widest of its rays'.
     """
     low, high = run_bounds  # (3, b): all axes at once, the calls are what costs
-    t_box, x_box, velocity, widen = _body_box(frames, src, k, cache, reach)
+    t_box, x_box, velocity, widen = _body_box(frames, src, k, cache, extent)
     offset = (shared[1] - ((shared[0] - t_box) * velocity + x_box))[:, None]  # as _near_body works it out per ray
     e_low, e_high = low + velocity[:, None], high + velocity[:, None]
     before, after = -widen[:, None] - offset, widen[:, None] - offset
