@@ -13,6 +13,7 @@ before it saves the image as a finished frame.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import sys
 import threading
@@ -62,6 +63,18 @@ def list_render_passes(scene, view_layer):
 # the render stops at its next check, as on Esc.
 STOP = threading.Event()
 
+# A Ctrl-C (KeyboardInterrupt) that landed in an engine callback other than render, which Blender
+# prints and drops: the next render fails as interrupted instead of finishing.
+_PENDING_INTERRUPT = threading.Event()
+
+
+@contextlib.contextmanager
+def _interrupt_kept_for_render():
+    try:
+        yield
+    except KeyboardInterrupt:
+        _PENDING_INTERRUPT.set()
+
 
 @dataclass(frozen=True)
 class RenderOutcome:
@@ -96,7 +109,8 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
 
     # Blender 5.0 needs the full signature, or the engine fails silently (empty image).
     def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
+        with _interrupt_kept_for_render():
+            super().__init__(*args, **kwargs)
         # Blender keeps one engine for the frames of an animation (and later F12s) while the
         # scene's Persistent Data is on: unchanged rest-frame geometry is then built only once
         self.geometry_cache = GeometryCache()
@@ -114,8 +128,9 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         return STOP.is_set() or self.test_break()
 
     def update_render_passes(self, scene=None, renderlayer=None):
-        for name, channel_ids, channel_type in list_render_passes(scene, renderlayer):
-            self.register_pass(scene, renderlayer, name, len(channel_ids), channel_ids, channel_type)
+        with _interrupt_kept_for_render():
+            for name, channel_ids, channel_type in list_render_passes(scene, renderlayer):
+                self.register_pass(scene, renderlayer, name, len(channel_ids), channel_ids, channel_type)
 
     def _prepare(self, scene, settings, first_view=None, geometry_cache=None):
         """``prepare(...)`` (or, given the first view's prepared scene, ``prepare_view``) in a
@@ -152,6 +167,9 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         self._tiles_done = self._tiles_total = 0
         failed = False
         try:
+            if _PENDING_INTERRUPT.is_set():  # Ctrl-C before this render began (an earlier callback)
+                _PENDING_INTERRUPT.clear()
+                raise KeyboardInterrupt
             self._render(depsgraph)
         except KeyboardInterrupt:
             # Ctrl-C with Python's default handler (a script calling bpy.ops.render.render):

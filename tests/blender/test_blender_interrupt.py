@@ -108,6 +108,39 @@ def test_ctrl_c_in_a_script_makes_the_render_operator_fail(slow_blend, tmp_path)
     assert child.returncode == 3
 
 
+def test_ctrl_c_in_the_pass_list_callback_makes_the_next_render_fail(slow_blend):
+    """A Ctrl-C landing in ``update_render_passes`` (Blender calls it just before render and prints
+    and drops its exceptions) must not let the render finish as if nothing happened; the render
+    after that one is not affected."""
+    script = textwrap.dedent(f"""
+        import os, sys, bpy, restframe_addon
+        from restframe_addon import engine
+        restframe_addon.register()
+        bpy.ops.wm.open_mainfile(filepath={str(slow_blend)!r}, load_ui=False)
+        bpy.context.scene.restframe.samples = 1
+        listed = engine.list_render_passes
+        calls = []
+        def interrupted_once(*args):
+            calls.append(1)
+            if len(calls) == 1:
+                raise KeyboardInterrupt  # as a SIGINT arriving during the callback
+            return listed(*args)
+        engine.list_render_passes = interrupted_once
+        for attempt in ("first", "second"):
+            try:
+                bpy.ops.render.render()
+                print(attempt, "finished", flush=True)
+            except RuntimeError as error:
+                print(attempt, "failed:", error, flush=True)
+        sys.stderr.flush()
+        os._exit(0)  # bpy 4.2 crashes in its exit handlers once the add-on registered (conftest.py)
+    """)
+    result = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "first failed:" in result.stdout and "render interrupted" in result.stdout, (result.stdout, result.stderr)
+    assert "second finished" in result.stdout, (result.stdout, result.stderr)
+
+
 def test_a_cancelled_render_still_saves_as_an_exr_without_crashing(slow_blend, tmp_path):
     """Blender 5.0 segfaulted writing the EXR of a render that stopped before its first tile
     (no result handed over); the cancelled render is reported as incomplete."""
