@@ -13,6 +13,7 @@ import tempfile
 import textwrap
 import time
 
+import numpy as np
 import pytest
 from test_prepared import MODES, assemble, assert_same_passes, busy_scene, settings
 
@@ -242,7 +243,12 @@ def test_workers_end_with_their_parent(tmp_path):
 
 
 def _scene_files(pid):
-    return glob.glob(os.path.join(tempfile.gettempdir(), f"restframe-scene-{pid}-*"))
+    return glob.glob(os.path.join(tempfile.gettempdir(), f"restframe-scene-{pid}-*")) + _results_files(pid)
+
+
+def _results_files(pid):
+    return [path for folder in workers._RESULTS_FOLDERS
+            for path in glob.glob(os.path.join(folder, f"restframe-tiles-{pid}-*"))]
 
 
 def _alive(pid):
@@ -323,6 +329,48 @@ def test_render_stats_account_for_every_share(pool):
     assert stats.pickling > 0 and stats.parent_seconds > 0
     list(pool.render(prepared, lambda: False, 2))  # the same scene again: not pickled, sent or rebuilt
     assert pool.last_stats.pickling == 0 and pool.last_stats.builds == {}
+
+
+def test_shares_come_back_in_the_results_image_and_it_is_removed(pool, monkeypatch):
+    """Every share, bands too, is written in place (nothing comes through the pipes); the tiles
+    outlive the render's file, and no worker keeps it mapped."""
+    monkeypatch.setattr(workers, "_MIN_SHARE_PIXELS", 1)
+    prepared = prepare(busy_scene(Velocity((0.0, 0.4, 0.0))), settings(tile_size=12, samples=2))
+    tiles = list(pool.render(prepared, lambda: False, 2))
+    stats = pool.last_stats
+    assert stats.shares > len(prepared.tiles()) and stats.in_place == stats.shares
+    assert not _results_files(os.getpid())
+    for pid in pool.pids:
+        with open(f"/proc/{pid}/maps") as maps:
+            assert "restframe-tiles-" not in maps.read()
+    assert_same_passes(assemble(prepared, tiles), in_threads(prepared))
+
+
+def test_without_room_for_a_results_image_the_results_come_through_the_pipes(pool, monkeypatch):
+    monkeypatch.setattr(workers, "_RESULTS_FOLDERS", ("/nonexistent-folder",))
+    monkeypatch.setattr(workers, "_MIN_SHARE_PIXELS", 1)
+    prepared = prepare(busy_scene(Velocity((0.0, 0.4, 0.0))), settings(tile_size=12, samples=2))
+    assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
+    assert pool.last_stats.in_place == 0 and pool.last_stats.shares > len(prepared.tiles())
+
+
+def test_bands_in_place_and_through_the_pipe_join_into_one_tile():
+    """A tile whose bands came back both ways (a worker could not map the image) is whole."""
+    rect, layout = (2, 4, 5, 8), {"Combined": 4, "Depth": 1}
+    results = workers._ResultsImage.create([(0, 0, 2, 2), rect], layout)
+    try:
+        whole = {name: np.arange(12 * channels, dtype=np.float32).reshape(4, 3, channels) + 100 * channels
+                 for name, channels in layout.items()}
+        in_place = workers._write_share((results.path, results.offsets[1], layout), rect, (4, 6),
+                                        {name: value[:2] for name, value in whole.items()})
+        piped = render_module.Tile(2, 6, 5, 8, {name: value[2:] for name, value in whole.items()})
+        pieces = [workers._piece(None, results, 1, rect, (4, 6)), workers._piece(piped, results, 1, rect, (6, 8))]
+        joined = workers._joined(rect, pieces)
+    finally:
+        workers._remove(results.path)
+    assert in_place and (joined.x0, joined.y0, joined.x1, joined.y1) == rect
+    assert all(np.array_equal(joined.passes[name], whole[name]) for name in layout)
+    assert not workers._write_share((results.path, results.offsets[1], layout), rect, None, whole)  # file gone
 
 
 def test_two_tiles_go_to_two_workers(pool):
