@@ -58,8 +58,9 @@ import numpy as np
 from . import blas
 from .passes import ALL_PASSES
 from .persistent import GeometryCache
-from .prepared import PreparedScene, unpickling_with
+from .prepared import PreparedScene, build_unmeasured, measured_as
 from .render import Tile, render_tile, tiles_in_threads
+from .scene import RenderSettings, Scene, render_workers
 from .tracer import TraceCache
 
 # glibc's malloc returns every large temporary to the system and page-faults it back in on the
@@ -292,6 +293,7 @@ class _Worker:
         self.ready = False
         self.alive = True
         self.scene_id = None  # the scene it holds
+        self.measured = None  # (scene id, measurements) it was last sent
         self.dealt: dict[int, tuple] = {}  # share id -> (tile index, rows), of the current render
         self.receiving_cpu = 0.0  # CPU seconds its reader thread spent unpickling results
         self.send(boot)
@@ -301,12 +303,13 @@ class _Worker:
     def pid(self) -> int:
         return self.process.pid
 
-    def send(self, message) -> bool:
-        """Pickle ``message`` to the worker; False once it is gone."""
+    def send(self, *messages) -> bool:
+        """Pickle ``messages`` to the worker (in one write); False once it is gone."""
         if not self.alive:
             return False
         try:
-            self.process.stdin.write(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
+            for message in messages:
+                self.process.stdin.write(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
             self.process.stdin.flush()
         except (OSError, ValueError):
             self.alive = False
@@ -352,8 +355,9 @@ class WorkerPool:
         self._busy = threading.Lock()  # one render at a time
         self._jobs = itertools.count(1)
         self._scene_ids = itertools.count(1)
-        self._sent_scene = None  # (weakref to the prepared scene, its id) last pickled
+        self._sent_scene = None  # (weakref to the scene, its settings pickled, its id) last pickled
         self._scene_file = None  # the file holding its pickle, which the workers read
+        self._ahead = None  # (scene id, pickling, sending) of a scene sent by build_ahead, for its render's stats
         self._scene_file_removal = None  # removes it when the pool goes (weakref.finalize: at exit at the latest)
         self._scene_bytes = 0  # its size
         self._tokens = itertools.count(1)
@@ -380,9 +384,29 @@ class WorkerPool:
         finally:
             self._busy.release()
 
+    def build_ahead(self, scene: Scene, settings: RenderSettings, count: int) -> None:
+        """Have up to ``count`` workers build ``scene`` with ``settings`` while this process
+        prepares it (its build and pre-passes), so that the render of the prepared scene finds
+        it built, instead of waiting for every worker to build it then.  Nothing happens where
+        another render holds the pool or no worker can start (the render says why)."""
+        if not self._busy.acquire(blocking=False):
+            return
+        try:
+            stats = RenderStats(time.monotonic())
+            scene_id = self._scene_id(scene, settings, stats)
+            self._send_scene(self._start(worker_count(count, self._scene_bytes, available_memory())), scene_id, stats)
+            self._ahead = (scene_id, stats.pickling, stats.sending)
+        except WorkersUnavailable:
+            pass
+        finally:
+            self._busy.release()
+
     def _render(self, prepared, rects, should_stop, count, warn):
         stats = RenderStats(time.monotonic())
-        scene_id = self._scene_id(prepared, stats)
+        scene_id = self._scene_id(prepared.scene, prepared.settings, stats)
+        if self._ahead is not None and self._ahead[0] == scene_id:  # its pickling and sending count for this render
+            stats.pickling, stats.sending = self._ahead[1:]
+        self._ahead = None
         try:
             workers = self._start(worker_count(count, self._scene_bytes, available_memory()))
         except WorkersUnavailable as error:
@@ -395,11 +419,7 @@ class WorkerPool:
         for worker in self._workers:
             worker.dealt = {}
         receiving = {worker: worker.receiving_cpu for worker in workers}
-        sending = time.thread_time()
-        for worker in workers:
-            if worker.scene_id != scene_id:
-                worker.scene_id = scene_id if worker.send(("scene", scene_id, self._scene_file)) else None
-        stats.sending += time.thread_time() - sending
+        self._send_scene(workers, scene_id, stats, prepared.measurements)
         cpu = time.thread_time()
         results = _ResultsImage.create(rects, {"Combined": ALL_PASSES["Combined"],
                                                **{name: ALL_PASSES[name] for name in prepared.passes}})
@@ -459,13 +479,34 @@ class WorkerPool:
             stats.receiving_cpu = sum(worker.receiving_cpu - before for worker, before in receiving.items())
             stats.ended = time.monotonic()
 
-    def _scene_id(self, prepared, stats: RenderStats) -> int:
-        """The id of the prepared scene, pickled once into ``_scene_file`` (kept for workers
-        started later; the previous scene's file goes); the same scene rendered again keeps its
-        id and is not pickled or sent again."""
-        if self._sent_scene is None or self._sent_scene[0]() is not prepared:
+    def _send_scene(self, workers, scene_id: int, stats: RenderStats, measurements=None):
+        """Send the scene ``scene_id`` to the workers that do not hold it, and the pre-passes'
+        ``measurements`` of its prepared scene (None: not yet, :meth:`build_ahead`) to those
+        that do not have them."""
+        sending = time.thread_time()
+        measured = None if measurements is None else (scene_id, measurements)
+        for worker in workers:
+            messages = []
+            if worker.scene_id != scene_id:
+                worker.measured = None
+                messages.append(("scene", scene_id, self._scene_file))
+            if measured is not None and worker.measured != measured:
+                messages.append(("measured", *measured))
+            if messages:
+                sent = worker.send(*messages)
+                worker.scene_id = scene_id if sent else None
+                worker.measured = measured if sent else None
+        stats.sending += time.thread_time() - sending
+
+    def _scene_id(self, scene: Scene, settings: RenderSettings, stats: RenderStats) -> int:
+        """The id of the scene and settings, pickled once into ``_scene_file`` (kept for workers
+        started later; the previous scene's file goes); the same scene with the same settings
+        (rendered again, or built ahead) keeps its id and is not pickled or sent again."""
+        settings_pickle = pickle.dumps(settings, protocol=pickle.HIGHEST_PROTOCOL)
+        if (self._sent_scene is None or self._sent_scene[0]() is not scene
+                or self._sent_scene[1] != settings_pickle):
             pickling = time.thread_time()
-            payload = pickle.dumps(prepared, protocol=pickle.HIGHEST_PROTOCOL)
+            payload = pickle.dumps((scene, settings), protocol=pickle.HIGHEST_PROTOCOL)
             stats.pickling = time.thread_time() - pickling
             writing = time.thread_time()
             self._forget_scene()
@@ -475,8 +516,8 @@ class WorkerPool:
                 scene_file.write(payload)
             stats.sending = time.thread_time() - writing
             self._scene_bytes = len(payload)
-            self._sent_scene = (weakref.ref(prepared), next(self._scene_ids))
-        return self._sent_scene[1]
+            self._sent_scene = (weakref.ref(scene), settings_pickle, next(self._scene_ids))
+        return self._sent_scene[2]
 
     def _forget_scene(self):
         """Remove the file of the scene sent last (workers that hold it have read it)."""
@@ -608,6 +649,13 @@ def shutdown():
             _pool = None
 
 
+def build_ahead(scene: Scene, settings: RenderSettings) -> None:
+    """:meth:`WorkerPool.build_ahead` on the session's pool, for a render in worker processes:
+    call it before preparing the scene (the workers build while this process prepares)."""
+    if settings.parallelism == "PROCESSES":
+        pool().build_ahead(scene, settings, render_workers(settings.threads))
+
+
 def render_tiles(prepared: PreparedScene, should_stop: Callable[[], bool], count: int,
                  warn: Callable[[str], None] | None = None) -> Iterator[Tile]:
     """:meth:`WorkerPool.render` on the session's pool."""
@@ -671,31 +719,35 @@ def serve(commands, results, parent_pid: int):
     threading.Thread(target=read, name="restframe-commands", daemon=True).start()
     threading.Thread(target=watch_parent, name="restframe-watchdog", daemon=True).start()
     send(("ready", os.getpid()))
-    prepared, scene_id, cache = None, None, None
+    built, prepared, scene_id, cache = None, None, None, None  # built: the scene; prepared: with its measurements
     geometry = GeometryCache()  # persistent data: each frame of an animation rebuilds only what changed
     with blas.single_threaded():
         while True:
             message = inbox.get()
             kind = message[0]
             if kind == "scene":
-                prepared = cache = None  # the old scene's memory goes first
+                built = prepared = cache = None  # the old scene's memory goes first
                 scene_id = message[1]
                 started, cpu = time.monotonic(), time.thread_time()
                 try:
-                    with open(message[2], "rb") as pickled, unpickling_with(geometry):
-                        prepared = pickle.loads(pickled.read())
+                    with open(message[2], "rb") as pickled:
+                        built = build_unmeasured(*pickle.loads(pickled.read()), geometry)
                     cache = TraceCache()
                 except Exception as error:
-                    prepared = _picklable(error)
+                    built = _picklable(error)
                 send(("built", scene_id, (started, time.monotonic(), time.thread_time() - cpu)))
+            elif kind == "measured":
+                if message[1] == scene_id:
+                    prepared = built if isinstance(built, BaseException) else measured_as(built, message[2])
             elif kind == "tile":
                 _, job, tile_scene, share, rect, rows, place = message
                 if job <= cancelled[0]:
                     continue
                 started, cpu = time.monotonic(), time.thread_time()
                 try:
-                    if tile_scene != scene_id:
-                        raise RuntimeError(f"tile of scene {tile_scene} sent to a worker holding scene {scene_id}")
+                    if tile_scene != scene_id or prepared is None:
+                        raise RuntimeError(f"tile of scene {tile_scene} sent to a worker holding scene {scene_id}"
+                                           f"{'' if prepared else ', not measured'}")
                     if isinstance(prepared, BaseException):
                         raise prepared
                     tile = render_tile(prepared, rect, lambda job=job: job <= cancelled[0], cache, rows)

@@ -19,9 +19,9 @@ from test_prepared import MODES, assemble, assert_same_passes, busy_scene, setti
 
 from restframe_addon.core import render as render_module
 from restframe_addon.core import workers
-from restframe_addon.core.prepared import PreparedScene, prepare
+from restframe_addon.core.prepared import prepare
 from restframe_addon.core.render import RenderError, render_tiles
-from restframe_addon.core.scene import Velocity
+from restframe_addon.core.scene import Scene, Velocity
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -49,15 +49,15 @@ def test_processes_render_the_same_bits_as_threads(mode):
 
 def test_the_scene_is_pickled_once_per_render_and_not_again_for_the_same_scene(pool, monkeypatch):
     pickled = []
-    reduce = PreparedScene.__reduce__
-    monkeypatch.setattr(PreparedScene, "__reduce__", lambda self: pickled.append(self) or reduce(self))
+    monkeypatch.setattr(Scene, "__reduce_ex__", lambda self, protocol: pickled.append(self)
+                        or object.__reduce_ex__(self, protocol))
     first = prepare(busy_scene(), settings(tile_size=6))
     second = prepare(busy_scene(Velocity((0.3, 0.0, 0.0))), settings(tile_size=6))
     started = []
     for prepared in (first, first, second):  # 12 tiles each, two workers
         assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
         started.append(pool.pids)
-    assert pickled == [first, second]  # a new scene replaces the old one in the workers
+    assert pickled == [first.scene, second.scene]  # a new scene replaces the old one in the workers
     assert started[0] == started[1] == started[2] and len(started[0]) == 2  # kept warm
 
 
@@ -371,6 +371,33 @@ def test_bands_in_place_and_through_the_pipe_join_into_one_tile():
     assert in_place and (joined.x0, joined.y0, joined.x1, joined.y1) == rect
     assert all(np.array_equal(joined.passes[name], whole[name]) for name in layout)
     assert not workers._write_share((results.path, results.offsets[1], layout), rect, None, whole)  # file gone
+
+
+@pytest.mark.parametrize("mode", MODES, ids=["rgb", "spectral", "factor", "transparent"])
+def test_a_scene_built_ahead_is_not_sent_again_and_renders_with_the_measured_values(pool, monkeypatch, mode):
+    """The workers build while this process prepares; the render sends only the pre-passes'
+    values (FACTOR: the measured Doppler range) and counts the pickling done ahead."""
+    pickled = []
+    monkeypatch.setattr(Scene, "__reduce_ex__", lambda self, protocol: pickled.append(self)
+                        or object.__reduce_ex__(self, protocol))
+    scene, render_settings = busy_scene(Velocity((0.0, 0.4, 0.0))), settings(tile_size=8, **mode)
+    pool.build_ahead(scene, render_settings, 2)
+    held = {worker.scene_id for worker in pool._workers}  # sent before preparing
+    prepared = prepare(scene, render_settings)
+    tiles = list(pool.render(prepared, lambda: False, 2))
+    stats = pool.last_stats
+    assert pickled == [scene] and stats.pickling > 0 and len(stats.builds) == 2
+    assert len(held) == 1 and held == {worker.scene_id for worker in pool._workers} != {None}
+    assert_same_passes(assemble(prepared, tiles), in_threads(prepared))
+
+
+def test_a_scene_built_ahead_with_other_settings_is_sent_again(pool):
+    scene = busy_scene()
+    pool.build_ahead(scene, settings(tile_size=8), 2)
+    prepared = prepare(scene, settings(tile_size=8, samples=3))
+    assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
+    assert len(pool.last_stats.builds) == 2
+    assert all(started >= pool.last_stats.started for started, _, _ in pool.last_stats.builds.values())
 
 
 def test_two_tiles_go_to_two_workers(pool):
