@@ -12,10 +12,12 @@ its target before any code of ours could recreate Blender's in-memory ``bl_ext``
 the dedicated entry does both first.  Only the core is imported in a worker, never bpy.
 
 The pool is module-level (:func:`pool`) and kept warm across the renders of a session and
-the frames of an animation.  A render pickles its prepared scene once into a file that every
-worker reads for itself, at once, so no worker waits for the scene to pass through the pipes
-of the others (a new prepared scene replaces the old one there; the same one rendered again
-is not sent again), then deals work two shares at a time per worker.  A share
+the frames of an animation.  A render pickles its scene and settings once into a file that
+every worker reads for itself, at once, so no worker waits for the scene to pass through the
+pipes of the others (a new scene replaces the old one there; the same one rendered again is
+not sent again).  The engine does that before it prepares the scene (:func:`build_ahead`), so
+the workers build it while this process does, and the render sends them only what the
+pre-passes measured.  It then deals work two shares at a time per worker.  A share
 is a whole tile or, towards the end of a render with several workers, a band of a tile's
 rows (:func:`share_out`), so the workers finish together however unevenly the cost is spread
 over the image; the caller gets whole tiles, as from threads.  A worker writes each share's
@@ -259,13 +261,14 @@ class RenderStats:
     polling_cpu: float = 0.0  # its checks for Esc while no message came (every _POLL s: it grows with the wall time)
     receiving_cpu: float = 0.0  # the reader threads unpickling the workers' messages
     caller: float = 0.0  # wall time the caller spent between tiles (the engine: streaming a tile into Blender's result)
+    caller_cpu: float = 0.0  # the same in CPU seconds of this thread (what it costs, whatever the machine's load)
     builds: dict = dataclasses.field(default_factory=dict)  # worker pid -> (start, end, cpu) of rebuilding the scene
     rendered: dict = dataclasses.field(default_factory=dict)  # pid -> [(tile index, pixels, start, end, cpu)] per share
 
     @property
     def parent_seconds(self) -> float:
         """This process's own work for the render: what runs beside or between the workers' tiles."""
-        return self.pickling + self.sending + self.loop_cpu + self.receiving_cpu + self.caller
+        return self.pickling + self.sending + self.loop_cpu + self.receiving_cpu + self.caller_cpu
 
 
 def _parent_packages(module_name: str) -> list[tuple[str, list[str]]]:
@@ -392,6 +395,7 @@ class WorkerPool:
         if not self._busy.acquire(blocking=False):
             return
         try:
+            self._start(0)  # raises where no worker can start: then nothing is pickled
             stats = RenderStats(time.monotonic())
             scene_id = self._scene_id(scene, settings, stats)
             self._send_scene(self._start(worker_count(count, self._scene_bytes, available_memory())), scene_id, stats)
@@ -464,11 +468,12 @@ class WorkerPool:
                                                               shares[key][1]) for key in sorted(got)])
                 del pieces[tile_index]
                 done.add(tile_index)
-                stats.loop_cpu += time.thread_time() - cpu
-                handed = time.monotonic()
+                handed, cpu_handed = time.monotonic(), time.thread_time()
+                stats.loop_cpu += cpu_handed - cpu
                 yield tile
-                stats.caller += time.monotonic() - handed
                 cpu = time.thread_time()
+                stats.caller += time.monotonic() - handed
+                stats.caller_cpu += cpu - cpu_handed
         finally:
             if len(done) < len(rects):  # Esc, an error, or the caller stopped iterating: free the workers at once
                 for worker in workers:

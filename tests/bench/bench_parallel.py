@@ -139,7 +139,8 @@ def amdahl(serial: float, work: float, cores: int) -> float:
 
 def engine_streaming(blend, resolution, samples, tile_size) -> tuple[float, int]:
     """One F12 through Blender's render engine in worker processes: seconds the engine spent
-    streaming tiles into Blender's result (RenderStats.caller), and the tile count."""
+    streaming tiles into Blender's result (RenderStats.caller_cpu: CPU seconds, which the
+    machine's load does not inflate as it does the wall time), and the tile count."""
     import bpy
 
     from restframe_addon.core import workers
@@ -151,7 +152,7 @@ def engine_streaming(blend, resolution, samples, tile_size) -> tuple[float, int]
     scene.restframe.parallelism = 'PROCESSES'
     bpy.ops.render.render(write_still=False)
     stats = workers.pool().last_stats
-    return stats.caller, len({share[0] for shares in stats.rendered.values() for share in shares})
+    return stats.caller_cpu, len({share[0] for shares in stats.rendered.values() for share in shares})
 
 
 def main():

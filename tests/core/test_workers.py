@@ -316,9 +316,13 @@ def test_bands_of_tiles_render_the_same_bits_as_whole_tiles(pool, monkeypatch):
 
 def test_render_stats_account_for_every_share(pool):
     prepared = prepare(busy_scene(), settings(tile_size=6))
-    tiles = list(pool.render(prepared, lambda: False, 2))
+    tiles = []
+    for tile in pool.render(prepared, lambda: False, 2):
+        sum(range(20000))  # the caller's own work between tiles (the engine: streaming into Blender)
+        tiles.append(tile)
     stats = pool.last_stats
     assert len(tiles) == len(prepared.tiles()) and stats.workers == 2 and sorted(stats.builds) == sorted(pool.pids)
+    assert stats.caller_cpu > 0
     rendered = [share for shares in stats.rendered.values() for share in shares]
     assert len(rendered) == stats.shares and sum(share[1] for share in rendered) == 24 * 18
     assert sorted({share[0] for share in rendered}) == list(range(len(tiles)))
