@@ -361,6 +361,8 @@ class WorkerPool:
         self._sent_scene = None  # (weakref to the scene, its settings pickled, its id) last pickled
         self._scene_file = None  # the file holding its pickle, which the workers read
         self._ahead = None  # (scene id, pickling, sending) of a scene sent by build_ahead, for its render's stats
+        self._unremoved: list[str] = []  # results images still mapped when their render ended (Windows)
+        weakref.finalize(self, _remove_all, self._unremoved)
         self._scene_file_removal = None  # removes it when the pool goes (weakref.finalize: at exit at the latest)
         self._scene_bytes = 0  # its size
         self._tokens = itertools.count(1)
@@ -425,6 +427,7 @@ class WorkerPool:
         receiving = {worker: worker.receiving_cpu for worker in workers}
         self._send_scene(workers, scene_id, stats, prepared.measurements)
         cpu = time.thread_time()
+        _remove_all(self._unremoved)
         results = _ResultsImage.create(rects, {"Combined": ALL_PASSES["Combined"],
                                                **{name: ALL_PASSES[name] for name in prepared.passes}})
         shares = share_out(rects, len(workers))
@@ -478,8 +481,8 @@ class WorkerPool:
             if len(done) < len(rects):  # Esc, an error, or the caller stopped iterating: free the workers at once
                 for worker in workers:
                     worker.send(("cancel", job))
-            if results is not None:
-                _remove(results.path)  # mapped here as long as the tiles live (a worker maps it per share)
+            if results is not None and not _remove(results.path):  # mapped here while the tiles live
+                self._unremoved.append(results.path)  # Windows: removed once they are gone
             stats.loop_cpu += time.thread_time() - cpu - stats.polling_cpu
             stats.receiving_cpu = sum(worker.receiving_cpu - before for worker, before in receiving.items())
             stats.ended = time.monotonic()
@@ -629,6 +632,7 @@ class WorkerPool:
             worker.close()
         self._workers = []
         self._forget_scene()
+        _remove_all(self._unremoved)
 
 
 _pool: WorkerPool | None = None
@@ -776,11 +780,19 @@ def _picklable(error: BaseException) -> BaseException:
         return RuntimeError("".join(traceback.format_exception(error)))
 
 
-def _remove(path: str):
+def _remove(path: str) -> bool:
+    """Remove a file; False when it is still there (Windows: open or mapped)."""
     try:
         os.remove(path)
-    except OSError:  # removed already (by a worker or the parent), or still open (Windows)
+    except FileNotFoundError:  # removed already (by a worker or the parent)
         pass
+    except OSError:  # still open or mapped (Windows)
+        return False
+    return True
+
+
+def _remove_all(paths: list[str]):
+    paths[:] = [path for path in paths if not _remove(path)]
 
 
 def _process_alive(pid: int) -> bool:

@@ -350,6 +350,24 @@ def test_shares_come_back_in_the_results_image_and_it_is_removed(pool, monkeypat
     assert_same_passes(assemble(prepared, tiles), in_threads(prepared))
 
 
+def test_a_results_image_that_cannot_be_removed_yet_goes_with_the_next_render(pool, monkeypatch):
+    """As on Windows, where a file stays while the tiles that map it live."""
+    remove = os.remove
+
+    def refuse(path):
+        if "restframe-tiles-" in path:
+            raise PermissionError(path)
+        remove(path)
+
+    prepared = prepare(busy_scene(), settings(tile_size=12))
+    monkeypatch.setattr(os, "remove", refuse)
+    list(pool.render(prepared, lambda: False, 2))
+    assert len(_results_files(os.getpid())) == 1 and pool._unremoved == _results_files(os.getpid())
+    monkeypatch.setattr(os, "remove", remove)
+    list(pool.render(prepared, lambda: False, 2))
+    assert not _results_files(os.getpid()) and pool._unremoved == []
+
+
 def test_without_room_for_a_results_image_the_results_come_through_the_pipes(pool, monkeypatch):
     monkeypatch.setattr(workers, "_RESULTS_FOLDERS", ("/nonexistent-folder",))
     monkeypatch.setattr(workers, "_MIN_SHARE_PIXELS", 1)
