@@ -192,8 +192,9 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
             camera_object = (self.camera_override or depsgraph.scene_eval.camera).evaluated_get(depsgraph)
             first = None
             for view in views:  # each eye is its own camera and observation event; the rest frames are shared
+                # while the eyes move alike (not on an accelerating assembly: core.prepared.prepare_view)
                 self.active_view_set(view)
-                camera = export.view_camera(scene.camera, camera_object,
+                camera = export.view_camera(scene.camera, camera_object, depsgraph.scene_eval,
                                             self.camera_model_matrix(camera_object, use_spherical_stereo=False),
                                             self.camera_shift_x(camera_object, use_spherical_stereo=False))
                 first = self._render_view(dataclasses.replace(scene, camera=camera), settings, view_layer, view,

@@ -55,6 +55,8 @@ T_RENDER, T_SHADING, T_LORENTZ = ("tests/core/" + m for m in ("test_render.py", 
 T_SPECTRAL = "tests/core/test_spectral.py"
 T_OBSERVERS = "tests/core/test_observers.py"
 T_LIGHTS = "tests/core/test_moving_lights.py"
+T_STEREO_EYES = ("tests/blender/test_blender_observer.py::"
+                 "test_each_stereo_eye_of_a_moving_camera_observes_from_its_own_world_line")
 
 
 MUTANTS = (
@@ -211,6 +213,17 @@ MUTANTS = (
     Mutant("coat-does-not-dim", "the lobes under a coat get all the light the coat also reflects",
            (Patch(CORE + "integrator.py", "under = (1.0 - albedo)[:, None]", "under = np.ones((n, 1))"),),
            ("tests/core/test_bsdf_glass.py::test_a_clear_coat_over_white_keeps_the_furnace_white",)),
+    Mutant("stereo-eye-on-camera-world-line", "a stereo eye of an accelerating camera observing from the "
+                                              "camera's world line, not its own",
+           (Patch("restframe_addon/export/camera.py",
+                  "trajectory = _world_line(camera_object, scene, matrix[:3, 3], warn=lambda message: None)",
+                  "trajectory = camera.trajectory"),),
+           (T_STEREO_EYES,)),
+    Mutant("stereo-eye-in-first-eye-frame", "an accelerating stereo eye rendered in the first eye's momentary "
+                                            "rest frame (its rest frames shared for the same keyed motion)",
+           (Patch(PREPARED, "if observer.camera_velocity(camera, tau_obs) != observer.camera_velocity(prepared.scene."
+                            "camera, tau_obs):", "if camera.velocity != prepared.scene.camera.velocity:"),),
+           (T_STEREO_EYES,)),
 )
 
 

@@ -160,9 +160,11 @@ def prepare_view(prepared: PreparedScene, camera: Camera, should_stop: Callable[
                  ) -> PreparedScene:
     """The prepared scene seen by another camera (a stereo eye, another view): with the same
     velocity its rest frames, lights and shader are shared (built once), and only the camera's
-    observation event, rays and the pre-passes are its own; else prepared afresh."""
+    observation event, rays and the pre-passes are its own; else (another velocity, or an eye of
+    an accelerating assembly, in a momentary rest frame of its own) prepared afresh."""
     scene = dataclasses.replace(prepared.scene, camera=camera)
-    if camera.velocity != prepared.scene.camera.velocity:
+    tau_obs = scene.tau_obs
+    if observer.camera_velocity(camera, tau_obs) != observer.camera_velocity(prepared.scene.camera, tau_obs):
         return prepare(scene, prepared.settings, should_stop)
     check_render(scene, prepared.settings, EXTRA_PASSES)
     camera_tau, camera_rays = _camera(scene, prepared.settings, prepared.frames)

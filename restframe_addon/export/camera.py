@@ -90,6 +90,13 @@ def _assembly_place(position, camera_object, velocity: Velocity) -> np.ndarray:
     return pivot + boost.contracted(np.asarray(position, dtype=np.float64) - pivot)
 
 
+def _world_line(camera_object, scene, position, warn):
+    """The world line of the point ``position`` (its Blender place at the rendered frame) of the
+    camera's animated assembly (``point_trajectory``): the camera's, or a stereo eye's."""
+    root = assembly_root(motion_source(camera_object))
+    return point_trajectory(root, scene, position, position, camera_object.name, warn=warn)
+
+
 def export_camera(camera_object, scene, warn=print) -> Camera:
     """Blender's camera as the core sees it; ``view_frame`` gives the exact image plane.
 
@@ -117,7 +124,7 @@ def export_camera(camera_object, scene, warn=print) -> Camera:
         if root != camera_object and location_curves(camera_object)[0]:
             warn(f"{camera_object.name}: it rides on the world line of '{root.name}' (the same motion settings): "
                  "its own location keys only place it at the rendered frame")
-        trajectory = point_trajectory(root, scene, matrix[:3, 3], matrix[:3, 3], camera_object.name, warn=warn)
+        trajectory = _world_line(camera_object, scene, matrix[:3, 3], warn)
     else:
         matrix[:3, 3] = _assembly_place(matrix[:3, 3], camera_object, velocity)
     out = Camera(
@@ -158,19 +165,23 @@ def render_views(scene) -> list[str]:
     return [view.name for view in render.views if view.use]
 
 
-def view_camera(camera: Camera, camera_object, model_matrix, shift_x: float) -> Camera:
+def view_camera(camera: Camera, camera_object, scene, model_matrix, shift_x: float) -> Camera:
     """The camera of one view (an eye): Blender's own model matrix and lens shift for it
     (``RenderEngine.camera_model_matrix`` / ``camera_shift_x`` after ``active_view_set``, the
     stereo convention of Cycles).  Its position is its own observation event, a point of the
-    camera's assembly placed as the camera is."""
+    camera's assembly placed as the camera is: on a world line of its own when the assembly is
+    animated (an accelerating eye observes from its own place, in its own momentary rest frame)."""
     matrix = np.array(model_matrix, dtype=np.float64)
     matrix[:3, :3] /= np.linalg.norm(matrix[:3, :3], axis=0)
+    trajectory = None
     if camera.trajectory is None:
         matrix[:3, 3] = _assembly_place(matrix[:3, 3], camera_object, camera.velocity)
+    else:  # the assembly's warnings were said when the camera was exported
+        trajectory = _world_line(camera_object, scene, matrix[:3, 3], warn=lambda message: None)
     frame = np.array(camera.frame)
     width, height = np.ptp(frame[:, 0]), np.ptp(frame[:, 1])
     fit = camera_object.data.sensor_fit
     horizontal = fit == 'HORIZONTAL' or (fit == 'AUTO' and width >= height)
     # the lens shift is measured in the fitted sensor side; view_frame already holds the camera's own
     frame[:, 0] += (shift_x - camera_object.data.shift_x) * (width if horizontal else height)
-    return dataclasses.replace(camera, matrix=matrix, frame=frame)
+    return dataclasses.replace(camera, matrix=matrix, frame=frame, trajectory=trajectory)

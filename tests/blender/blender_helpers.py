@@ -46,16 +46,20 @@ def add_sun(scene, strength=2.0, rotation=(math.radians(20), 0.0, 0.0)):
     return obj
 
 
-def principled(name, color, metallic, roughness):
-    """A new material whose Principled BSDF has this base colour, metallic and roughness."""
+def principled(name, color=None, metallic=None, roughness=None, **inputs):
+    """A new material whose Principled BSDF has this base colour (RGB), metallic, roughness and
+    other ``inputs`` (by socket name, ``_`` for a space; they come last), Blender's defaults for
+    what is not given."""
     m = bpy.data.materials.new(name)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         m.use_nodes = True
     bsdf = m.node_tree.nodes["Principled BSDF"]
-    bsdf.inputs["Base Color"].default_value = (*color, 1.0)
-    bsdf.inputs["Metallic"].default_value = metallic
-    bsdf.inputs["Roughness"].default_value = roughness
+    given = {"Base Color": None if color is None else (*color, 1.0), "Metallic": metallic, "Roughness": roughness}
+    given.update((key.replace("_", " "), value) for key, value in inputs.items())
+    for key, value in given.items():
+        if value is not None:
+            bsdf.inputs[key].default_value = value
     return m
 
 
@@ -102,6 +106,24 @@ def render_rgba(scene, path) -> np.ndarray:
         rgba = channels["RGBA"].pixels if "RGBA" in channels else np.stack(
             [channels[c].pixels for c in "RGBA"], axis=-1)
     return np.asarray(rgba, dtype=np.float64)[::-1]
+
+
+def render_eyes(scene, path) -> list[np.ndarray]:
+    """An F12 render of a stereo pair saved as one plain RGBA EXR per eye (``<path>_L.exr``,
+    ``_R``), read back: [left, right], each (H, W, 4), row 0 = bottom."""
+    settings = scene.render.image_settings
+    settings.file_format, settings.color_mode, settings.color_depth = 'OPEN_EXR', 'RGBA', '32'
+    settings.views_format = 'INDIVIDUAL'
+    scene.render.filepath = f"{path}.exr"
+    bpy.ops.render.render(write_still=True)
+    eyes = []
+    for eye in ("L", "R"):
+        with OpenEXR.File(f"{path}_{eye}.exr") as exr:
+            channels = exr.parts[0].channels
+            rgba = channels["RGBA"].pixels if "RGBA" in channels else np.stack(
+                [channels[c].pixels for c in "RGBA"], axis=-1)
+        eyes.append(np.asarray(rgba, dtype=np.float64)[::-1])
+    return eyes
 
 
 def render_direct_light(scene, path, engine, samples) -> np.ndarray:

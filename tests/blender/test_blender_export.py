@@ -9,7 +9,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_helpers import add_camera, add_plane, evaluated, export_now
+from blender_helpers import add_camera, add_plane, evaluated, export_now, principled
 from restframe_addon import export, motion_query
 
 
@@ -132,16 +132,6 @@ def test_assembly_pivot_is_the_topmost_parent_with_the_same_velocity(scene):
     assert by_name(out.meshes, "Parent").pivot == pytest.approx((1.0, 2.0, 3.0))
     assert by_name(out.meshes, "Child").pivot == pytest.approx((1.0, 2.0, 3.0))
     assert by_name(out.meshes, "Other").pivot == pytest.approx(tuple(other.matrix_world.translation))
-
-
-def principled(name, **inputs):
-    mat = bpy.data.materials.new(name)
-    if bpy.app.version < (5, 0, 0):
-        mat.use_nodes = True
-    bsdf = mat.node_tree.nodes["Principled BSDF"]
-    for key, value in inputs.items():
-        bsdf.inputs[key].default_value = value
-    return mat
 
 
 def test_principled_materials_textures_and_fallbacks(scene):

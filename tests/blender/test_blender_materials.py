@@ -21,20 +21,36 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_helpers import add_camera, add_plane, render_rgba
+from blender_helpers import add_camera, add_plane, principled, render_rgba
 
 COLOR = (0.6, 0.5, 0.4, 1.0)
 GLOW = (0.5, 0.8, 1.0, 1.0)
 
 
-def principled(nodes, **inputs):
-    node = nodes.new("ShaderNodeBsdfPrincipled")
-    node.distribution = 'GGX'
-    node.inputs["Base Color"].default_value = COLOR
-    node.inputs["Roughness"].default_value = 0.5
-    for name, value in inputs.items():
-        node.inputs[name.replace("_", " ")].default_value = value
-    return node
+def ggx_principled(**inputs):
+    """A material maker: Principled BSDF on GGX microfacets, base colour COLOR, roughness 0.5."""
+    def make():
+        mat = principled("Surface", COLOR[:3], roughness=0.5, **inputs)
+        mat.node_tree.nodes["Principled BSDF"].distribution = 'GGX'
+        return mat
+    return make
+
+
+def only(shader):
+    """A material maker: nothing but the node ``shader(nodes)`` makes on the Surface (None: nothing)."""
+    def make():
+        mat = bpy.data.materials.new("Surface")
+        if bpy.app.version < (5, 0, 0):
+            mat.use_nodes = True
+        nodes = mat.node_tree.nodes
+        output = nodes["Material Output"]
+        for node in list(nodes):
+            if node != output:
+                nodes.remove(node)
+        if shader is not None:
+            mat.node_tree.links.new(shader(nodes).outputs[0], output.inputs["Surface"])
+        return mat
+    return make
 
 
 def diffuse(nodes):
@@ -53,14 +69,14 @@ def emission(strength):
 
 
 SHADERS = {
-    "Principled, no specular": lambda nodes: principled(nodes, Specular_IOR_Level=0.0),
-    "Principled metal": lambda nodes: principled(nodes, Metallic=1.0),
-    "Principled, no specular, emitting": lambda nodes: principled(
-        nodes, Specular_IOR_Level=0.0, Emission_Color=GLOW, Emission_Strength=2.0),
-    "Diffuse": diffuse,
-    "Emission, strength 0": emission(0.0),
-    "Emission, strength 2": emission(2.0),
-    "nothing on Surface": None,
+    "Principled, no specular": ggx_principled(Specular_IOR_Level=0.0),
+    "Principled metal": ggx_principled(Metallic=1.0),
+    "Principled, no specular, emitting": ggx_principled(Specular_IOR_Level=0.0, Emission_Color=GLOW,
+                                                        Emission_Strength=2.0),
+    "Diffuse": only(diffuse),
+    "Emission, strength 0": only(emission(0.0)),
+    "Emission, strength 2": only(emission(2.0)),
+    "nothing on Surface": only(None),
 }
 
 
@@ -69,17 +85,7 @@ def lit_plane(scene, shader, lamp):
     scene.world = None
     add_camera(scene, location=(0.0, 0.0, 6.0))
     plane = add_plane(scene, "Plane", size=20.0)  # fills the view
-    mat = bpy.data.materials.new("Surface")
-    if bpy.app.version < (5, 0, 0):
-        mat.use_nodes = True
-    nodes = mat.node_tree.nodes
-    output = nodes["Material Output"]
-    for node in list(nodes):
-        if node != output:
-            nodes.remove(node)
-    if SHADERS[shader] is not None:
-        mat.node_tree.links.new(SHADERS[shader](nodes).outputs[0], output.inputs["Surface"])
-    plane.data.materials.append(mat)
+    plane.data.materials.append(SHADERS[shader]())
     if lamp == 'SUN':
         light = bpy.data.lights.new("Sun", 'SUN')
         light.energy, light.angle = 3.0, 0.0

@@ -2,6 +2,7 @@
 observes in its momentary rest frame and reads the analytic proper time (panel property and the
 render's metadata); a lamp keyed to flash and to move lights the floor from its retarded events."""
 
+import dataclasses
 import math
 
 import bpy
@@ -9,7 +10,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from blender_helpers import add_camera, add_plane, export_now, render_exr
+from blender_helpers import add_camera, add_plane, export_now, render_exr, render_eyes, render_rgba
 from restframe_addon import engine, motion_query
 from restframe_addon.core.prepared import prepare
 
@@ -245,3 +246,76 @@ def test_keyed_node_emission_strength_and_colour_enter_the_lamp_curves(scene):
     seconds, colours = light.color_curve
     np.testing.assert_allclose([np.interp(0.5, seconds, colours[:, i]) for i in range(3)], [0.5, 0.5, 0.125],
                                atol=1e-6)
+
+
+def stereo_rig_camera(scene, motion='ANIMATION'):
+    """A stereo camera riding with a rig, looking along +y with its eyes along x, the direction of
+    the motion, at a row of lit cards: the rig accelerating (Motion = Animation, the hyperbolic
+    rocket's keys; two seconds into the acceleration, 0.63 c) or at 0.63 c ('CONSTANT')."""
+    scene.render.fps, scene.render.fps_base = FPS, 1.0
+    scene.restframe.light_speed = C
+    scene.restframe.reference_frame = 1
+    scene.frame_start = 1
+    scene.render.resolution_x, scene.render.resolution_y = 32, 16
+    scene.restframe.samples = 2
+    rig = bpy.data.objects.new("Rig", None)
+    scene.collection.objects.link(rig)
+    rig.restframe.motion = motion
+    if motion == 'ANIMATION':
+        key_every_frame(rig, lambda t: (hyperbolic_x(t), 0.0, 0.0), range(-30, 120))
+    else:  # where the accelerating rig is at frame 49, two seconds after the reference frame
+        rig.restframe.velocity = (0.63, 0.0, 0.0)
+        rig.location = (hyperbolic_x(2.0) - 0.63 * C * 2.0, 0.0, 0.0)
+    camera = add_camera(scene, location=(0.0, 0.0, 0.0), rotation=(math.radians(90), 0.0, 0.0))
+    camera.parent = rig  # no motion of its own: it rides with the rig
+    camera.data.stereo.interocular_distance = 1.0
+    camera.data.stereo.convergence_mode, camera.data.stereo.pivot = 'PARALLEL', 'CENTER'  # eyes at x -+0.5
+    for index in range(7):  # behind the camera's x: aberration turns them into its view
+        card = add_plane(scene, f"Card{index}", size=1.0, location=(-2.0 + 1.5 * index, 6.0, 0.0))
+        card.rotation_euler = (math.radians(90), 0.0, 0.0)
+    add_point_lamp(scene, (2.5, 3.0, 2.0), watts=3000.0)
+    scene.frame_set(49)
+    return camera
+
+
+@pytest.mark.parametrize("motion", ['ANIMATION', 'CONSTANT'])
+@pytest.mark.parametrize("parallelism", ['THREADS', 'PROCESSES'])
+def test_each_stereo_eye_of_a_moving_camera_observes_from_its_own_world_line(scene, tmp_path, monkeypatch,
+                                                                             parallelism, motion):
+    """Stereoscopy on a moving camera: each eye is a point of the camera's (Born-rigid) assembly on
+    a world line of its own (docs/physics.md#observer), so it sees what the camera moved to the
+    eye's place renders alone: the same observation event, momentary rest frame (accelerating:
+    0.632 c and 0.617 c, the eyes lie along the acceleration) and image, whether the second eye's
+    rest frames are shared with the first's (threads) or built again in each worker process."""
+    from restframe_addon import export
+    from restframe_addon.core.observer import camera_velocity
+
+    eyes = []
+    view_camera = export.view_camera
+    monkeypatch.setattr(export, "view_camera", lambda *args: eyes.append(view_camera(*args)) or eyes[-1])
+    camera = stereo_rig_camera(scene, motion)
+    scene.restframe.parallelism = parallelism
+    scene.render.use_multiview = True
+    stereo = render_eyes(scene, tmp_path / "stereo")
+    assert len(eyes) == 2
+    assert all((image[..., 0] > 0.01).sum() > 20 for image in stereo)  # cards in view
+    assert not np.allclose(stereo[0], stereo[1], rtol=1e-3)  # the eyes see different images
+    left_beta, right_beta = (camera_velocity(eye, export_now(scene)[0].tau_obs).beta[0] for eye in eyes)
+    if motion == 'ANIMATION':
+        assert left_beta - right_beta > 0.01  # the eye ahead accelerates less (Born rigidity)
+    else:
+        assert left_beta == right_beta == pytest.approx(0.63)
+
+    scene.render.use_multiview = False
+    for side, seen, seen_image in zip((-0.5, 0.5), eyes, stereo):
+        camera.location = (side, 0.0, 0.0)
+        out, settings, _ = export_now(scene)
+        alone = prepare(out, settings)
+        view = prepare(dataclasses.replace(out, camera=seen), settings)
+        np.testing.assert_allclose(view.scene.camera.matrix, alone.scene.camera.matrix, atol=1e-6)
+        np.testing.assert_allclose(view.frames.frames[view.frames.camera].velocity.beta,
+                                   alone.frames.frames[alone.frames.camera].velocity.beta, rtol=1e-9)
+        np.testing.assert_allclose([view.camera_tau, *view.camera_rays.position],  # the observation event in C
+                                   [alone.camera_tau, *alone.camera_rays.position], atol=1e-6)
+        np.testing.assert_allclose(seen_image, render_rgba(scene, tmp_path / f"alone{side}.exr"), rtol=1e-5,
+                                   atol=1e-7)

@@ -13,29 +13,20 @@ import math
 
 import bpy
 import numpy as np
-import OpenEXR
 import pytest
 
-from blender_helpers import add_camera, add_plane, render_exr, render_rgba
+from blender_helpers import add_camera, add_plane, principled, render_exr, render_eyes, render_rgba
 
 SUN_TILT = math.radians(45)
 
 
-def principled(name, color=(1.0, 1.0, 1.0, 1.0), **inputs):
-    mat = bpy.data.materials.new(name)
-    if bpy.app.version < (5, 0, 0):
-        mat.use_nodes = True
-    node = mat.node_tree.nodes["Principled BSDF"]
-    node.inputs["Base Color"].default_value = color
-    node.inputs["Specular IOR Level"].default_value = 0.0
-    node.inputs["Roughness"].default_value = 1.0
-    for key, value in inputs.items():
-        node.inputs[key.replace("_", " ")].default_value = value
-    return mat
+def surface(name, color=(1.0, 1.0, 1.0), **inputs):
+    """A Principled material, Lambertian unless ``inputs`` say otherwise (no specular layer, roughness 1)."""
+    return principled(name, color, roughness=1.0, **{"Specular_IOR_Level": 0.0, **inputs})
 
 
 def glow(name, strength=1.0):
-    return principled(name, color=(0.0, 0.0, 0.0, 1.0), Emission_Color=(1.0, 0.6, 0.3, 1.0),
+    return surface(name, color=(0.0, 0.0, 0.0), Emission_Color=(1.0, 0.6, 0.3, 1.0),
                       Emission_Strength=strength)
 
 
@@ -44,10 +35,10 @@ def card_scene(scene, card_material=None, floor_material=None, sun=True):
     scene.world = None
     add_camera(scene, location=(0.0, 0.0, 6.0), type='ORTHO', ortho_scale=8.0)
     floor = add_plane(scene, "Floor", size=20.0)
-    floor.data.materials.append(floor_material or principled("White"))
+    floor.data.materials.append(floor_material or surface("White"))
     card = add_plane(scene, "Card", size=2.0, location=(0.0, 0.0, 1.0))
     card.data.uv_layers.new()
-    card.data.materials.append(card_material or principled("Card", color=(0.2, 0.4, 0.8, 1.0)))
+    card.data.materials.append(card_material or surface("Card", color=(0.2, 0.4, 0.8)))
     if sun:
         light = bpy.data.lights.new("Sun", 'SUN')
         light.energy, light.angle = 3.0, 0.0
@@ -136,7 +127,7 @@ def test_hidden_from_shadow_rays_it_casts_none(scene, tmp_path):
 @pytest.mark.parametrize("hidden", [False, True])
 def test_hidden_from_glossy_rays_a_mirror_does_not_show_it(scene, tmp_path, hidden):
     """A mirror floor under a glowing card: seen in the mirror unless Visible to Glossy is off."""
-    mirror = principled("Mirror", Metallic=1.0, Roughness=0.0)
+    mirror = surface("Mirror", Metallic=1.0, Roughness=0.0)
     card_scene(scene, card_material=glow("Glow"), floor_material=mirror, sun=False)
     card = scene.objects["Card"]
     card.location.z = 8.0  # above the camera: only the mirror shows it
@@ -150,7 +141,7 @@ def test_hidden_from_glossy_rays_a_mirror_does_not_show_it(scene, tmp_path, hidd
 @pytest.mark.parametrize("hidden", [False, True])
 def test_hidden_from_transmission_rays_glass_does_not_show_it(scene, tmp_path, hidden):
     """A clear pane (IOR 1) over a glowing floor: seen through it unless Visible to Transmission is off."""
-    clear = principled("Clear", Transmission_Weight=1.0, IOR=1.0, Roughness=0.0, Specular_IOR_Level=0.5)
+    clear = surface("Clear", Transmission_Weight=1.0, IOR=1.0, Roughness=0.0, Specular_IOR_Level=0.5)
     floor, card = card_scene(scene, card_material=clear, floor_material=glow("Glow"), sun=False)
     card.scale = (10.0, 10.0, 1.0)
     floor.visible_transmission = not hidden
@@ -181,7 +172,7 @@ def image_node(mat, image, output, socket, **settings):
 def test_cut_outs_from_an_image_alpha_show_and_shade_what_is_behind(scene, tmp_path):
     """The card's left half is cut out (alpha 0), its right half opaque: both renderers see the
     floor through the left half and the left half's shadow is gone."""
-    card_material = principled("Cutout", color=(0.2, 0.4, 0.8, 1.0))
+    card_material = surface("Cutout", color=(0.2, 0.4, 0.8))
     image_node(card_material, alpha_image(0.0, 1.0), "Alpha",
                card_material.node_tree.nodes["Principled BSDF"].inputs["Alpha"], interpolation='Closest')
     card_scene(scene, card_material=card_material)
@@ -192,7 +183,7 @@ def test_cut_outs_from_an_image_alpha_show_and_shade_what_is_behind(scene, tmp_p
 
 
 def test_partial_alpha_mixes_by_chance(scene, tmp_path):
-    card_scene(scene, card_material=principled("Half", color=(0.2, 0.4, 0.8, 1.0), Alpha=0.5))
+    card_scene(scene, card_material=surface("Half", color=(0.2, 0.4, 0.8), Alpha=0.5))
     ours, cycles = render_both(scene, tmp_path, samples=64, ours=64)
     # 64 samples on each of the 128 pixels the card covers or shades: the mean's noise is below 3e-3
     assert_same(ours, cycles, atol=6e-3)
@@ -211,7 +202,7 @@ def normal_image(normal, size=4):
 @pytest.mark.parametrize("strength", [1.0, 0.4])
 @pytest.mark.parametrize("tilt", [(0.35, 0.0), (0.1, -0.45), (-0.25, 0.2)])
 def test_a_normal_map_shades_as_in_cycles(scene, tmp_path, tilt, strength):
-    floor_material = principled("Bumpy")
+    floor_material = surface("Bumpy")
     nodes = floor_material.node_tree.nodes
     normal_map = nodes.new("ShaderNodeNormalMap")
     normal_map.inputs["Strength"].default_value = strength
@@ -234,7 +225,7 @@ def test_a_normal_map_shades_as_in_cycles(scene, tmp_path, tilt, strength):
 
 
 def test_the_normal_pass_shows_the_mapped_normal_as_cycles_does(scene, tmp_path):
-    floor_material = principled("Bumpy")
+    floor_material = surface("Bumpy")
     nodes = floor_material.node_tree.nodes
     normal_map = nodes.new("ShaderNodeNormalMap")
     floor_material.node_tree.links.new(normal_map.outputs["Normal"], nodes["Principled BSDF"].inputs["Normal"])
@@ -261,17 +252,9 @@ def eye_centroids(scene, tmp_path, engine):
     cycles.samples = scene.restframe.samples = 64
     cycles.device, cycles.use_adaptive_sampling, cycles.use_denoising = 'CPU', False, False
     cycles.pixel_filter_type, cycles.filter_width = 'BOX', 1.0  # uniform over the pixel, as RESTframe's samples
-    settings = scene.render.image_settings
-    settings.file_format, settings.color_mode, settings.color_depth = 'OPEN_EXR', 'RGBA', '32'
-    settings.views_format = 'INDIVIDUAL'
-    scene.render.filepath = str(tmp_path / f"{engine}.exr")
-    bpy.ops.render.render(write_still=True)
     centroids = []
-    for eye in ("L", "R"):
-        with OpenEXR.File(str(tmp_path / f"{engine}_{eye}.exr")) as exr:
-            channels = exr.parts[0].channels
-            red = channels["RGBA"].pixels[..., 0] if "RGBA" in channels else channels["R"].pixels
-        weight = np.asarray(red, dtype=np.float64).sum(axis=0)
+    for image in render_eyes(scene, tmp_path / engine):
+        weight = image[..., 0].sum(axis=0)
         centroids.append(float(weight @ np.arange(len(weight)) / weight.sum()))
     return centroids
 
