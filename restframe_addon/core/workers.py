@@ -23,13 +23,13 @@ rows (:func:`share_out`), so the workers finish together however unevenly the co
 over the image; the caller gets whole tiles, as from threads.  A worker writes each share's
 passes into the render's results image, a file mapped in shared memory, where the tile's
 bands meet in place; its message says only that it is there, so no result is pickled or
-passes through a pipe (the parent spent 1.4 ms unpickling each 256-px tile).  Esc stops the dealing and each
-worker stops its share at the next sample batch and drops the ones it holds; a worker that
-dies has its shares dealt again to the others (and the unfinished tiles to threads here when
-none is left).  A worker ends when its stdin reaches EOF (the parent closed it or died) or
-when its parent process is gone.  Tiles are the same bits as in threads: every random
-number is keyed by (pixel, sample), a band is rendered in its tile's sample batches and the
-pickled scene is rebuilt to the same bits.  Each render leaves its :class:`RenderStats`
+passes through a pipe (the parent spent 1.4 ms unpickling each 256-px tile).  Esc stops the
+dealing and each worker stops its share at the next sample batch and drops the ones it
+holds; a worker that dies has its shares dealt again to the others (and the unfinished tiles
+to threads here when none is left).  A worker ends when its stdin reaches EOF (the parent
+closed it or died) or when its parent process is gone.  Tiles are the same bits as in
+threads: every random number is keyed by (pixel, sample), a band is rendered in its tile's
+sample batches and the pickled scene is built to the same bits.  Each render leaves its :class:`RenderStats`
 (:attr:`WorkerPool.last_stats`): when each share ran in which worker and what the parent
 spent, for the benchmark's balance and serial-share figures.
 """
@@ -255,7 +255,7 @@ class RenderStats:
     workers: int = 0
     shares: int = 0  # work units dealt (tiles, or bands of their rows)
     in_place: int = 0  # shares a worker wrote into the results image (the others came through its pipe)
-    pickling: float = 0.0  # this process pickling the scene (0: the scene was sent before)
+    pickling: float = 0.0  # this process pickling the scene (0: sent before; built ahead: pickled then)
     sending: float = 0.0  # writing the scene's file and telling the workers (CPU)
     loop_cpu: float = 0.0  # the render loop handling messages (dealing, receiving, joining bands), this thread
     polling_cpu: float = 0.0  # its checks for Esc while no message came (every _POLL s: it grows with the wall time)
@@ -298,7 +298,7 @@ class _Worker:
         self.scene_id = None  # the scene it holds
         self.measured = None  # (scene id, measurements) it was last sent
         self.dealt: dict[int, tuple] = {}  # share id -> (tile index, rows), of the current render
-        self.receiving_cpu = 0.0  # CPU seconds its reader thread spent unpickling results
+        self.receiving_cpu = 0.0  # CPU seconds its reader thread spent unpickling messages
         self.send(boot)
         threading.Thread(target=self._read, args=(inbox,), name=f"restframe-worker-{self.pid}", daemon=True).start()
 
