@@ -202,8 +202,10 @@ def main():
 
         def processes(count, pool, source=(core_scene, settings)):
             copy, preparing = f12_prepared(pool, count, source)
-            run = lambda: list(pool.render(copy, lambda: False, count))  # noqa: E731
-            run.preparing = preparing
+
+            def run():
+                return list(pool.render(copy, lambda: False, count))
+            run.preparing = preparing  # CPU s of the prepare the workers' build overlapped
             return run
 
         def two_renders_at_once(source=(core_scene, settings)):
