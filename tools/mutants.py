@@ -156,7 +156,7 @@ MUTANTS = (
                   "doppler = 1.0 / ray_doppler(frames, hits)[hits.frame >= 0]")),
            (f"{T_RENDER}::test_factor_display_paints_d_across_the_frames_own_range",)),
     Mutant("emission-time-camera-frame", "the Emission Time pass left in the camera frame (not world time)",
-           (Patch(PASSES, "frames.map(frames.camera, frames.world).events(", "frames.map(frames.camera, frames.camera).events("),),
+           (Patch(PASSES, "to_world = frames.map(frames.camera, frames.world)", "to_world = frames.map(frames.camera, frames.camera)"),),
            (T_OBSERVERS,)),
     Mutant("camera-event-at-reference-position", "a moving camera observes from where it was at the reference time",
            (Patch(PREPARED, "world_event = position + camera_boost.b * camera_boost.n * scene.tau_obs",

@@ -125,15 +125,22 @@ class CameraRays:
         def on_plane(corner, across, up):  # corner + u across + v up at every ray
             return np.add.outer(corner + up * v, across * u).ravel() if grid else (corner + up * v) + across * u
 
+        # the image-plane points by axis (contiguous rows), scaled to unit length as they are
+        # written into the directions' columns (one strided pass per axis)
+        points = [on_plane(corner, across, up) for corner, across, up in self.world_plane]
+        inverse = np.multiply(points[0], points[0])  # the squared length summed in rows.norm's order
+        for axis in (1, 2):
+            inverse += np.square(points[axis])
+        np.sqrt(inverse, out=inverse)
+        np.divide(1.0, inverse, out=inverse)  # the rotation keeps lengths
         directions = np.empty((n, 3))
-        for axis, (corner, across, up) in enumerate(self.world_plane):
-            directions[:, axis] = on_plane(corner, across, up)
-        inverse = 1.0 / rows.norm(directions)  # the rotation keeps lengths
-        for axis in range(3):  # one axis at a time: numpy is slow along a length-3 last axis
-            directions[:, axis] *= inverse
+        for axis, point in enumerate(points):
+            np.multiply(point, inverse, out=directions[:, axis])
         corner, across, up = self.plane
         # path length per unit of depth along the view axis: 1 / cosine to the axis (the plane is at z < 0)
-        per_depth = -1.0 / (inverse * on_plane(corner[2], across[2], up[2]))
+        per_depth = on_plane(corner[2], across[2], up[2])
+        per_depth *= inverse
+        np.divide(-1.0, per_depth, out=per_depth)
         camera = self.camera
         return (np.broadcast_to(self.position, (n, 3)), directions, camera.clip_start * per_depth,
                 camera.clip_end * per_depth, np.ones(n, dtype=bool))

@@ -15,7 +15,7 @@ import numpy as np
 
 from . import rows
 from .frames import FrameSet, RestFrame
-from .tracer import Hits, frames_hit, hit_geometry
+from .tracer import Hits, TraceCache, frames_hit, hit_geometry
 
 
 @dataclass(frozen=True)
@@ -73,17 +73,18 @@ def hit_doppler(frame: RestFrame, prim, u, v, tau_hit, d_k, w) -> np.ndarray:
     return surface_doppler(frame, prim, u, v, tau_hit, d_k) / w
 
 
-def facing_normals(frame: RestFrame, prim, u, v, d_k, tau_hit=None):
+def facing_normals(frame: RestFrame, prim, u, v, d_k, tau_hit=None, cache: TraceCache | None = None):
     """Position, geometric and shading normals turned toward the viewer, and whether the
     back was hit, at hits of one frame (frame coordinates).  A shading normal turned away
-    from the viewer falls back to the geometric one."""
-    position, ng, ns = hit_geometry(frame, prim, u, v, tau_hit)
+    from the viewer falls back to the geometric one.  Read-only for the caller: with flat
+    shading the two normals are one array.  ``cache``: the calling thread's (see hit_geometry)."""
+    position, ng, ns = hit_geometry(frame, prim, u, v, tau_hit, cache)
     back = rows.dot(ng, d_k) > 0.0
     for normals in (ng,) if ns is ng else (ng, ns):  # (hit_geometry's own arrays: turned in place)
         for axis in range(3):
             np.negative(normals[:, axis], out=normals[:, axis], where=back)
     if ns is ng:  # flat: the turned normal faces the viewer (or grazes it)
-        return position, ng, ng.copy(), back
+        return position, ng, ng, back
     away = rows.dot(ns, d_k) >= 0.0
     if away.any():
         ns[away] = rows.take(ng, away)
@@ -106,7 +107,8 @@ def ray_doppler(frames: FrameSet, hits: Hits) -> np.ndarray:
 def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
                  shading_normals=None) -> dict[str, np.ndarray]:
     """The passes ``wanted`` (names besides Combined) of camera rays ``rays`` = (tau, x, d, ...)
-    in the camera frame and their ``hits``, as (n, channels) float64 arrays.  ``shading_normals(k,
+    in the camera frame and their ``hits``, as (n, channels) float32 arrays (each value worked out
+    in float64 and rounded once, as it is written).  ``shading_normals(k,
     prim, u, v, d_k, tau_hit)``: the Normal pass's normals at hits of frame k (normal maps applied,
     as Cycles shows them; None: :func:`facing_normals`')."""
     tau, x, d = rays[:3]
@@ -115,19 +117,22 @@ def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
     hit = hits.frame >= 0
     passes = {}
     if "Depth" in wanted:
-        passes["Depth"] = np.where(hit, hits.s, _MISS_DEPTH)
+        passes["Depth"] = np.full(n, _MISS_DEPTH, dtype=np.float32)
+        np.copyto(passes["Depth"], hits.s, where=hit, casting="same_kind")
     if "Emission Time" in wanted:
         # world time of the hit event: back along the ray in the camera frame, then into S
         s_hit = hits.s[hit]
         shared = n > 0 and x.strides[0] == 0 and tau.strides[0] == 0  # one event (broadcast views): no gathers
-        world_tau, _ = frames.map(frames.camera, frames.world).events(
-            (tau[0] if shared else tau[hit]) - s_hit,
-            rows.add_scaled(x[0] if shared else rows.take(x, hit), s_hit, rows.take(d, hit)))
-        passes["Emission Time"] = np.zeros(n)
+        to_world = frames.map(frames.camera, frames.world)
+        world_tau = (tau[0] if shared else tau[hit]) - s_hit
+        if not to_world.is_identity:  # (a camera at rest in S needs no hit positions)
+            world_tau, _ = to_world.events(world_tau, rows.add_scaled(x[0] if shared else rows.take(x, hit), s_hit,
+                                                                      rows.take(d, hit)))
+        passes["Emission Time"] = np.zeros(n, dtype=np.float32)
         passes["Emission Time"][hit] = world_tau / light_speed
     per_frame = wanted & {"Doppler", "Normal", "IndexOB", "Object Time"}
     for name in per_frame:
-        passes[name] = np.zeros((n, len(BY_NAME[name].channels)))
+        passes[name] = np.zeros((n, len(BY_NAME[name].channels)), dtype=np.float32)
     if not per_frame:
         return passes
     for k in frames_hit(hits):

@@ -267,7 +267,8 @@ def _ray_range(frame: RestFrame, tau, origin, d, s_lo, s_hi):
 class TraceCache:
     """What the tracer derives from a frame set and keeps for later bundles: the culling
     cones of frames seen from observation events (every tile of a perspective camera shares
-    its event) and the body boxes per source frame.
+    its event), the body boxes per source frame and the triangle rows of small meshes
+    (:func:`hit_geometry`).
 
     Not thread-safe: each render thread (or tile) owns one and passes it explicitly; the
     frame set itself stays read-only.
@@ -278,6 +279,7 @@ class TraceCache:
     def __init__(self):
         self._cones: dict = {}
         self._body_boxes: dict[int, tuple] = {}
+        self._hit_tables: dict[int, tuple] = {}  # id(geometry) -> (geometry, its rows for hit_geometry)
 
     def cones(self, keys: list, compute) -> list:
         """The cones kept under each key; ``compute(missing)`` works out, at once, those of the
@@ -295,6 +297,14 @@ class TraceCache:
         if src not in self._body_boxes:
             self._body_boxes[src] = frames.body_boxes(src)
         return self._body_boxes[src]
+
+    def hit_table(self, geometry) -> np.ndarray:
+        """:func:`hit_geometry`'s rows of every triangle of ``geometry``, made at its first lit hit."""
+        kept = self._hit_tables.get(id(geometry))
+        if kept is None or kept[0] is not geometry:
+            kept = self._hit_tables[id(geometry)] = (
+                geometry, np.concatenate(_triangle_rows(geometry, np.arange(len(geometry.triangles))), axis=1))
+        return kept[1]
 
 
 def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None = None,
@@ -365,11 +375,17 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
     if bundle is not None:
         bundle = (*bundle, _sub_bundle_cones(d))
         cones = dict(zip(candidates, _frame_cones(frames, src, candidates, shared, cache)))
+        extent = (float(np.max(np.abs(shared[1]))), abs(shared[0]))  # (for the rounding margin of the body boxes)
+        path_range = float(np.min(s_lo)), float(np.max(best))  # every ray's, for the body boxes
     for k in candidates:
         frame = frames.frames[k]
         fmap = frames.map(src, k)
-        # culling by bounding cones pays off only when several frames share the rays
-        rays = _toward(cones[k], d, bundle) if bundle is not None else None
+        # culling by bounding cones pays off only when several frames share the rays; the runs
+        # that miss the frame's body box first (a few numbers per run), then the sphere cones
+        rays = None
+        if bundle is not None and cones[k] is not None:
+            rays = _toward(cones[k], d, bundle, _runs_near_body(frames, src, k, cache, extent, shared, bundle[2][3:],
+                                                                path_range))
         if rays is not None and len(rays) == 0:
             continue
         d_rays, lo, hi = (d, s_lo, best) if rays is None else (rows.take(d, rays), s_lo[rays], best[rays])
@@ -469,10 +485,11 @@ def _shared_origin(tau0, x0):
 _CONE_SAMPLES = 16
 
 
-def _toward(cones, d, bundle):
+def _toward(cones, d, bundle, near_runs=None):
     """Indices of rays from one event that point into one of a frame's sphere ``cones`` (see
     :func:`_cones`; or a superset of those rays), or None when every ray may (the event is
-    inside a sphere, or the bundle's own cone lies inside one).
+    inside a sphere, or the bundle's own cone lies inside one).  ``near_runs``: a mask of the
+    runs (see below) that may meet the frame at all (:func:`_runs_near_body`; None: every run).
 
     ``bundle`` = (axis, half-angle, sub-bundles) of a cone holding every ray and of cones holding
     runs of rays (:func:`_sub_bundle_cones`): sphere cones that miss the bundle's are skipped and,
@@ -483,7 +500,7 @@ def _toward(cones, d, bundle):
     if cones is None:
         return None
     axes, spread = cones
-    bundle_axis, bundle_angle, (run_axes, run_cos, run_sin) = bundle
+    bundle_axis, bundle_angle, (run_axes, run_cos, run_sin, _, _) = bundle
     apart = np.arccos(np.clip(axes @ bundle_axis, -1.0, 1.0))
     if np.any(apart + bundle_angle <= spread):
         return None
@@ -492,6 +509,8 @@ def _toward(cones, d, bundle):
     inside = np.zeros(len(d), dtype=bool)
     tested = np.arange(_RUN * len(run_axes), len(d))  # the rays past the last whole run: one by one
     if len(run_axes):
+        chosen = np.arange(len(run_axes)) if near_runs is None else np.flatnonzero(near_runs)
+        run_axes, run_cos, run_sin = run_axes[chosen], run_cos[chosen], run_sin[chosen]
         # the cone of cones: each run against each sphere cone by the cosine of sums of angles
         # (m, b); a run is taken whole where it lies in a cone, dropped where it misses them all
         apart = axes @ run_axes.T
@@ -500,8 +519,8 @@ def _toward(cones, d, bundle):
         clear = spread + _RUN_MARGIN
         missable = (clear < np.pi / 2)[:, None] & (run_cos > 0.0)  # the sum of the angles below pi
         meets = ~missable | (apart >= np.cos(clear)[:, None] * run_cos - np.sin(clear)[:, None] * run_sin - 1e-12)
-        partial = np.flatnonzero(~whole & meets.any(axis=0))
-        inside[:_RUN * len(run_axes)].reshape(-1, _RUN)[whole] = True
+        partial = chosen[~whole & meets.any(axis=0)]
+        inside[:_RUN * (len(d) // _RUN)].reshape(-1, _RUN)[chosen[whole]] = True
         tested = np.append((partial[:, None] * _RUN + np.arange(_RUN)).ravel(), tested)
     if len(tested):
         # those rays against every cone at once: one (m, 3) x (3, r) product, reduced over the cones
@@ -514,20 +533,59 @@ _RUN_MARGIN = 1e-6  # radians: a run is dropped whole only this far clear of eve
 
 
 def _sub_bundle_cones(d):
-    """(axes (b, 3), cosines and sines of the half-angles (b,)) of cones holding each run of
-    ``_RUN`` consecutive directions d (the rays past the last whole run are left out)."""
+    """(axes (b, 3), cosines and sines of the half-angles (b,), lowest and highest direction
+    components (3, b)) of cones and boxes holding each run of ``_RUN`` consecutive directions d
+    (the rays past the last whole run are left out)."""
     count = len(d) // _RUN
     # one axis at a time: numpy is slow along a length-3 last axis
-    columns = [d[:count * _RUN, axis].reshape(count, _RUN) for axis in range(3)]
-    axes = np.stack([column.sum(axis=1) for column in columns], axis=1)
+    columns = [d[:count * _RUN, axis] for axis in range(3)]
+    axes = np.stack([_per_run(np.add, column) for column in columns], axis=1)
     length = np.linalg.norm(axes, axis=1)
     spread_out = length < 1e-9 * _RUN  # directions that cancel: no axis, the cone holds every direction
     axes /= np.where(spread_out, 1.0, length)[:, None]
-    cosines = columns[0] * axes[:, :1]
-    cosines += columns[1] * axes[:, 1:2]
-    cosines += columns[2] * axes[:, 2:]
-    run_cos = np.where(spread_out, -1.0, np.clip(cosines.min(axis=1), -1.0, 1.0))
-    return axes, run_cos, np.sqrt(1.0 - run_cos * run_cos)
+    cosines = columns[0].reshape(count, _RUN) * axes[:, :1]
+    cosines += columns[1].reshape(count, _RUN) * axes[:, 1:2]
+    cosines += columns[2].reshape(count, _RUN) * axes[:, 2:]
+    run_cos = np.where(spread_out, -1.0, np.clip(_per_run(np.minimum, cosines.ravel()), -1.0, 1.0))
+    low = np.stack([_per_run(np.minimum, column) for column in columns])
+    high = np.stack([_per_run(np.maximum, column) for column in columns])
+    return axes, run_cos, np.sqrt(1.0 - run_cos * run_cos), low, high
+
+
+def _per_run(ufunc, values):
+    """``ufunc`` (add, minimum, maximum) over each run of ``_RUN`` consecutive values, by folding
+    neighbours pairwise: numpy reduces the short last axis of a (b, _RUN) array one row at a
+    time, several times slower."""
+    width = 1
+    while width < _RUN:
+        values = ufunc(values[0::2], values[1::2])
+        width *= 2
+    return values
+
+
+def _runs_near_body(frames: FrameSet, src: int, k: int, cache, extent, shared, run_bounds, path_range) -> np.ndarray:
+    """Which runs of ``_RUN`` rays from one ``shared`` event may pass through frame k's body box
+    (a mask, or a superset of it): :func:`_near_body` (``extent`` as there) for a whole run at
+    once.  ``run_bounds`` = the runs' lowest and highest direction components
+    (:func:`_sub_bundle_cones`); ``path_range`` = (lowest s_lo, highest s_hi) of the rays.
+
+    Along each axis a ray passes the box's slab for path lengths between (+-half - offset) / e,
+    e = d + v; those are monotonic in e, so for every e between a run's lowest and highest
+    components they lie between their values at the two ends (floating-point rounding is
+    monotonic too), unless e may be 0 there.  The run's range is the widest of its rays'.
+    """
+    low, high = run_bounds  # (3, b): all axes at once, the calls are what costs
+    t_box, x_box, velocity, widen = _body_box(frames, src, k, cache, extent)
+    offset = (shared[1] - ((shared[0] - t_box) * velocity + x_box))[:, None]  # as _near_body works it out per ray
+    e_low, e_high = low + velocity[:, None], high + velocity[:, None]
+    before, after = -widen[:, None] - offset, widen[:, None] - offset
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ends = before / e_low, after / e_low, before / e_high, after / e_high
+    near = np.minimum(np.minimum(ends[0], ends[1]), np.minimum(ends[2], ends[3]))
+    far = np.maximum(np.maximum(ends[0], ends[1]), np.maximum(ends[2], ends[3]))
+    either_way = (e_low <= 0.0) & (e_high >= 0.0)  # e may be 0 there: any path length
+    near[either_way], far[either_way] = -np.inf, np.inf
+    return np.maximum(near.max(axis=0), path_range[0]) <= np.minimum(far.min(axis=0), path_range[1])
 
 
 def _bundle_cone(d):
@@ -672,17 +730,11 @@ def _near_body(frames: FrameSet, src: int, k: int, cache, extent, tau0, x0, d, s
     at ``x0 - X(tau0) + s (d + v)``: a slab test per ray.  Rays it rejects cannot meet the
     frame's bounds either (their query would find nothing), so no ray's result changes.
     """
-    slot = frames.geometry_slot[k]
-    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
-    t_box, x_box, velocity, half = (a[slot] for a in boxes)
     n = len(d)
     if n == 0:
         return np.zeros(0, dtype=bool)
+    t_box, x_box, velocity, widen = _body_box(frames, src, k, cache, extent)
     since = tau0 - t_box
-    # the rays meet the box where |s (d + v)| is about |x0 - X(tau0)|: coordinates up to this
-    x_max, tau_max = extent
-    scale = 1.0 + x_max + float(np.max(np.abs(x_box))) + float(np.max(np.abs(velocity))) * (tau_max + abs(float(t_box)))
-    widen = _widened(half[None, :], scale)[0]
     enter, leave = np.array(s_lo, dtype=np.float64), np.array(s_hi, dtype=np.float64)
     offset, e, t_a, t_b, near = (np.empty(n) for _ in range(5))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -698,6 +750,18 @@ def _near_body(frames: FrameSet, src: int, k: int, cache, extent, tau0, x0, d, s
             np.fmax(enter, np.fmin(t_a, t_b, out=near), out=enter)
             np.fmin(leave, np.fmax(t_a, t_b, out=near), out=leave)
     return enter <= leave
+
+
+def _body_box(frames: FrameSet, src: int, k: int, cache, extent):
+    """(t, x, velocity, widened half-extents) of frame k's body box (``FrameSet.body_boxes``) for
+    rays whose (largest |coordinate| of x0, largest |tau0|) is ``extent``."""
+    slot = frames.geometry_slot[k]
+    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
+    t_box, x_box, velocity, half = (a[slot] for a in boxes)
+    # the rays meet the box where |s (d + v)| is about |x0 - X(tau0)|: coordinates up to this
+    x_max, tau_max = extent
+    scale = 1.0 + x_max + float(np.max(np.abs(x_box))) + float(np.max(np.abs(velocity))) * (tau_max + abs(float(t_box)))
+    return t_box, x_box, velocity, _widened(half[None, :], scale)[0]
 
 
 def _widened(half, scale: float) -> np.ndarray:
@@ -769,36 +833,49 @@ def _may_meet(frames: FrameSet, src: int, ks, reach: Reach, cache: TraceCache | 
 
 
 def _segments_meet_boxes(origin, direction, t_max: float, lo, hi) -> np.ndarray:
-    """Whether each origin + t direction, 0 <= t <= t_max, meets its box [lo, hi] ((m, 3) arrays)."""
-    enter = np.zeros(len(origin))
-    leave = np.full(len(origin), t_max)
+    """Whether each origin + t direction, 0 <= t <= t_max, meets its box [lo, hi] ((m, 3) arrays;
+    all axes at once: m is the number of frames, small, so the calls are what costs)."""
+    parallel = direction == 0.0  # inside the slab for every t, or never
     with np.errstate(divide="ignore", invalid="ignore"):
-        for axis in range(3):
-            o, e = origin[:, axis], direction[:, axis]
-            parallel = e == 0.0  # inside the slab for every t, or never
-            t_a = np.where(parallel, -np.inf, (lo[:, axis] - o) / e)
-            t_b = np.where(parallel, np.inf, (hi[:, axis] - o) / e)
-            enter = np.maximum(enter, np.minimum(t_a, t_b))
-            leave = np.minimum(leave, np.maximum(t_a, t_b))
-            leave[parallel & ((o < lo[:, axis]) | (o > hi[:, axis]))] = -np.inf
+        t_a = np.where(parallel, -np.inf, (lo - origin) / direction)
+        t_b = np.where(parallel, np.inf, (hi - origin) / direction)
+    enter = np.maximum(np.minimum(t_a, t_b).max(axis=1), 0.0)
+    leave = np.minimum(np.maximum(t_a, t_b).min(axis=1), t_max)
+    leave[(parallel & ((origin < lo) | (origin > hi))).any(axis=1)] = -np.inf
     return enter <= leave
 
 
-def hit_geometry(frame: RestFrame, prim, u, v, tau=None):
-    """Float64 position, unit geometric normal and unit shading normal at hits of one frame
-    (frame coordinates; ``tau``, the hits' frame times, poses a spinning body): new arrays, the
-    caller's to write into (the two normals are one array where the mesh has no corner normals)."""
-    geometry = frame.geometry
+# a render thread keeps hit_geometry's rows of every triangle of meshes up to this size (96 bytes a
+# triangle, made at the first hit): one gather per hit instead of four, no edges or normals per hit
+_HIT_TABLE_TRIANGLES = 1 << 16
+
+
+def _triangle_rows(geometry, prim):
+    """The first corner, the two edges out of it and the unit normal (Geometry.face_normals, from
+    the edges at hand) of triangles ``prim``: four new (n, 3) arrays."""
     corners = rows.take(geometry.triangles, prim)
     p0, p1, p2 = (rows.take(geometry.vertices, corners[:, i]) for i in range(3))
-    p1 -= p0  # the edges out of the first corner
+    p1 -= p0
     p2 -= p0
+    return p0, p1, p2, triangle_normals(p1, p2)
+
+
+def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | None = None):
+    """Float64 position, unit geometric normal and unit shading normal at hits of one frame
+    (frame coordinates; ``tau``, the hits' frame times, poses a spinning body): new arrays, the
+    caller's to write into (the two normals are one array where the mesh has no corner normals).
+    ``cache``: the calling thread's, which keeps the rows of small meshes' triangles."""
+    geometry = frame.geometry
+    if cache is not None and len(geometry.triangles) <= _HIT_TABLE_TRIANGLES:  # one gather per hit
+        hit_rows = rows.take(cache.hit_table(geometry), prim)
+        p0, p1, p2, ng = (hit_rows[:, 3 * i:3 * i + 3] for i in range(4))
+    else:
+        p0, p1, p2, ng = _triangle_rows(geometry, prim)
     # p0 + u e1 + v e2, summed into p0's own array column by column (float32 u, v widen exactly)
     position, term = p0, np.empty(len(p0))
     for axis in range(3):
         position[:, axis] += np.multiply(u, p1[:, axis], out=term)
         position[:, axis] += np.multiply(v, p2[:, axis], out=term)
-    ng = triangle_normals(p1, p2)  # Geometry.face_normals, from the edges at hand
     if geometry.corner_normals is None:
         ns = ng
     else:

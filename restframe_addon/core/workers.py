@@ -57,7 +57,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from . import blas
+from . import blas, malloc
 from .passes import ALL_PASSES
 from .persistent import GeometryCache
 from .prepared import PreparedScene, build_unmeasured, measured_as
@@ -65,13 +65,7 @@ from .render import Tile, render_tile, tiles_in_threads
 from .scene import RenderSettings, Scene, render_workers
 from .tracer import TraceCache
 
-# glibc's malloc returns every large temporary to the system and page-faults it back in on the
-# next allocation; a worker keeps them (see docs/speed.md for the measurement).
-MALLOC_TUNING = {
-    "MALLOC_MMAP_THRESHOLD_": str(256 << 20),
-    "MALLOC_TRIM_THRESHOLD_": str(256 << 20),
-    "MALLOC_TOP_PAD_": str(64 << 20),
-}
+MALLOC_TUNING = malloc.ENVIRONMENT  # a worker's malloc keeps its large temporaries (see malloc)
 # one BLAS thread per worker: the workers fill the cores (see blas)
 _ONE_BLAS_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 

@@ -3,12 +3,16 @@
     git worktree add /tmp/base origin/main
     tools/dev.sh tests/bench/ab_cpu.py /tmp/base                      # moving_sphere, 960x540, 8 samples
     tools/dev.sh tests/bench/ab_cpu.py /tmp/base --stages --repeats 7  # and the tracer's stages
+    tools/dev.sh tests/bench/ab_cpu.py /tmp/base --scene floor         # the primary-ray floor's F12
 
 Each checkout runs in its own process (a server that exports and prepares the scene once, then
 renders on request); the driver asks them in turn, alternating the order, so both see the same
 machine. Times are CPU seconds of the render (one thread: other work on a shared machine inflates
 them less than wall time), min over the repeats. ``--stages`` adds the CPU time inside the tracer
-calls of the shading, the hit geometry, the sample jitter and the camera rays.
+calls of the shading, the hit geometry, the sample jitter, the camera rays, the boosts of rays into
+other frames (``FrameMap.rays``, inside the tracer calls) and the pixel-centre rays' passes. ``--scene floor`` is
+the primary-ray floor of ``bench_per_sample`` (261k-triangle sphere at (0.5, 0.2, 0) c, 1536^2, one
+sample, no lights); it adds the F12's ``prepare`` and their sum, ``F12``.
 """
 
 from __future__ import annotations
@@ -22,10 +26,11 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve()
-SCENES = {"moving_sphere": ("moving_sphere.blend", (960, 540), 8), "bars": ("bars_sideways.blend", None, None)}
+SCENES = {"moving_sphere": ("moving_sphere.blend", (960, 540), 8), "bars": ("bars_sideways.blend", None, None),
+          "floor": None}
 STAGES = (("shading", "occluded"), ("shading", "trace_nearest"), ("shading", "facing_normals"),
           ("sampling", "stratified_offsets"), ("sampling", "stratified_positions"),
-          ("prepared", "PreparedScene.sample_rays"))
+          ("prepared", "PreparedScene.sample_rays"), ("frames", "FrameMap.rays"), ("render", "pixel_passes"))
 LABELS = {"stratified_positions": "stratified_offsets"}  # the sample jitter, whichever of the two a checkout calls
 
 
@@ -34,15 +39,22 @@ def serve(repo: str, scene: str, stages: bool) -> None:
     from bench_parallel import export_blend
 
     import restframe_addon
-    from restframe_addon.core import prepared, sampling, shading
+    from restframe_addon.core import frames, prepared, render, sampling, shading
     from restframe_addon.core.render import render_tiles
 
     restframe_addon.register()
-    blend, resolution, samples = SCENES[scene]
-    core_scene, settings = export_blend(blend, resolution, samples, None)
-    prep = prepared.prepare(core_scene, dataclasses.replace(settings, parallelism="THREADS", threads=1))
+    if scene == "floor":
+        from bench_build import sphere_scene
+        from bench_per_sample import _settings
+
+        core_scene, settings = sphere_scene(512), _settings(1536, 1)
+    else:
+        blend, resolution, samples = SCENES[scene]
+        core_scene, settings = export_blend(blend, resolution, samples, None)
+    settings = dataclasses.replace(settings, parallelism="THREADS", threads=1)
+    prep = prepared.prepare(core_scene, settings)
     totals: dict[str, float] = {}
-    modules = {"shading": shading, "sampling": sampling, "prepared": prepared}
+    modules = {"shading": shading, "sampling": sampling, "prepared": prepared, "frames": frames, "render": render}
     for module, name in STAGES if stages else ():
         owner = modules[module]
         *outer, attr = name.split(".")
@@ -57,6 +69,11 @@ def serve(repo: str, scene: str, stages: bool) -> None:
         t0 = time.process_time()
         list(render_tiles(prep, threads=1))
         totals["render"] = time.process_time() - t0
+        if scene == "floor":
+            t0 = time.process_time()
+            prepared.prepare(core_scene, settings)
+            totals["prepare"] = time.process_time() - t0
+            totals["F12"] = totals["render"] + totals["prepare"]
         print(json.dumps(totals), flush=True)
 
 

@@ -2,6 +2,7 @@
 
     tools/dev.sh tests/bench/bench_per_sample.py            # this section alone, printed (Markdown)
     tools/dev.sh tests/bench/bench_per_sample.py --smoke    # tiny sizes
+    tools/dev.sh tests/bench/bench_per_sample.py --only floor   # one part: "queries" or "floor"
 
 **Own queries**: `sample_blends/moving_sphere.blend` rendered on one core (threads=1; and in one
 worker process). Every Embree call the render makes is recorded (the exact float32 origins,
@@ -305,7 +306,10 @@ def _settings(size: int, threads: int):
     return settings((size, size), samples=1, threads=threads, parallelism="THREADS", passes=("Depth", *PASSES))
 
 
-def run(ctx: Context) -> Section:
+PARTS = ("queries", "floor")  # the parts of the section, each runnable alone (--only)
+
+
+def run(ctx: Context, parts=PARTS) -> Section:
     import restframe_addon
 
     restframe_addon.register()  # the .blend export needs the add-on's properties
@@ -314,10 +318,18 @@ def run(ctx: Context) -> Section:
     sec.add("")
     sec.add(" ".join(__doc__.split("\n\n", 2)[2].split("\n\n")[1].split()))
     sec.add("")
-    own_queries(ctx, sec)
-    primary_floor(ctx, sec)
+    if "queries" in parts:
+        own_queries(ctx, sec)
+    if "floor" in parts:
+        primary_floor(ctx, sec)
     return sec
 
 
 if __name__ == "__main__":
-    print_section(run(standalone_context("--smoke" in sys.argv)))
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
+    parser.add_argument("--smoke", action="store_true", help="tiny sizes")
+    parser.add_argument("--only", choices=PARTS, help="run one part of the section")
+    args = parser.parse_args()
+    print_section(run(standalone_context(args.smoke), (args.only,) if args.only else PARTS))

@@ -8,6 +8,7 @@ from __future__ import annotations
 from dataclasses import fields
 
 import numpy as np
+import pytest
 from shapes import box, look_at_camera
 
 from restframe_addon.core import tracer
@@ -103,3 +104,99 @@ def test_a_full_cone_cache_starts_afresh(monkeypatch):
     more = tracer._frame_cones(frame_set, frame_set.world, ks, (0.0, EYE), cache)  # two kept, the rest past the limit
     assert len(more) == len(ks)
     assert all(np.array_equal(a, b) for cones, again in zip(kept, more[:2]) for a, b in zip(cones, again))
+
+
+def runs_across_body_boxes(frame_set, seed: int, count: int = 400):
+    """Runs of ``_RUN`` directions from the eye, each sweeping between two points about a frame's
+    body box (where the box is when the light passes it): many runs straddle a box's faces."""
+    rng = np.random.default_rng(seed)
+    t_box, x_box, velocity, half = frame_set.body_boxes(frame_set.world)
+    runs = []
+    for _ in range(count):
+        slot = rng.integers(len(t_box))
+        s = np.linalg.norm(x_box[slot] - EYE)
+        for _ in range(3):  # the box's centre at the time tau0 - s its light passes it (tau0 = 0)
+            centre = x_box[slot] + velocity[slot] * (-s - t_box[slot])
+            s = np.linalg.norm(centre - EYE)
+        ends = centre + half[slot] * rng.uniform(-1.6, 1.6, (2, 3))
+        sweep = ends[0] + np.linspace(0.0, 1.0, tracer._RUN)[:, None] * (ends[1] - ends[0])
+        runs.append(sweep - EYE)
+    d = np.concatenate(runs + [rng.normal(size=(5, 3))])  # and some rays past the last whole run
+    return d / np.linalg.norm(d, axis=1)[:, None]
+
+
+@pytest.mark.parametrize("s_hi", [np.inf, 14.0])
+def test_runs_the_body_box_test_drops_hold_no_ray_the_per_ray_test_keeps(s_hi):
+    frame_set = frames()
+    d = runs_across_body_boxes(frame_set, 5)
+    n, count = len(d), len(d) // tracer._RUN
+    tau0, x0 = np.broadcast_to(0.0, (n,)), np.broadcast_to(EYE, (n, 3))
+    s_lo, s_hi = np.full(n, 1e-6), np.full(n, s_hi)
+    extent = (float(np.max(np.abs(EYE))), 0.0)
+    runs = tracer._sub_bundle_cones(d)
+    dropped = kept = 0
+    for k in frame_set.geometry:
+        per_ray = tracer._near_body(frame_set, frame_set.world, k, None, extent, tau0, x0, d, s_lo, s_hi)
+        per_run = tracer._runs_near_body(frame_set, frame_set.world, k, None, extent, (0.0, EYE), runs[3:],
+                                         (1e-6, float(s_hi[0])))
+        assert per_run[per_ray[:count * tracer._RUN].reshape(count, tracer._RUN).any(axis=1)].all()
+        dropped += int(np.count_nonzero(~per_run))
+        kept += int(np.count_nonzero(per_run & ~per_ray[:count * tracer._RUN].reshape(count, -1).all(axis=1)))
+    assert dropped > count and kept > 0.1 * count  # runs dropped whole, and runs straddling a box kept
+
+
+def rows_of_bars():
+    """Three rows of five thin bars, each row one mesh moving along x: a row's bounding sphere
+    (one culling cluster: the row has under 64 triangles) is far wider than its box."""
+    meshes = []
+    for i, speed in enumerate((0.1, 0.3, 0.5)):
+        parts = [box((-4.0 + 2.0 * j, 3.0 * i, 0.0), (0.4, 0.4, 2.0)) for j in range(5)]
+        v = np.concatenate([p[0] for p in parts])
+        t = np.concatenate([p[1] + 8 * j for j, p in enumerate(parts)])
+        meshes.append(Mesh(f"row{i}", v, t, velocity=Velocity((speed, 0.0, 0.0)), pivot=(0.0, 3.0 * i, 0.0)))
+    return build_frames(Scene(camera=look_at_camera(tuple(EYE), (0.0, 0.0, 0.0)), meshes=meshes))
+
+
+def camera_bundle(width: int = 384, height: int = 64):
+    """Pixel rays of a wide perspective camera at the eye looking at the bars, row by row as in a tile."""
+    forward = -EYE / np.linalg.norm(EYE)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    px, py = np.meshgrid(np.linspace(-0.8, 0.8, width), np.linspace(-0.3, 0.2, height))
+    d = forward + px.reshape(-1, 1) * right + py.reshape(-1, 1) * up
+    return d / np.linalg.norm(d, axis=1)[:, None]
+
+
+def test_camera_rays_that_miss_a_body_box_are_not_traced_in_its_frame(monkeypatch):
+    """The runs of a camera bundle that pass no part of a frame's body box are dropped before the
+    cone test and before being mapped into the frame: fewer rays queried, the very same hits."""
+    frame_set = rows_of_bars()
+    d = camera_bundle()
+    n = len(d)
+    tau0, x0 = np.broadcast_to(0.0, (n,)), np.broadcast_to(EYE, (n, 3))
+    queried = []
+    query = tracer._query
+    monkeypatch.setattr(tracer, "_query", lambda frame, tau, origin, dk, *rest, **kw: queried.append(len(dk))
+                        or query(frame, tau, origin, dk, *rest, **kw))
+    culled = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
+    box_culled, queried[:] = sum(queried), []
+    monkeypatch.setattr(tracer, "_runs_near_body", lambda *args: None)  # every run to the cone test
+    cones_only = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
+    assert sum(queried) > 1.5 * box_culled
+    assert np.array_equal(culled.frame, cones_only.frame)
+    hit = culled.frame >= 0
+    assert len(np.unique(culled.frame[hit])) == 3 and hit.mean() > 0.02  # every row seen
+    for f in fields(culled):
+        assert np.array_equal(getattr(culled, f.name)[hit], getattr(cones_only, f.name)[hit]), f.name
+
+
+@pytest.mark.parametrize("ufunc", [np.minimum, np.maximum, np.add])
+def test_per_run_reductions_are_those_of_each_run(ufunc):
+    values = np.random.default_rng(2).normal(size=(37 * tracer._RUN, 3))[:, 1]  # a strided column, as a ray's
+    expected = ufunc.reduce(values.reshape(-1, tracer._RUN), axis=1)
+    folded = tracer._per_run(ufunc, values)
+    if ufunc is np.add:  # (another order of the same sums)
+        np.testing.assert_allclose(folded, expected, rtol=1e-13, atol=1e-13)
+    else:
+        np.testing.assert_array_equal(folded, expected)

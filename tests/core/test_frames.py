@@ -321,3 +321,25 @@ def test_frames_hit_lists_each_hit_frame_once_in_order(dtype):
         hits = Hits(frame, np.zeros(n), np.zeros(n), np.ones(n), np.zeros(n, dtype=np.int32), np.zeros(n),
                     np.zeros(n), np.zeros((n, 3)), np.zeros(n))
         assert frames_hit(hits).tolist() == sorted({int(k) for k in frame if k >= 0})
+
+
+def test_hit_geometry_from_a_threads_triangle_rows_is_bit_for_bit_the_per_hit_geometry():
+    """A render thread's cache keeps each small mesh's triangle rows (first corner, edges, unit
+    normal) for one gather per hit: the same bits as working them out for the hits, for flat and
+    smooth meshes, the hits' arrays still the caller's own to turn."""
+    vertices, triangles = shuffled_sphere()
+    rng = np.random.default_rng(3)
+    prim = rng.integers(0, len(triangles), 5000)
+    u = rng.random(len(prim), dtype=np.float32) * 0.5
+    v = rng.random(len(prim), dtype=np.float32) * 0.5
+    smooth = vertices[triangles] - SPHERE_CENTRE
+    for options in ({}, {"corner_normals": smooth / np.linalg.norm(smooth, axis=2, keepdims=True)}):
+        frame = build_frames(grid_scene((vertices, triangles), **options)).frames[0]
+        cache = tracer.TraceCache()
+        per_hit = tracer.hit_geometry(frame, prim, u, v)
+        for _ in range(2):  # the rows made, then kept
+            kept = tracer.hit_geometry(frame, prim, u, v, cache=cache)
+            for a, b in zip(per_hit, kept):
+                np.testing.assert_array_equal(a, b)
+            kept[1][:] = 0.0  # the caller's own arrays: the kept rows are not touched
+        assert len(cache._hit_tables) == 1

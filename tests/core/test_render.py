@@ -465,3 +465,27 @@ def test_a_tile_larger_than_one_batch_renders_as_small_tiles_do():
     small = render_image(scene, settings((64, 64), tile_size=16, **common))
     np.testing.assert_array_equal(whole["Combined"], small["Combined"])
     assert whole["Combined"][..., :3].max() > 0
+
+
+def test_passes_are_the_float64_values_of_the_centre_rays_rounded_once():
+    """The passes are written straight into float32: each value is the float64 one of the
+    pixel-centre ray's hit (independently traced here) rounded once; misses are the background's."""
+    from restframe_addon.core.prepared import prepare
+    from restframe_addon.core.render import render_tile
+    from restframe_addon.core.tracer import trace_nearest
+
+    scene = ball_scene(0.6)
+    res = (20, 16)
+    prepared = prepare(scene, settings(res, passes=("Depth", "Doppler", "Emission Time")))
+    rect = (0, 0, *res)
+    tau, x, d, s_lo, s_hi = prepared.centre_rays(rect)
+    hits = trace_nearest(prepared.frames, prepared.frames.camera, tau, x, d, s_lo, s_hi)
+    hit = hits.frame >= 0
+    assert 0 < hit.sum() < hit.size
+    tile = render_tile(prepared, rect)
+    expected = {"Depth": np.where(hit, hits.s, 1e10), "Doppler": np.where(hit, 1.0 / hits.w, 0.0),
+                "Emission Time": np.where(hit, (tau - hits.s) / scene.light_speed, 0.0)}
+    for name, values in expected.items():
+        assert tile.passes[name].dtype == np.float32
+        np.testing.assert_array_equal(tile.passes[name][..., 0], values.astype(np.float32).reshape(res[1], res[0]),
+                                      err_msg=name)

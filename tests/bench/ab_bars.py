@@ -1,0 +1,94 @@
+"""Before/after in one run for the 11x11 bars of ``bench_throughput.py --bars``: each checkout
+renders the scene at one velocity and at 11 velocities (256x192, one thread), interleaved, in CPU
+milliseconds (min of the repeats), with the rays its camera bundle maps and queries per render and
+the minor page faults per render.
+
+    git worktree add /tmp/base origin/main
+    tools/dev.sh tests/bench/ab_bars.py /tmp/base --repeats 40
+
+Each checkout runs in its own process, asked in turn, alternating the order. The 1-velocity render
+moves by several ms between processes of the same code (page faults: how glibc's heap happens to
+grow), so compare the 11-velocity render across checkouts and run the command more than once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve()
+VELOCITIES = {"1": [0.5] * 11, "11": [0.05 + 0.08 * i for i in range(11)]}
+
+
+def serve(repo: str) -> None:
+    sys.path[:0] = [repo + "/tests/bench", repo]
+    from bench_throughput import bars_scene, settings
+
+    from restframe_addon.core import tracer
+    from restframe_addon.core.render import render_image
+
+    queried = [0]
+    query = tracer._query
+
+    def counted(frame, tau, origin, d, t_lo, t_hi, occlusion):
+        queried[0] += 0 if occlusion else len(d)
+        return query(frame, tau, origin, d, t_lo, t_hi, occlusion)
+
+    tracer._query = counted
+    s = settings((256, 192))
+    scenes = {k: bars_scene(v) for k, v in VELOCITIES.items()}
+    for scene in scenes.values():
+        render_image(scene, s)
+    print("ready", flush=True)
+    for line in sys.stdin:
+        queried[0] = 0
+        faults, t0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt, time.process_time()
+        render_image(scenes[line.strip()], s)
+        cpu = time.process_time() - t0
+        print(json.dumps([cpu, queried[0], resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults]), flush=True)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("before", help="the checkout to compare against (a git worktree)")
+    parser.add_argument("--after", default=str(HERE.parents[2]), help="default: this checkout")
+    parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--serve", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.serve:
+        serve(args.serve)
+        return 0
+    servers = {name: subprocess.Popen([sys.executable, str(HERE), "-", "--serve", repo], stdin=subprocess.PIPE,
+                                      stdout=subprocess.PIPE, text=True)
+               for name, repo in (("before", args.before), ("after", args.after))}
+    for server in servers.values():
+        while server.stdout.readline().strip() != "ready":
+            pass
+    results = {(name, k): [] for name in servers for k in VELOCITIES}
+    for r in range(args.repeats):
+        for k in (list(VELOCITIES) if r % 2 == 0 else list(VELOCITIES)[::-1]):
+            for name in (list(servers) if r % 2 == 0 else list(servers)[::-1]):
+                servers[name].stdin.write(k + "\n")
+                servers[name].stdin.flush()
+                results[(name, k)].append(json.loads(servers[name].stdout.readline()))
+    for server in servers.values():
+        server.stdin.close()
+        server.wait()
+    print(f"11x11 bars, 256x192, one thread, CPU ms (min of {args.repeats} interleaved repeats)")
+    print("| | 1 velocity | 11 velocities | 11 / 1 | camera rays queried (1 / 11) | page faults (1 / 11) |")
+    print("|---|---|---|---|---|---|")
+    for name in servers:
+        (one, rays1, faults1), (many, rays11, faults11) = (
+            (min(c for c, _, _ in results[(name, k)]) * 1e3, results[(name, k)][0][1],
+             min(f for _, _, f in results[(name, k)])) for k in VELOCITIES)
+        print(f"| {name} | {one:.2f} | {many:.2f} | {many / one:.2f} | {rays1} / {rays11} | {faults1} / {faults11} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
