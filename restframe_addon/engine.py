@@ -30,6 +30,7 @@ from .core.persistent import GeometryCache
 from .core.prepared import prepare, prepare_view
 from .core.render import render_tiles
 from .core.validation import RenderError
+from .core.workers import build_ahead
 
 # Blender 5.0 renamed its object index pass ("IndexOB" before).
 OBJECT_INDEX_PASS = "Object Index" if bpy.app.version >= (5, 0, 0) else "IndexOB"
@@ -228,6 +229,8 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         """Prepare (from ``first_view``'s prepared scene if given) and render one view (None: the
         only one) into Blender's result; its prepared scene, or None once stopped."""
         self.update_stats("", "RESTframe | Building rest frames")
+        if first_view is None:
+            build_ahead(scene, settings)  # worker processes build it while this process prepares it
         prepared = self._prepare(scene, settings, first_view, geometry_cache)
         if prepared is None:
             return None

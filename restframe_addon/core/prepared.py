@@ -6,15 +6,15 @@ A :class:`PreparedScene` is read-only: any number of threads render tiles of it 
 (:func:`~.render.render_tile`).  Embree scenes cannot be pickled, so a prepared scene
 pickles as its plain :class:`~.scene.Scene` and settings plus the values its pre-passes
 measured; unpickling rebuilds the frames and geometry without measuring again, so
-another process renders the very same pixels.
+another process renders the very same pixels.  A worker process builds from the scene and
+settings alone (:func:`build_unmeasured`, while this process prepares the same) and takes
+the measured values when they come (:func:`measured_as`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from contextlib import contextmanager
-from contextvars import ContextVar
 from dataclasses import dataclass
 from typing import Callable
 
@@ -35,7 +35,6 @@ from .validation import RenderError, check_render
 _SMALLEST_SPLIT_TILE = 8  # pixels: tiles are not split below this (the Tile Size setting's own minimum)
 _EXPOSURE_PREVIEW = 48  # pixels on the longer side of the exposure-normalisation preview
 _LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
-_UNPICKLING_CACHE: ContextVar[GeometryCache | None] = ContextVar("restframe_unpickling_cache", default=None)
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,7 +56,13 @@ class PreparedScene:
     exposure: float  # multiplies Combined (1 unless the exposure is normalised)
 
     def __reduce__(self):
-        return _rebuild, (self.scene, self.settings, self.doppler_range, self.exposure)
+        return _rebuild, (self.scene, self.settings, self.measurements)
+
+    @property
+    def measurements(self) -> tuple[tuple[float, float] | None, float]:
+        """What the pre-passes measured (Doppler range, exposure): all that a build from the
+        scene and settings lacks."""
+        return self.doppler_range, self.exposure
 
     @property
     def warnings(self) -> tuple[str, ...]:
@@ -177,26 +182,26 @@ def _measured(prepared: PreparedScene, should_stop) -> PreparedScene:
     exposure = 1.0
     if settings.normalize_exposure and settings.doppler_mode != "FACTOR":
         exposure = _measure_exposure(prepared, should_stop)
-    return dataclasses.replace(prepared, doppler_range=doppler_range, exposure=exposure)
+    return measured_as(prepared, (doppler_range, exposure))
 
 
-@contextmanager
-def unpickling_with(geometry_cache: GeometryCache):
-    """Prepared scenes unpickled inside this block rebuild their rest frames through the cache of
-    the block's owner (a worker process that renders frame after frame): unchanged geometry is not
-    built again there either."""
-    token = _UNPICKLING_CACHE.set(geometry_cache)
-    try:
-        yield
-    finally:
-        _UNPICKLING_CACHE.reset(token)
+def build_unmeasured(scene: Scene, settings: RenderSettings, geometry_cache: GeometryCache | None = None
+                     ) -> PreparedScene:
+    """The scene built for rendering as :func:`prepare` builds it, but not measured: for a
+    worker process, which renders once :func:`measured_as` gives it the values the preparing
+    process measured.  ``geometry_cache``: the worker's own, across the frames it renders."""
+    return _build(scene, settings, geometry_cache=geometry_cache)
 
 
-def _rebuild(scene: Scene, settings: RenderSettings, doppler_range, exposure: float) -> PreparedScene:
-    """A prepared scene from its pickled parts: built again (see :func:`unpickling_with`), the
-    pre-passes' values kept."""
-    prepared = _build(scene, settings, geometry_cache=_UNPICKLING_CACHE.get())
-    return dataclasses.replace(prepared, doppler_range=doppler_range, exposure=exposure)
+def measured_as(built: PreparedScene, measurements) -> PreparedScene:
+    """A built scene with the pre-passes' values ``measurements`` (:attr:`PreparedScene.measurements`)."""
+    doppler_range, exposure = measurements
+    return dataclasses.replace(built, doppler_range=doppler_range, exposure=exposure)
+
+
+def _rebuild(scene: Scene, settings: RenderSettings, measurements) -> PreparedScene:
+    """A prepared scene from its pickled parts: built again, the pre-passes' values kept."""
+    return measured_as(_build(scene, settings), measurements)
 
 
 def _build(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bool] = lambda: False,

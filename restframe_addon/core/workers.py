@@ -12,19 +12,24 @@ its target before any code of ours could recreate Blender's in-memory ``bl_ext``
 the dedicated entry does both first.  Only the core is imported in a worker, never bpy.
 
 The pool is module-level (:func:`pool`) and kept warm across the renders of a session and
-the frames of an animation.  A render pickles its prepared scene once into a file that every
-worker reads for itself, at once, so no worker waits for the scene to pass through the pipes
-of the others (a new prepared scene replaces the old one there; the same one rendered again
-is not sent again), then deals work two shares at a time per worker.  A share
+the frames of an animation.  A render pickles its scene and settings once into a file that
+every worker reads for itself, at once, so no worker waits for the scene to pass through the
+pipes of the others (a new scene replaces the old one there; the same one rendered again is
+not sent again).  The engine does that before it prepares the scene (:func:`build_ahead`), so
+the workers build it while this process does, and the render sends them only what the
+pre-passes measured.  It then deals work two shares at a time per worker.  A share
 is a whole tile or, towards the end of a render with several workers, a band of a tile's
 rows (:func:`share_out`), so the workers finish together however unevenly the cost is spread
-over the image; the caller gets whole tiles, as from threads.  Esc stops the dealing and each
-worker stops its share at the next sample batch and drops the ones it holds; a worker that
-dies has its shares dealt again to the others (and the unfinished tiles to threads here when
-none is left).  A worker ends when its stdin reaches EOF (the parent closed it or died) or
-when its parent process is gone.  Tiles are the same bits as in threads: every random
-number is keyed by (pixel, sample), a band is rendered in its tile's sample batches and the
-pickled scene is rebuilt to the same bits.  Each render leaves its :class:`RenderStats`
+over the image; the caller gets whole tiles, as from threads.  A worker writes each share's
+passes into the render's results image, a file mapped in shared memory, where the tile's
+bands meet in place; its message says only that it is there, so no result is pickled or
+passes through a pipe (the parent spent 1.4 ms unpickling each 256-px tile).  Esc stops the
+dealing and each worker stops its share at the next sample batch and drops the ones it
+holds; a worker that dies has its shares dealt again to the others (and the unfinished tiles
+to threads here when none is left).  A worker ends when its stdin reaches EOF (the parent
+closed it or died) or when its parent process is gone.  Tiles are the same bits as in
+threads: every random number is keyed by (pixel, sample), a band is rendered in its tile's
+sample batches and the pickled scene is built to the same bits.  Each render leaves its :class:`RenderStats`
 (:attr:`WorkerPool.last_stats`): when each share ran in which worker and what the parent
 spent, for the benchmark's balance and serial-share figures.
 """
@@ -35,9 +40,11 @@ import atexit
 import collections
 import dataclasses
 import itertools
+import mmap
 import os
 import pickle
 import queue
+import shutil
 import signal
 import subprocess
 import sys
@@ -51,9 +58,11 @@ from typing import Callable, Iterator
 import numpy as np
 
 from . import blas, malloc
+from .passes import ALL_PASSES
 from .persistent import GeometryCache
-from .prepared import PreparedScene, unpickling_with
+from .prepared import PreparedScene, build_unmeasured, measured_as
 from .render import Tile, render_tile, tiles_in_threads
+from .scene import RenderSettings, Scene, render_workers
 from .tracer import TraceCache
 
 MALLOC_TUNING = malloc.ENVIRONMENT  # a worker's malloc keeps its large temporaries (see malloc)
@@ -68,6 +77,8 @@ _SCENE_MEMORY_FACTOR = 6  # a worker's rebuilt scene (frames, BVHs, caches) agai
 _START_TIMEOUT = 120.0  # seconds a starting worker may take to say it is ready
 _POLL = 0.05  # seconds between Esc checks while waiting for tiles
 _WATCHDOG = 0.2  # seconds between a worker's checks that its parent lives
+# where a render's results image is made: shared memory first (Linux), else the temporary folder
+_RESULTS_FOLDERS = ("/dev/shm", tempfile.gettempdir())
 
 
 class WorkersUnavailable(Exception):
@@ -133,11 +144,99 @@ def share_out(rects, workers: int) -> list[tuple[int, tuple[int, int] | None]]:
     return shares
 
 
+def _piece(band: Tile | None, results: _ResultsImage, tile_index: int, rect, rows) -> Tile:
+    """A share's band of rows: as it came (``band``) or, None, its rows in the results image."""
+    if band is not None:
+        return band
+    x0, y0, x1, y1 = rect
+    top, bottom = (y0, y1) if rows is None else rows
+    return Tile(x0, top, x1, bottom, {name: region[top - y0:bottom - y0]
+                                      for name, region in results.passes(tile_index, rect).items()})
+
+
 def _joined(rect, pieces: list[Tile]) -> Tile:
     """A tile from its bands of rows (bottom first)."""
     if len(pieces) == 1:
         return pieces[0]
     return Tile(*rect, {name: np.concatenate([piece.passes[name] for piece in pieces]) for name in pieces[0].passes})
+
+
+def _pass_regions(image: np.ndarray, start: int, layout: dict[str, int], rect) -> dict[str, np.ndarray]:
+    """The tile ``rect``'s pass arrays (h, w, channels) in a results ``image`` (float32) from
+    its value ``start``: one after another in ``layout``'s order (name: channels).  The one
+    place of the image's layout, for the workers writing into it and the parent reading it."""
+    x0, y0, x1, y1 = rect
+    pixels, regions = (x1 - x0) * (y1 - y0), {}
+    for name, channels in layout.items():
+        regions[name] = image[start:start + pixels * channels].reshape(y1 - y0, x1 - x0, channels)
+        start += pixels * channels
+    return regions
+
+
+class _ResultsImage:
+    """A render's pass arrays in one file mapped into this process and every worker: a worker
+    writes each share into its tile's place there and sends back only a note, so no result
+    passes through a pipe or a pickle, and a tile's bands are whole in place, not joined.
+
+    The tiles this process hands out are views of the mapping (it lives while they do); the
+    file itself is removed when the render ends (a worker maps it only while it writes a share)."""
+
+    def __init__(self, path: str, mapped: mmap.mmap, layout: dict[str, int], offsets: list[int]):
+        self.path, self.layout, self.offsets = path, layout, offsets  # offsets: each tile's first value
+        self.values = np.frombuffer(mapped, np.float32)
+
+    @classmethod
+    def create(cls, rects, layout: dict[str, int]) -> "_ResultsImage | None":
+        """The results image of tiles ``rects``; None where no folder has room for it (the results
+        then come through the pipes)."""
+        per_pixel = sum(layout.values())
+        offsets = list(itertools.accumulate(((x1 - x0) * (y1 - y0) * per_pixel for x0, y0, x1, y1 in rects),
+                                            initial=0))
+        size = 4 * offsets.pop()
+        if size == 0:
+            return None
+        for folder in _RESULTS_FOLDERS:
+            try:  # room for it twice over: a full tmpfs would kill the worker writing to it (SIGBUS)
+                if not os.path.isdir(folder) or shutil.disk_usage(folder).free < 2 * size:
+                    continue
+                descriptor, path = tempfile.mkstemp(prefix=f"restframe-tiles-{os.getpid()}-", dir=folder)
+            except OSError:
+                continue
+            try:
+                os.ftruncate(descriptor, size)
+                mapped = mmap.mmap(descriptor, size)
+            except OSError:
+                os.close(descriptor)
+                _remove(path)
+                continue
+            os.close(descriptor)
+            return cls(path, mapped, layout, offsets)
+        return None
+
+    def passes(self, tile_index: int, rect) -> dict[str, np.ndarray]:
+        return _pass_regions(self.values, self.offsets[tile_index], self.layout, rect)
+
+
+def _write_share(place, rect, rows, passes: dict) -> bool:
+    """Write a share's passes into its tile's ``place`` = (file, first value, layout) in a results
+    image (worker side); False (nothing written) when they are not the passes the layout expects
+    or the image is gone (its render ended: Esc).  Mapped for this share alone, so no worker
+    keeps a finished render's image in memory."""
+    path, offset, layout = place
+    x0, y0, x1, y1 = rect
+    top, bottom = (0, y1 - y0) if rows is None else (rows[0] - y0, rows[1] - y0)
+    if passes.keys() != layout.keys() or any(passes[name].shape != (bottom - top, x1 - x0, channels)
+                                             for name, channels in layout.items()):
+        return False
+    try:
+        with open(path, "r+b") as image, mmap.mmap(image.fileno(), 0) as mapped:
+            values = np.frombuffer(mapped, np.float32)
+            for name, region in _pass_regions(values, offset, layout, rect).items():
+                region[top:bottom] = passes[name]
+            del values, region  # no view may outlive the mapping
+    except (OSError, ValueError):
+        return False
+    return True
 
 
 @dataclasses.dataclass
@@ -149,19 +248,21 @@ class RenderStats:
     ended: float = 0.0
     workers: int = 0
     shares: int = 0  # work units dealt (tiles, or bands of their rows)
-    pickling: float = 0.0  # this process pickling the scene (0: the scene was sent before)
+    in_place: int = 0  # shares a worker wrote into the results image (the others came through its pipe)
+    pickling: float = 0.0  # this process pickling the scene (0: sent before; built ahead: pickled then)
     sending: float = 0.0  # writing the scene's file and telling the workers (CPU)
     loop_cpu: float = 0.0  # the render loop handling messages (dealing, receiving, joining bands), this thread
     polling_cpu: float = 0.0  # its checks for Esc while no message came (every _POLL s: it grows with the wall time)
-    receiving_cpu: float = 0.0  # the reader threads unpickling the workers' results
+    receiving_cpu: float = 0.0  # the reader threads unpickling the workers' messages
     caller: float = 0.0  # wall time the caller spent between tiles (the engine: streaming a tile into Blender's result)
+    caller_cpu: float = 0.0  # the same in CPU seconds of this thread (what it costs, whatever the machine's load)
     builds: dict = dataclasses.field(default_factory=dict)  # worker pid -> (start, end, cpu) of rebuilding the scene
     rendered: dict = dataclasses.field(default_factory=dict)  # pid -> [(tile index, pixels, start, end, cpu)] per share
 
     @property
     def parent_seconds(self) -> float:
         """This process's own work for the render: what runs beside or between the workers' tiles."""
-        return self.pickling + self.sending + self.loop_cpu + self.receiving_cpu + self.caller
+        return self.pickling + self.sending + self.loop_cpu + self.receiving_cpu + self.caller_cpu
 
 
 def _parent_packages(module_name: str) -> list[tuple[str, list[str]]]:
@@ -189,8 +290,9 @@ class _Worker:
         self.ready = False
         self.alive = True
         self.scene_id = None  # the scene it holds
+        self.measured = None  # (scene id, measurements) it was last sent
         self.dealt: dict[int, tuple] = {}  # share id -> (tile index, rows), of the current render
-        self.receiving_cpu = 0.0  # CPU seconds its reader thread spent unpickling results
+        self.receiving_cpu = 0.0  # CPU seconds its reader thread spent unpickling messages
         self.send(boot)
         threading.Thread(target=self._read, args=(inbox,), name=f"restframe-worker-{self.pid}", daemon=True).start()
 
@@ -198,12 +300,13 @@ class _Worker:
     def pid(self) -> int:
         return self.process.pid
 
-    def send(self, message) -> bool:
-        """Pickle ``message`` to the worker; False once it is gone."""
+    def send(self, *messages) -> bool:
+        """Pickle ``messages`` to the worker (in one write); False once it is gone."""
         if not self.alive:
             return False
         try:
-            self.process.stdin.write(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
+            for message in messages:
+                self.process.stdin.write(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
             self.process.stdin.flush()
         except (OSError, ValueError):
             self.alive = False
@@ -249,8 +352,11 @@ class WorkerPool:
         self._busy = threading.Lock()  # one render at a time
         self._jobs = itertools.count(1)
         self._scene_ids = itertools.count(1)
-        self._sent_scene = None  # (weakref to the prepared scene, its id) last pickled
+        self._sent_scene = None  # (weakref to the scene, its settings pickled, its id) last pickled
         self._scene_file = None  # the file holding its pickle, which the workers read
+        self._ahead = None  # (scene id, pickling, sending) of a scene sent by build_ahead, for its render's stats
+        self._unremoved: list[str] = []  # results images still mapped when their render ended (Windows)
+        weakref.finalize(self, _remove_all, self._unremoved)
         self._scene_file_removal = None  # removes it when the pool goes (weakref.finalize: at exit at the latest)
         self._scene_bytes = 0  # its size
         self._tokens = itertools.count(1)
@@ -277,9 +383,30 @@ class WorkerPool:
         finally:
             self._busy.release()
 
+    def build_ahead(self, scene: Scene, settings: RenderSettings, count: int) -> None:
+        """Have up to ``count`` workers build ``scene`` with ``settings`` while this process
+        prepares it (its build and pre-passes), so that the render of the prepared scene finds
+        it built, instead of waiting for every worker to build it then.  Nothing happens where
+        another render holds the pool or no worker can start (the render says why)."""
+        if not self._busy.acquire(blocking=False):
+            return
+        try:
+            self._start(0)  # raises where no worker can start: then nothing is pickled
+            stats = RenderStats(time.monotonic())
+            scene_id = self._scene_id(scene, settings, stats)
+            self._send_scene(self._start(worker_count(count, self._scene_bytes, available_memory())), scene_id, stats)
+            self._ahead = (scene_id, stats.pickling, stats.sending)
+        except WorkersUnavailable:
+            pass
+        finally:
+            self._busy.release()
+
     def _render(self, prepared, rects, should_stop, count, warn):
         stats = RenderStats(time.monotonic())
-        scene_id = self._scene_id(prepared, stats)
+        scene_id = self._scene_id(prepared.scene, prepared.settings, stats)
+        if self._ahead is not None and self._ahead[0] == scene_id:  # its pickling and sending count for this render
+            stats.pickling, stats.sending = self._ahead[1:]
+        self._ahead = None
         try:
             workers = self._start(worker_count(count, self._scene_bytes, available_memory()))
         except WorkersUnavailable as error:
@@ -292,12 +419,11 @@ class WorkerPool:
         for worker in self._workers:
             worker.dealt = {}
         receiving = {worker: worker.receiving_cpu for worker in workers}
-        sending = time.thread_time()
-        for worker in workers:
-            if worker.scene_id != scene_id:
-                worker.scene_id = scene_id if worker.send(("scene", scene_id, self._scene_file)) else None
-        stats.sending += time.thread_time() - sending
+        self._send_scene(workers, scene_id, stats, prepared.measurements)
         cpu = time.thread_time()
+        _remove_all(self._unremoved)
+        results = _ResultsImage.create(rects, {"Combined": ALL_PASSES["Combined"],
+                                               **{name: ALL_PASSES[name] for name in prepared.passes}})
         shares = share_out(rects, len(workers))
         stats.workers, stats.shares = len(workers), len(shares)
         todo = collections.deque(enumerate(shares))  # (share id, (tile index, rows))
@@ -309,7 +435,7 @@ class WorkerPool:
                 iteration = time.thread_time()
                 if should_stop():
                     return
-                self._deal(workers, todo, job, scene_id, rects)
+                self._deal(workers, todo, job, scene_id, rects, results)
                 workers = [worker for worker in workers if worker.alive]
                 if not workers:
                     if not any(worker.ready for worker in self._workers):
@@ -332,29 +458,57 @@ class WorkerPool:
                 got[share] = piece
                 if len(got) < bands[tile_index]:
                     continue
-                tile = _joined(rects[tile_index], [got[key] for key in sorted(got)])
+                if all(piece is None for piece in got.values()):  # every band written in place
+                    tile = Tile(*rects[tile_index], results.passes(tile_index, rects[tile_index]))
+                else:
+                    tile = _joined(rects[tile_index], [_piece(got[key], results, tile_index, rects[tile_index],
+                                                              shares[key][1]) for key in sorted(got)])
                 del pieces[tile_index]
                 done.add(tile_index)
-                stats.loop_cpu += time.thread_time() - cpu
-                handed = time.monotonic()
+                handed, cpu_handed = time.monotonic(), time.thread_time()
+                stats.loop_cpu += cpu_handed - cpu
                 yield tile
-                stats.caller += time.monotonic() - handed
                 cpu = time.thread_time()
+                stats.caller += time.monotonic() - handed
+                stats.caller_cpu += cpu - cpu_handed
         finally:
             if len(done) < len(rects):  # Esc, an error, or the caller stopped iterating: free the workers at once
                 for worker in workers:
                     worker.send(("cancel", job))
+            if results is not None and not _remove(results.path):  # mapped here while the tiles live
+                self._unremoved.append(results.path)  # Windows: removed once they are gone
             stats.loop_cpu += time.thread_time() - cpu - stats.polling_cpu
             stats.receiving_cpu = sum(worker.receiving_cpu - before for worker, before in receiving.items())
             stats.ended = time.monotonic()
 
-    def _scene_id(self, prepared, stats: RenderStats) -> int:
-        """The id of the prepared scene, pickled once into ``_scene_file`` (kept for workers
-        started later; the previous scene's file goes); the same scene rendered again keeps its
-        id and is not pickled or sent again."""
-        if self._sent_scene is None or self._sent_scene[0]() is not prepared:
+    def _send_scene(self, workers, scene_id: int, stats: RenderStats, measurements=None):
+        """Send the scene ``scene_id`` to the workers that do not hold it, and the pre-passes'
+        ``measurements`` of its prepared scene (None: not yet, :meth:`build_ahead`) to those
+        that do not have them."""
+        sending = time.thread_time()
+        measured = None if measurements is None else (scene_id, measurements)
+        for worker in workers:
+            messages = []
+            if worker.scene_id != scene_id:
+                worker.measured = None
+                messages.append(("scene", scene_id, self._scene_file))
+            if measured is not None and worker.measured != measured:
+                messages.append(("measured", *measured))
+            if messages:
+                sent = worker.send(*messages)
+                worker.scene_id = scene_id if sent else None
+                worker.measured = measured if sent else None
+        stats.sending += time.thread_time() - sending
+
+    def _scene_id(self, scene: Scene, settings: RenderSettings, stats: RenderStats) -> int:
+        """The id of the scene and settings, pickled once into ``_scene_file`` (kept for workers
+        started later; the previous scene's file goes); the same scene with the same settings
+        (rendered again, or built ahead) keeps its id and is not pickled or sent again."""
+        settings_pickle = pickle.dumps(settings, protocol=pickle.HIGHEST_PROTOCOL)
+        if (self._sent_scene is None or self._sent_scene[0]() is not scene
+                or self._sent_scene[1] != settings_pickle):
             pickling = time.thread_time()
-            payload = pickle.dumps(prepared, protocol=pickle.HIGHEST_PROTOCOL)
+            payload = pickle.dumps((scene, settings), protocol=pickle.HIGHEST_PROTOCOL)
             stats.pickling = time.thread_time() - pickling
             writing = time.thread_time()
             self._forget_scene()
@@ -364,8 +518,8 @@ class WorkerPool:
                 scene_file.write(payload)
             stats.sending = time.thread_time() - writing
             self._scene_bytes = len(payload)
-            self._sent_scene = (weakref.ref(prepared), next(self._scene_ids))
-        return self._sent_scene[1]
+            self._sent_scene = (weakref.ref(scene), settings_pickle, next(self._scene_ids))
+        return self._sent_scene[2]
 
     def _forget_scene(self):
         """Remove the file of the scene sent last (workers that hold it have read it)."""
@@ -388,14 +542,16 @@ class WorkerPool:
                 break
         return self._workers[:count]
 
-    def _deal(self, workers, todo, job, scene_id, rects):
+    def _deal(self, workers, todo, job, scene_id, rects, results):
         """Fill every worker up to ``_TILES_IN_FLIGHT`` shares, one share per worker in turn (so
-        the first round reaches every worker)."""
+        the first round reaches every worker); each share names its tile's place in the
+        ``results`` image (None: no image, the passes come back in the message)."""
         for _ in range(_TILES_IN_FLIGHT):
             for worker in workers:
                 if todo and worker.alive and len(worker.dealt) < _TILES_IN_FLIGHT:
                     share, (tile_index, rows) = todo.popleft()
-                    if worker.send(("tile", job, scene_id, share, rects[tile_index], rows)):
+                    place = None if results is None else (results.path, results.offsets[tile_index], results.layout)
+                    if worker.send(("tile", job, scene_id, share, rects[tile_index], rows, place)):
                         worker.dealt[share] = (tile_index, rows)
                     else:
                         todo.appendleft((share, (tile_index, rows)))
@@ -416,7 +572,7 @@ class WorkerPool:
 
     def _receive(self, worker: _Worker, message, job: int, todo, scene_id: int, stats: RenderStats):
         """Handle one message of a worker; (share id, tile index, band) when it is a finished
-        share of this render."""
+        share of this render (band None: written into the results image)."""
         kind = message[0]
         if kind == "dead":
             if worker.alive or worker.dealt:
@@ -429,12 +585,13 @@ class WorkerPool:
         elif kind == "error" and message[1] == job:
             raise message[2]
         elif kind == "tile" and message[1] == job:
-            _, _, share, tile, (started, ended, cpu) = message
+            _, _, share, tile, written, (started, ended, cpu) = message
             unit = worker.dealt.pop(share, None)
             if unit is not None and tile.complete:
                 pixels = (tile.x1 - tile.x0) * (tile.y1 - tile.y0)
                 stats.rendered.setdefault(worker.pid, []).append((unit[0], pixels, started, ended, cpu))
-                return share, unit[0], tile
+                stats.in_place += written
+                return share, unit[0], None if written else tile
             if unit is not None:  # cut short although this render goes on: deal it again
                 todo.appendleft((share, unit))
         return None  # a message of an earlier render
@@ -469,6 +626,7 @@ class WorkerPool:
             worker.close()
         self._workers = []
         self._forget_scene()
+        _remove_all(self._unremoved)
 
 
 _pool: WorkerPool | None = None
@@ -494,6 +652,13 @@ def shutdown():
             _pool = None
 
 
+def build_ahead(scene: Scene, settings: RenderSettings) -> None:
+    """:meth:`WorkerPool.build_ahead` on the session's pool, for a render in worker processes:
+    call it before preparing the scene (the workers build while this process prepares)."""
+    if settings.parallelism == "PROCESSES":
+        pool().build_ahead(scene, settings, render_workers(settings.threads))
+
+
 def render_tiles(prepared: PreparedScene, should_stop: Callable[[], bool], count: int,
                  warn: Callable[[str], None] | None = None) -> Iterator[Tile]:
     """:meth:`WorkerPool.render` on the session's pool."""
@@ -505,11 +670,13 @@ def serve(commands, results, parent_pid: int):
     """A worker's loop (started by :mod:`.worker_boot`): scenes and tiles in, tiles out."""
     inbox: queue.Queue = queue.Queue()
     cancelled = [0]  # renders up to this job were cancelled (Esc)
-    scene_file = [None]  # the file of the last scene sent: removed here if the parent dies without doing it
+    # the files of the last scene and results image sent: removed here if the parent dies without doing it
+    scene_file, results_file = [None], [None]
 
     def orphaned():
-        if scene_file[0] is not None:
-            _remove(scene_file[0])
+        for path in (scene_file[0], results_file[0]):
+            if path is not None:
+                _remove(path)
         os._exit(0)
 
     def terminated(signum, frame):
@@ -534,6 +701,8 @@ def serve(commands, results, parent_pid: int):
                 os._exit(0)
             if message[0] == "scene":
                 scene_file[0] = message[2]
+            if message[0] == "tile" and message[6] is not None:
+                results_file[0] = message[6][0]
             if message[0] == "cancel":
                 cancelled[0] = max(cancelled[0], message[1])
             inbox.put(message)
@@ -553,38 +722,45 @@ def serve(commands, results, parent_pid: int):
     threading.Thread(target=read, name="restframe-commands", daemon=True).start()
     threading.Thread(target=watch_parent, name="restframe-watchdog", daemon=True).start()
     send(("ready", os.getpid()))
-    prepared, scene_id, cache = None, None, None
+    built, prepared, scene_id, cache = None, None, None, None  # built: the scene; prepared: with its measurements
     geometry = GeometryCache()  # persistent data: each frame of an animation rebuilds only what changed
     with blas.single_threaded():
         while True:
             message = inbox.get()
             kind = message[0]
             if kind == "scene":
-                prepared = cache = None  # the old scene's memory goes first
+                built = prepared = cache = None  # the old scene's memory goes first
                 scene_id = message[1]
                 started, cpu = time.monotonic(), time.thread_time()
                 try:
-                    with open(message[2], "rb") as pickled, unpickling_with(geometry):
-                        prepared = pickle.loads(pickled.read())
+                    with open(message[2], "rb") as pickled:
+                        built = build_unmeasured(*pickle.loads(pickled.read()), geometry)
                     cache = TraceCache()
                 except Exception as error:
-                    prepared = _picklable(error)
+                    built = _picklable(error)
                 send(("built", scene_id, (started, time.monotonic(), time.thread_time() - cpu)))
+            elif kind == "measured":
+                if message[1] == scene_id:
+                    prepared = built if isinstance(built, BaseException) else measured_as(built, message[2])
             elif kind == "tile":
-                _, job, tile_scene, share, rect, rows = message
+                _, job, tile_scene, share, rect, rows, place = message
                 if job <= cancelled[0]:
                     continue
                 started, cpu = time.monotonic(), time.thread_time()
                 try:
-                    if tile_scene != scene_id:
-                        raise RuntimeError(f"tile of scene {tile_scene} sent to a worker holding scene {scene_id}")
+                    if tile_scene != scene_id or prepared is None:
+                        raise RuntimeError(f"tile of scene {tile_scene} sent to a worker holding scene {scene_id}"
+                                           f"{'' if prepared else ', not measured'}")
                     if isinstance(prepared, BaseException):
                         raise prepared
                     tile = render_tile(prepared, rect, lambda job=job: job <= cancelled[0], cache, rows)
                 except Exception as error:
                     send(("error", job, _picklable(error)))
                     continue
-                send(("tile", job, share, tile, (started, time.monotonic(), time.thread_time() - cpu)))
+                written = tile.complete and place is not None and _write_share(place, rect, rows, tile.passes)
+                if written:
+                    tile.passes = {}
+                send(("tile", job, share, tile, written, (started, time.monotonic(), time.thread_time() - cpu)))
             elif kind == "status":
                 send(("status", message[1], sorted(sys.modules)))
 
@@ -598,11 +774,19 @@ def _picklable(error: BaseException) -> BaseException:
         return RuntimeError("".join(traceback.format_exception(error)))
 
 
-def _remove(path: str):
+def _remove(path: str) -> bool:
+    """Remove a file; False when it is still there (Windows: open or mapped)."""
     try:
         os.remove(path)
-    except OSError:  # removed already (by a worker or the parent), or still open (Windows)
+    except FileNotFoundError:  # removed already (by a worker or the parent)
         pass
+    except OSError:  # still open or mapped (Windows)
+        return False
+    return True
+
+
+def _remove_all(paths: list[str]):
+    paths[:] = [path for path in paths if not _remove(path)]
 
 
 def _process_alive(pid: int) -> bool:

@@ -2,10 +2,12 @@
 
     tools/dev.sh tests/bench/bench_parallel.py [--repeats N] [--quick]
 
-Each scene is exported from its .blend and prepared once; every timed render then renders a
-fresh copy of the prepared scene (a pickle round trip, untimed), so the process renders pay
-what an F12 pays: pickling the scene, sending it and rebuilding it in every worker.  The
-workers are started before timing (they stay warm across renders; their start-up is reported
+Each scene is exported from its .blend and prepared once; every timed thread render then
+renders a fresh copy of the prepared scene (a pickle round trip, untimed).  A timed process
+render goes as an F12 goes: a fresh copy of the scene and settings is built ahead in the
+workers (``WorkerPool.build_ahead``) while this process prepares it (untimed, as for threads),
+then rendered, so it pays what an F12 pays after its prepare: pickling the scene, sending
+it, and whatever is left of the workers' build by then.  The workers are started before timing (they stay warm across renders; their start-up is reported
 on its own).  CPU seconds (this process and its workers, Linux) are given next to the wall
 times: unlike those, they do not grow when other work takes the cores.  Variants run interleaved in one process, rotating their order each repeat, with
 the load average noted: the machine may be shared.  Prints a markdown report.
@@ -13,8 +15,10 @@ the load average noted: the machine may be shared.  Prints a markdown report.
 From each process render's ``RenderStats`` (when each share of the image ran in which worker,
 and what this process spent) it also reports the balance of two workers (busy and idle time
 per worker) and the serial work on the render's critical path: pickling and sending the
-scene, a worker rebuilding it, this process dealing, unpickling and joining results, and,
-from one F12 through Blender, the engine streaming each tile into Blender's result.  The
+scene, a worker rebuilding it (whole, for a render without build ahead; as an F12 renders,
+only the part of it the render waited for, measured cold on a fresh worker and warm), this
+process dealing and handling the workers' messages, and, from one F12 through Blender, the
+engine streaming each tile into Blender's result.  The
 Amdahl projection to 8 and 16 cores rests on that measured serial time.  Two independent
 one-worker renders at once give the machine's own scaling from one busy core to two (shared
 caches, memory bandwidth, clocks, or vCPUs that share a core): the ceiling for processes x2.
@@ -98,8 +102,35 @@ def serial_seconds(stats, rebuild: float, streaming_per_tile: float, tiles: int)
     workers but are counted whole (an upper bound: on a machine whose every core runs a worker
     they take a core's time)."""
     return {"pickling": stats.pickling, "sending": stats.sending, "rebuild in a worker": rebuild,
-            "parent loop": stats.loop_cpu, "unpickling results": stats.receiving_cpu,
+            "parent loop": stats.loop_cpu, "reader threads (the workers' messages)": stats.receiving_cpu,
             "streaming into Blender's result": streaming_per_tile * tiles}
+
+
+PARENT_CACHES = {}  # pool -> the geometry cache this process prepares its renders with
+
+
+def f12_prepared(pool, count: int, source):
+    """A fresh copy of the exported scene and settings ``source``, built ahead in the pool's
+    workers while this process prepares it, as the engine does for an F12 (with Persistent
+    Data: this process too reuses the geometry it built for the pool's last render, so its
+    prepare is no longer than it is in an animation); and the CPU seconds of that prepare."""
+    from restframe_addon.core.persistent import GeometryCache
+    from restframe_addon.core.prepared import prepare
+
+    scene, settings = pickle.loads(pickle.dumps(source))
+    pool.build_ahead(scene, settings, count)
+    cpu = time.thread_time()
+    prepared = prepare(scene, settings, geometry_cache=PARENT_CACHES.setdefault(pool, GeometryCache()))
+    return prepared, time.thread_time() - cpu
+
+
+def build_wait(stats, preparing: float) -> tuple[float, float]:
+    """What a render built ahead waited for its workers' build: (CPU, wall) seconds.  CPU: the
+    build's CPU beyond the CPU this process spent preparing meanwhile (what a machine with a
+    free core per process would wait, load or not); wall: as measured here, from the render's
+    start to the end of the last build (0 when they were built before it began)."""
+    cpu = max([build_cpu - preparing for _, _, build_cpu in stats.builds.values()] + [0.0])
+    return cpu, max([ended - stats.started for _, ended, _ in stats.builds.values()] + [0.0])
 
 
 def amdahl(serial: float, work: float, cores: int) -> float:
@@ -108,7 +139,8 @@ def amdahl(serial: float, work: float, cores: int) -> float:
 
 def engine_streaming(blend, resolution, samples, tile_size) -> tuple[float, int]:
     """One F12 through Blender's render engine in worker processes: seconds the engine spent
-    streaming tiles into Blender's result (RenderStats.caller), and the tile count."""
+    streaming tiles into Blender's result (RenderStats.caller_cpu: CPU seconds, which the
+    machine's load does not inflate as it does the wall time), and the tile count."""
     import bpy
 
     from restframe_addon.core import workers
@@ -120,7 +152,7 @@ def engine_streaming(blend, resolution, samples, tile_size) -> tuple[float, int]
     scene.restframe.parallelism = 'PROCESSES'
     bpy.ops.render.render(write_still=False)
     stats = workers.pool().last_stats
-    return stats.caller, len({share[0] for shares in stats.rendered.values() for share in shares})
+    return stats.caller_cpu, len({share[0] for shares in stats.rendered.values() for share in shares})
 
 
 def main():
@@ -168,14 +200,18 @@ def main():
             copy = dataclasses.replace(copy, settings=dataclasses.replace(copy.settings, parallelism="THREADS"))
             return lambda: list(render_tiles(copy, threads=count))
 
-        def processes(count, pool, prepared=prepared):
-            copy = pickle.loads(pickle.dumps(prepared))
-            return lambda: list(pool.render(copy, lambda: False, count))
+        def processes(count, pool, source=(core_scene, settings)):
+            copy, preparing = f12_prepared(pool, count, source)
 
-        def two_renders_at_once(prepared=prepared):
+            def run():
+                return list(pool.render(copy, lambda: False, count))
+            run.preparing = preparing  # CPU s of the prepare the workers' build overlapped
+            return run
+
+        def two_renders_at_once(source=(core_scene, settings)):
             """Two independent one-worker renders of the image at once (each its own pool):
             the hardware's own scaling from one busy core to two, the ceiling for processes x2."""
-            copies = [pickle.loads(pickle.dumps(prepared)) for _ in range(2)]
+            copies = [f12_prepared(tuned, 1, source)[0], f12_prepared(twin, 1, source)[0]]
 
             def run():
                 other = threading.Thread(target=lambda: list(twin.render(copies[1], lambda: False, 1)))
@@ -197,6 +233,7 @@ def main():
         times = {variant: [] for variant in variants}
         cpu = {variant: [] for variant in variants}
         stats = {variant: [] for variant in variants if variant.startswith("processes")}
+        overlapped_prepare = {}  # id of a process render's stats -> CPU s of the prepare its build overlapped
         images = {}
         loads = []
         names = list(variants)
@@ -212,6 +249,7 @@ def main():
                 cpu[variant].append(cpu_seconds(pids) - c0)
                 if variant in stats:
                     stats[variant].append((untuned if "untuned" in variant else tuned).last_stats)
+                    overlapped_prepare[id(stats[variant][-1])] = run.preparing
                 images[variant] = {(t.x0, t.y0): t.passes["Combined"] for t in tiles}
         reference = images["threads x1"]
         same = all(v.keys() == reference.keys() and all(np.array_equal(v[k].view(np.uint32), reference[k].view(np.uint32))
@@ -267,18 +305,35 @@ def main():
               f"after the last share {(wall_two - max(ends)) - (wall_one - max(row['last'] for row in balance(one))):+.3f} s")
         streaming_per_tile = streaming / streamed if streamed else 0.0
         warm = max((cpu for _, _, cpu in one.builds.values()), default=0.0)
+        # an F12 on workers that have not built this scene's geometry (they rendered another scene)
+        cold_pool = workers.WorkerPool()
+        other = next(other for other in SCENES.values() if other[0] != blend)[0]
+        list(cold_pool.render(prepare(*export_blend(other, (8, 8), 1, None)), lambda: False, 1))
+        cold_copy, cold_preparing = f12_prepared(cold_pool, 1, (core_scene, settings))
+        list(cold_pool.render(cold_copy, lambda: False, 1))
+        cold_pool.close()
+        (cold_wait, cold_wall), (warm_wait, warm_wall) = (build_wait(cold_pool.last_stats, cold_preparing),
+                                                          build_wait(one, overlapped_prepare[id(one)]))
+        waits = {"cold": cold_wait, "warm": warm_wait}
         print(f"- serial work, CPU s (processes x1, fastest run; the streaming from one F12 through the engine, "
               f"{streaming * 1e3:.1f} ms for {streamed} tiles): "
               + ", ".join(f"{name} {value * 1e3:.1f} ms" for name, value in
                           serial_seconds(one, rebuild, streaming_per_tile, tiles).items())
               + f" (cold: a scene the worker has not built; {warm * 1e3:.1f} ms warm, its geometry cached, "
-              f"as for the frames of an animation); rendering in the worker {cpu_one:.2f} CPU s. Not counted: "
+              f"as for the frames of an animation; built ahead as in an F12, the render waits for it "
+              f"{cold_wait * 1e3:.1f} ms cold, {warm_wait * 1e3:.1f} ms warm: the worker's build CPU less this "
+              f"process's prepare CPU meanwhile, {cold_preparing * 1e3:.1f} / {overlapped_prepare[id(one)] * 1e3:.1f} ms; "
+              f"the wall wait measured here {cold_wall * 1e3:.1f} / {warm_wall * 1e3:.1f} ms); "
+              f"rendering in the worker {cpu_one:.2f} CPU s. Not counted: "
               f"the loop's checks for Esc between messages, {one.polling_cpu * 1e3:.1f} ms (every 50 ms of wall time, "
               f"so they shrink with the render's wall time)")
         print("\n| serial share and Amdahl projection | serial ms | share | 8 cores | 16 cores |")
         print("|---|---|---|---|---|")
-        for label, rebuilt, extra in (("cold rebuild (a first F12)", rebuild, 0.0),
-                                      ("warm rebuild (re-render, animation frames)", warm, 0.0),
+        for label, rebuilt, extra in (("F12: built ahead, cold (the wait for the workers' build)", waits["cold"], 0.0),
+                                      ("F12: built ahead, warm (geometry cached: re-render, animation frames)",
+                                       waits["warm"], 0.0),
+                                      ("cold rebuild after prepare (a render not built ahead)", rebuild, 0.0),
+                                      ("warm rebuild after prepare", warm, 0.0),
                                       (f"cold, and this process preparing the scene first ({preparing * 1e3:.0f} ms, "
                                        f"the same for threads)", rebuild, preparing)):
             total = sum(serial_seconds(one, rebuilt, streaming_per_tile, tiles).values()) + extra
@@ -287,8 +342,10 @@ def main():
         # the parent's per-tile work overlaps the workers' (it receives and streams tile k while they
         # render k+1...): only the last tile's is on the critical path, the rest takes its share of the cores
         per_tile = (one.loop_cpu + one.receiving_cpu) / tiles + streaming_per_tile
-        for label, rebuilt in (("cold rebuild, the parent's per-tile work overlapping the workers'", rebuild),
-                               ("warm rebuild, the parent's per-tile work overlapping the workers'", warm)):
+        for label, rebuilt in (("F12 cold, the parent's per-tile work overlapping the workers'", waits["cold"]),
+                               ("F12 warm, the parent's per-tile work overlapping the workers'", waits["warm"]),
+                               ("cold rebuild after prepare, the per-tile work overlapping", rebuild),
+                               ("warm rebuild after prepare, the per-tile work overlapping", warm)):
             serial = one.pickling + one.sending + rebuilt + per_tile
             parallel = cpu_one + per_tile * (tiles - 1)
             print(f"| {label} | {serial * 1e3:.1f} | {serial / (serial + parallel):.2%} "

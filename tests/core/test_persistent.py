@@ -10,7 +10,7 @@ from test_prepared import assemble, assert_same_passes, busy_scene, settings
 
 from restframe_addon.core import frames as frames_module
 from restframe_addon.core.persistent import GeometryCache
-from restframe_addon.core.prepared import prepare, unpickling_with
+from restframe_addon.core.prepared import build_unmeasured, measured_as, prepare
 from restframe_addon.core.render import render_tiles
 from restframe_addon.core.scene import Velocity
 
@@ -139,16 +139,17 @@ def test_a_prepared_scene_built_from_the_cache_pickles_and_rebuilds_the_same_pix
     assert_same_passes(render(prepared), render(rebuilt))
 
 
-def test_a_worker_unpickling_frame_after_frame_through_its_cache_builds_once(builds):
+def test_a_worker_building_frame_after_frame_through_its_cache_builds_once(builds):
+    """As a worker process builds each frame from its pickled scene and settings, then takes the
+    measured values of the preparing process."""
     scene = busy_scene()
-    pickles = [pickle.dumps(prepare(at(scene, tau), settings())) for tau in FRAME_TIMES]
+    frames = [prepare(at(scene, tau), settings(doppler_mode="FACTOR")) for tau in FRAME_TIMES]
     worker_cache, counts = GeometryCache(), []
-    for number, data in enumerate(pickles):
+    for prepared in frames:
         before = len(builds)
-        with unpickling_with(worker_cache):
-            rebuilt = pickle.loads(data)
+        built = build_unmeasured(*pickle.loads(pickle.dumps((prepared.scene, prepared.settings))), worker_cache)
         counts.append(len(builds) - before)
-        assert_same_passes(render(rebuilt), render(prepare(at(scene, FRAME_TIMES[number]), settings())))
+        assert_same_passes(render(measured_as(built, prepared.measurements)), render(prepared))
     before = len(builds)
-    pickle.loads(pickles[0])  # outside the block: built afresh
+    pickle.loads(pickle.dumps(frames[0]))  # unpickled: built afresh
     assert counts == [5, 0, 0] and len(builds) - before == 5

@@ -13,14 +13,15 @@ import tempfile
 import textwrap
 import time
 
+import numpy as np
 import pytest
 from test_prepared import MODES, assemble, assert_same_passes, busy_scene, settings
 
 from restframe_addon.core import render as render_module
 from restframe_addon.core import workers
-from restframe_addon.core.prepared import PreparedScene, prepare
+from restframe_addon.core.prepared import prepare
 from restframe_addon.core.render import RenderError, render_tiles
-from restframe_addon.core.scene import Velocity
+from restframe_addon.core.scene import Scene, Velocity
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -48,15 +49,15 @@ def test_processes_render_the_same_bits_as_threads(mode):
 
 def test_the_scene_is_pickled_once_per_render_and_not_again_for_the_same_scene(pool, monkeypatch):
     pickled = []
-    reduce = PreparedScene.__reduce__
-    monkeypatch.setattr(PreparedScene, "__reduce__", lambda self: pickled.append(self) or reduce(self))
+    monkeypatch.setattr(Scene, "__reduce_ex__", lambda self, protocol: pickled.append(self)
+                        or object.__reduce_ex__(self, protocol))
     first = prepare(busy_scene(), settings(tile_size=6))
     second = prepare(busy_scene(Velocity((0.3, 0.0, 0.0))), settings(tile_size=6))
     started = []
     for prepared in (first, first, second):  # 12 tiles each, two workers
         assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
         started.append(pool.pids)
-    assert pickled == [first, second]  # a new scene replaces the old one in the workers
+    assert pickled == [first.scene, second.scene]  # a new scene replaces the old one in the workers
     assert started[0] == started[1] == started[2] and len(started[0]) == 2  # kept warm
 
 
@@ -242,7 +243,12 @@ def test_workers_end_with_their_parent(tmp_path):
 
 
 def _scene_files(pid):
-    return glob.glob(os.path.join(tempfile.gettempdir(), f"restframe-scene-{pid}-*"))
+    return glob.glob(os.path.join(tempfile.gettempdir(), f"restframe-scene-{pid}-*")) + _results_files(pid)
+
+
+def _results_files(pid):
+    return [path for folder in workers._RESULTS_FOLDERS
+            for path in glob.glob(os.path.join(folder, f"restframe-tiles-{pid}-*"))]
 
 
 def _alive(pid):
@@ -310,9 +316,13 @@ def test_bands_of_tiles_render_the_same_bits_as_whole_tiles(pool, monkeypatch):
 
 def test_render_stats_account_for_every_share(pool):
     prepared = prepare(busy_scene(), settings(tile_size=6))
-    tiles = list(pool.render(prepared, lambda: False, 2))
+    tiles = []
+    for tile in pool.render(prepared, lambda: False, 2):
+        sum(range(20000))  # the caller's own work between tiles (the engine: streaming into Blender)
+        tiles.append(tile)
     stats = pool.last_stats
     assert len(tiles) == len(prepared.tiles()) and stats.workers == 2 and sorted(stats.builds) == sorted(pool.pids)
+    assert stats.caller_cpu > 0
     rendered = [share for shares in stats.rendered.values() for share in shares]
     assert len(rendered) == stats.shares and sum(share[1] for share in rendered) == 24 * 18
     assert sorted({share[0] for share in rendered}) == list(range(len(tiles)))
@@ -323,6 +333,93 @@ def test_render_stats_account_for_every_share(pool):
     assert stats.pickling > 0 and stats.parent_seconds > 0
     list(pool.render(prepared, lambda: False, 2))  # the same scene again: not pickled, sent or rebuilt
     assert pool.last_stats.pickling == 0 and pool.last_stats.builds == {}
+
+
+def test_shares_come_back_in_the_results_image_and_it_is_removed(pool, monkeypatch):
+    """Every share, bands too, is written in place (nothing comes through the pipes); the tiles
+    outlive the render's file, and no worker keeps it mapped."""
+    monkeypatch.setattr(workers, "_MIN_SHARE_PIXELS", 1)
+    prepared = prepare(busy_scene(Velocity((0.0, 0.4, 0.0))), settings(tile_size=12, samples=2))
+    tiles = list(pool.render(prepared, lambda: False, 2))
+    stats = pool.last_stats
+    assert stats.shares > len(prepared.tiles()) and stats.in_place == stats.shares
+    assert not _results_files(os.getpid())
+    for pid in pool.pids:
+        with open(f"/proc/{pid}/maps") as maps:
+            assert "restframe-tiles-" not in maps.read()
+    assert_same_passes(assemble(prepared, tiles), in_threads(prepared))
+
+
+def test_a_results_image_that_cannot_be_removed_yet_goes_with_the_next_render(pool, monkeypatch):
+    """As on Windows, where a file stays while the tiles that map it live."""
+    remove = os.remove
+
+    def refuse(path):
+        if "restframe-tiles-" in path:
+            raise PermissionError(path)
+        remove(path)
+
+    prepared = prepare(busy_scene(), settings(tile_size=12))
+    monkeypatch.setattr(os, "remove", refuse)
+    list(pool.render(prepared, lambda: False, 2))
+    assert len(_results_files(os.getpid())) == 1 and pool._unremoved == _results_files(os.getpid())
+    monkeypatch.setattr(os, "remove", remove)
+    list(pool.render(prepared, lambda: False, 2))
+    assert not _results_files(os.getpid()) and pool._unremoved == []
+
+
+def test_without_room_for_a_results_image_the_results_come_through_the_pipes(pool, monkeypatch):
+    monkeypatch.setattr(workers, "_RESULTS_FOLDERS", ("/nonexistent-folder",))
+    monkeypatch.setattr(workers, "_MIN_SHARE_PIXELS", 1)
+    prepared = prepare(busy_scene(Velocity((0.0, 0.4, 0.0))), settings(tile_size=12, samples=2))
+    assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
+    assert pool.last_stats.in_place == 0 and pool.last_stats.shares > len(prepared.tiles())
+
+
+def test_bands_in_place_and_through_the_pipe_join_into_one_tile():
+    """A tile whose bands came back both ways (a worker could not map the image) is whole."""
+    rect, layout = (2, 4, 5, 8), {"Combined": 4, "Depth": 1}
+    results = workers._ResultsImage.create([(0, 0, 2, 2), rect], layout)
+    try:
+        whole = {name: np.arange(12 * channels, dtype=np.float32).reshape(4, 3, channels) + 100 * channels
+                 for name, channels in layout.items()}
+        in_place = workers._write_share((results.path, results.offsets[1], layout), rect, (4, 6),
+                                        {name: value[:2] for name, value in whole.items()})
+        piped = render_module.Tile(2, 6, 5, 8, {name: value[2:] for name, value in whole.items()})
+        pieces = [workers._piece(None, results, 1, rect, (4, 6)), workers._piece(piped, results, 1, rect, (6, 8))]
+        joined = workers._joined(rect, pieces)
+    finally:
+        workers._remove(results.path)
+    assert in_place and (joined.x0, joined.y0, joined.x1, joined.y1) == rect
+    assert all(np.array_equal(joined.passes[name], whole[name]) for name in layout)
+    assert not workers._write_share((results.path, results.offsets[1], layout), rect, None, whole)  # file gone
+
+
+@pytest.mark.parametrize("mode", MODES, ids=["rgb", "spectral", "factor", "transparent"])
+def test_a_scene_built_ahead_is_not_sent_again_and_renders_with_the_measured_values(pool, monkeypatch, mode):
+    """The workers build while this process prepares; the render sends only the pre-passes'
+    values (FACTOR: the measured Doppler range) and counts the pickling done ahead."""
+    pickled = []
+    monkeypatch.setattr(Scene, "__reduce_ex__", lambda self, protocol: pickled.append(self)
+                        or object.__reduce_ex__(self, protocol))
+    scene, render_settings = busy_scene(Velocity((0.0, 0.4, 0.0))), settings(tile_size=8, **mode)
+    pool.build_ahead(scene, render_settings, 2)
+    held = {worker.scene_id for worker in pool._workers}  # sent before preparing
+    prepared = prepare(scene, render_settings)
+    tiles = list(pool.render(prepared, lambda: False, 2))
+    stats = pool.last_stats
+    assert pickled == [scene] and stats.pickling > 0 and len(stats.builds) == 2
+    assert len(held) == 1 and held == {worker.scene_id for worker in pool._workers} != {None}
+    assert_same_passes(assemble(prepared, tiles), in_threads(prepared))
+
+
+def test_a_scene_built_ahead_with_other_settings_is_sent_again(pool):
+    scene = busy_scene()
+    pool.build_ahead(scene, settings(tile_size=8), 2)
+    prepared = prepare(scene, settings(tile_size=8, samples=3))
+    assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
+    assert len(pool.last_stats.builds) == 2
+    assert all(started >= pool.last_stats.started for started, _, _ in pool.last_stats.builds.values())
 
 
 def test_two_tiles_go_to_two_workers(pool):
