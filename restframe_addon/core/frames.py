@@ -598,43 +598,52 @@ def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) ->
     along the longest axis): a tighter outline than one sphere, for culling whole ray bundles.
     None once ``should_stop()`` is true (checked between steps).
 
-    Worked on one coordinate at a time (numpy is slow along a length-3 axis): a group's box is
-    the box of its triangles' own boxes.  The triangles go in chunks, and the groups of each
-    split and the groups' lower and upper bounds side by side, to the build's threads (numpy
-    lets go of the GIL on long arrays); each gathers into its own stretch of one scratch array (fresh arrays this size cost more in page
-    faults than the arithmetic).  The triangles' indices are valid, so ``take`` has nothing to clip.
+    Worked on (3, n) arrays, coordinate by triangle (numpy is slow along a length-3 last axis,
+    and on a small mesh the calls cost more than their arithmetic): a group's box is the box of
+    its triangles' own boxes.  The triangles go in chunks, and the groups of each split and the
+    groups' lower and upper bounds side by side, to the build's threads (numpy lets go of the GIL
+    on long arrays); each gathers into its own stretch of one scratch array (fresh arrays this
+    size cost more in page faults than the arithmetic).  The triangles' indices are valid, so
+    ``take`` has nothing to clip.
     """
     n = len(triangles)
     scratch = np.empty((3, n))
     corner_index = np.ascontiguousarray(triangles.T)
-    columns = [np.ascontiguousarray(vertices[:, axis]) for axis in range(3)]
+    columns = np.ascontiguousarray(vertices.T)
     centroids, tri_lo, tri_hi = np.empty((3, n)), np.empty((3, n)), np.empty((3, n))  # [axis, triangle]
 
+    def stretch(start: int, stop: int) -> np.ndarray:
+        """The scratch's (3, stop - start) stretch for triangles start..stop, contiguous, so that
+        ``take`` fills it in place (a strided ``out`` is filled through a temporary copy)."""
+        return scratch.reshape(-1)[3 * start:3 * stop].reshape(3, -1)
+
     def triangle_bounds(start: int, stop: int) -> None:
-        for axis, column in enumerate(columns):
-            a, b, c = (np.take(column, index[start:stop], out=out[start:stop], mode="clip")
-                       for index, out in zip(corner_index, scratch))
-            centroid, lo, hi = centroids[axis, start:stop], tri_lo[axis, start:stop], tri_hi[axis, start:stop]
-            np.add(a, b, out=centroid)
-            centroid += c
-            centroid /= 3.0
-            np.minimum(np.minimum(a, b, out=lo), c, out=lo)
-            np.maximum(np.maximum(a, b, out=hi), c, out=hi)
+        centroid, lo, hi = (a[:, start:stop] for a in (centroids, tri_lo, tri_hi))
+        corner = stretch(start, stop)
+        for i, index in enumerate(corner_index):
+            np.take(columns, index[start:stop], axis=1, out=corner, mode="clip")
+            if i == 0:
+                centroid[...], lo[...], hi[...] = corner, corner, corner
+            else:
+                np.minimum(lo, corner, out=lo)
+                np.maximum(hi, corner, out=hi)
+                centroid += corner
+        centroid /= 3.0
 
     def halves(group: np.ndarray, at: int) -> list[np.ndarray]:
         """The group split at its centroids' median along their longest axis (``at``: where
         its stretch of the scratch array starts)."""
         if len(group) < 64:
             return [group]
-        c = [np.take(centroid, group, out=out[at:at + len(group)], mode="clip") for centroid, out in zip(centroids, scratch)]
-        axis = int(np.argmax([ca.max() - ca.min() for ca in c]))
+        c = np.take(centroids, group, axis=1, out=stretch(at, at + len(group)), mode="clip")
+        axis = int(np.argmax(c.max(axis=1) - c.min(axis=1)))
         order = np.argpartition(c[axis], len(group) // 2)
         return [group[order[: len(group) // 2]], group[order[len(group) // 2:]]]
 
-    def boxes(reduce, bounds, out) -> list[np.ndarray]:
-        """Per axis, every group's ``reduce`` (min or max) of its triangles' ``bounds``: their
+    def boxes(reduce, bounds, out) -> np.ndarray:
+        """Every group's ``reduce`` (min or max) of its triangles' ``bounds`` (3, n): their
         triangles in a row (gathered into ``out``), reduced group by group."""
-        return [reduce.reduceat(np.take(bound, in_groups, out=out, mode="clip"), starts) for bound in bounds]
+        return reduce.reduceat(np.take(bounds, in_groups, axis=1, out=out, mode="clip"), starts, axis=1)
 
     if should_stop():
         return None
@@ -649,8 +658,9 @@ def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) ->
         return None
     in_groups = np.concatenate(groups)
     starts = np.cumsum([0] + [len(group) for group in groups[:-1]])
-    lo, hi = (np.column_stack(b) for b in _side_by_side(
-        boxes, [(np.minimum, tri_lo, scratch[0]), (np.maximum, tri_hi, scratch[1])], threaded))
+    # (the centroids, split by now, are the second gather's scratch)
+    lo, hi = (b.T for b in _side_by_side(boxes, [(np.minimum, tri_lo, scratch), (np.maximum, tri_hi, centroids)],
+                                            threaded))
     return np.array([[*(0.5 * (l + h)), 0.5 * float(np.linalg.norm(h - l))] for l, h in zip(lo, hi)])
 
 
