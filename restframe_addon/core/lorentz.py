@@ -29,6 +29,10 @@ import numpy as np
 from . import validation
 
 
+_BOOSTS: dict[tuple, "Boost"] = {}  # Boost.from_velocity's, by the bits of the velocity
+_MAX_BOOSTS = 4096  # velocities kept (an animation's many): start afresh past this
+
+
 class Boost:
     """The Lorentz boost into a frame moving with velocity ``b * n`` (units of c).
 
@@ -38,7 +42,8 @@ class Boost:
     __slots__ = ("n", "b", "gamma", "gamma_minus_one", "one_minus_b")
 
     def __init__(self, n, b: float, gamma: float, gamma_minus_one: float, one_minus_b: float):
-        self.n = np.asarray(n, dtype=np.float64)
+        self.n = np.array(n, dtype=np.float64)
+        self.n.flags.writeable = False  # boosts are shared (from_velocity keeps them)
         self.b = float(b)
         self.gamma = float(gamma)
         self.gamma_minus_one = float(gamma_minus_one)
@@ -53,8 +58,22 @@ class Boost:
     def from_velocity(cls, beta, lorentz_factor: float = 0.0, name: str = "velocity") -> "Boost":
         """Boost for a velocity given as ``beta`` (units of c), or as a direction plus gamma.
 
-        Raises ValueError naming ``name`` for speeds >= c, NaN or infinite input.
+        Raises ValueError naming ``name`` for speeds >= c, NaN or infinite input.  Worked out in
+        exact arithmetic once per velocity (by the inputs' bits: -0.0 is not 0.0) and kept: each
+        render builds the frames of its scene's velocities again.
         """
+        key = (*(float(c).hex() for c in beta), float(lorentz_factor).hex())
+        boost = _BOOSTS.get(key)
+        if boost is None:
+            boost = cls._worked_out(beta, lorentz_factor, name)
+            if len(_BOOSTS) >= _MAX_BOOSTS:
+                _BOOSTS.clear()
+            _BOOSTS[key] = boost
+        return boost
+
+    @classmethod
+    def _worked_out(cls, beta, lorentz_factor: float, name: str) -> "Boost":
+        """:meth:`from_velocity`, from scratch."""
         beta, lorentz_factor = validation.check_velocity(beta, lorentz_factor, name)
         if lorentz_factor != 0.0:
             if lorentz_factor == 1.0:

@@ -259,3 +259,22 @@ def test_frame_chain_is_two_boosts_not_one_composed_boost():
     single = Boost.from_velocity(-compose_velocities((-0.9, 0.0, 0.0), (0.0, 0.9, 0.0))[0])
     # the composed-velocity boost differs from the chain by a spatial rotation
     assert not np.allclose(single.matrix(), m, atol=1e-3)
+
+
+def test_a_velocity_is_worked_out_once_and_its_boost_shared_read_only():
+    """from_velocity keeps each velocity's boost: the same object again, its axis read-only, and
+    the same bits as working it out afresh; -0.0 is a velocity of its own (the axis keeps the
+    sign of its zero), and a bad velocity raises naming the object every time."""
+    beta = (0.3, -0.0, 0.4)
+    boost = Boost.from_velocity(beta, name="first")
+    assert Boost.from_velocity(np.array(beta), name="second") is boost
+    assert not boost.n.flags.writeable
+    fresh = Boost._worked_out(beta, 0.0, "fresh")
+    assert (boost.n.tobytes(), boost.b, boost.gamma, boost.gamma_minus_one, boost.one_minus_b) == (
+        fresh.n.tobytes(), fresh.b, fresh.gamma, fresh.gamma_minus_one, fresh.one_minus_b)
+    positive = Boost.from_velocity((0.3, 0.0, 0.4))
+    assert positive is not boost and np.signbit(boost.n[1]) and not np.signbit(positive.n[1])
+    assert Boost.from_velocity((0.6, 0.0, 0.0), 2.0) is Boost.from_velocity((0.6, 0.0, 0.0), 2.0)
+    for name in ("lamp", "cube"):
+        with pytest.raises(ValueError, match=name):
+            Boost.from_velocity((0.8, 0.7, 0.0), name=name)
