@@ -157,21 +157,24 @@ def test_the_pass_table_keeps_its_public_names_and_order():
 
 
 @pytest.mark.parametrize("threads, tile_size, resolution, expected_size", [
-    (1, 256, (255, 255), 256),  # one worker: the one tile
-    (2, 256, (255, 255), 128),  # two workers: halved to 4 tiles
-    (4, 256, (255, 255), 128),
-    (5, 256, (255, 255), 64),
-    (2, 16, (24, 18), 16),  # already 4 tiles
-    (8, 20, (24, 18), 10),  # halved (rounding up) to 9 tiles, then no further below 8 pixels
-    (3, 10, (10, 10), 10),  # not split below 8 pixels
+    (1, 256, (255, 255), (256, 256)),  # one worker: the one tile
+    (2, 256, (255, 255), (256, 128)),  # two workers: the height halved, 2 tiles
+    (4, 256, (255, 255), (128, 128)),  # then the width
+    (5, 256, (255, 255), (128, 64)),
+    (2, 256, (32, 32), (256, 16)),  # 2 bands, not 4 squares: a worker renders one tile, not two
+    (2, 16, (24, 18), (16, 16)),  # already 4 tiles
+    (8, 20, (24, 18), (10, 10)),  # halved (rounding up) to 6 tiles, then no further below 8 pixels
+    (3, 10, (10, 10), (10, 10)),  # not split below 8 pixels
 ])
 def test_an_image_is_split_into_at_least_one_tile_per_worker(threads, tile_size, resolution, expected_size):
-    """Each worker renders whole tiles: with fewer tiles than workers the tile size is halved, and
-    the pixels stay the same."""
+    """Each worker renders whole tiles: with fewer tiles than workers the tile's height and width
+    are halved in turn (no more tiles than needed: each costs a render_tile call), and the pixels
+    stay the same."""
     prepared = prepare(busy_scene(), settings(resolution=resolution, threads=threads, tile_size=tile_size))
     width, height = resolution
-    expected = [(x, y, min(x + expected_size, width), min(y + expected_size, height))
-                for y in range(0, height, expected_size) for x in range(0, width, expected_size)]
+    tile_width, tile_height = expected_size
+    expected = [(x, y, min(x + tile_width, width), min(y + tile_height, height))
+                for y in range(0, height, tile_height) for x in range(0, width, tile_width)]
     assert prepared.tiles() == expected
     covered = np.zeros((height, width), dtype=int)
     for x0, y0, x1, y1 in prepared.tiles():
