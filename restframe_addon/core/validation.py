@@ -27,7 +27,10 @@ _CLAMPS = ("clamp_direct", "clamp_indirect")
 
 def one_minus_speed_squared(beta) -> float:
     """1 - |beta|^2 from the exact squares of the float inputs, correctly rounded: it carries
-    the whole information about a speed near c."""
+    the whole information about a speed near c.  At rest (every scene's static objects) it is
+    exactly 1 without the fractions, which cost about 40 us a call."""
+    if not any(beta):
+        return 1.0
     return float(1 - sum(Fraction(c) ** 2 for c in beta))
 
 
