@@ -6,7 +6,7 @@ the minor page faults per render.
     git worktree add /tmp/base origin/main
     tools/dev.sh tests/bench/ab_bars.py /tmp/base --repeats 40
 
-Each checkout runs in its own process, asked in turn, alternating the order. The 1-velocity render
+Each checkout runs in its own process, asked in turn, alternating the order (``ab_servers``). The 1-velocity render
 moves by several ms between processes of the same code (page faults: how glibc's heap happens to
 grow), so compare the 11-velocity render across checkouts and run the command more than once.
 """
@@ -16,10 +16,11 @@ from __future__ import annotations
 import argparse
 import json
 import resource
-import subprocess
 import sys
 import time
 from pathlib import Path
+
+from ab_servers import ask_each_in_turn
 
 HERE = Path(__file__).resolve()
 VELOCITIES = {"1": [0.5] * 11, "11": [0.05 + 0.08 * i for i in range(11)]}
@@ -63,26 +64,13 @@ def main() -> int:
     if args.serve:
         serve(args.serve)
         return 0
-    servers = {name: subprocess.Popen([sys.executable, str(HERE), "-", "--serve", repo], stdin=subprocess.PIPE,
-                                      stdout=subprocess.PIPE, text=True)
-               for name, repo in (("before", args.before), ("after", args.after))}
-    for server in servers.values():
-        while server.stdout.readline().strip() != "ready":
-            pass
-    results = {(name, k): [] for name in servers for k in VELOCITIES}
-    for r in range(args.repeats):
-        for k in (list(VELOCITIES) if r % 2 == 0 else list(VELOCITIES)[::-1]):
-            for name in (list(servers) if r % 2 == 0 else list(servers)[::-1]):
-                servers[name].stdin.write(k + "\n")
-                servers[name].stdin.flush()
-                results[(name, k)].append(json.loads(servers[name].stdout.readline()))
-    for server in servers.values():
-        server.stdin.close()
-        server.wait()
+    results = ask_each_in_turn({name: ([sys.executable, str(HERE), "-", "--serve", repo], None)
+                                for name, repo in (("before", args.before), ("after", args.after))},
+                               args.repeats, tuple(VELOCITIES))
     print(f"11x11 bars, 256x192, one thread, CPU ms (min of {args.repeats} interleaved repeats)")
     print("| | 1 velocity | 11 velocities | 11 / 1 | camera rays queried (1 / 11) | page faults (1 / 11) |")
     print("|---|---|---|---|---|---|")
-    for name in servers:
+    for name in ("before", "after"):
         (one, rays1, faults1), (many, rays11, faults11) = (
             (min(c for c, _, _ in results[(name, k)]) * 1e3, results[(name, k)][0][1],
              min(f for _, _, f in results[(name, k)])) for k in VELOCITIES)
