@@ -172,9 +172,10 @@ def _concentric_disk(u1, u2):
 
 
 # ---------------------------------------------------------------------------- diffuse
-def diffuse_pdf(n, light):
-    """Cosine-weighted hemisphere density cos/pi per unit solid angle (0 below the surface)."""
-    return np.maximum(rows.dot(n, light), 0.0) / np.pi
+def diffuse_pdf(n, light, cos=None):
+    """Cosine-weighted hemisphere density cos/pi per unit solid angle (0 below the surface);
+    ``cos`` = n . light where the caller has it."""
+    return np.maximum(rows.dot(n, light) if cos is None else cos, 0.0) / np.pi
 
 
 def sample_diffuse(n, u1, u2):

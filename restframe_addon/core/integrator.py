@@ -680,7 +680,7 @@ class _Lobes(LayeredLobes):
         """Density per unit solid angle with which :meth:`sample` draws ``light`` at vertices
         ``index`` (the non-delta lobes, each times its probability); ``cos``: ns . light if known."""
         probability = self.probability
-        pdf = probability[index, _DIFFUSE] * (diffuse_pdf(ns, light) if cos is None else np.maximum(cos, 0.0) / np.pi)
+        pdf = probability[index, _DIFFUSE] * diffuse_pdf(ns, light, cos)
         glossy = np.flatnonzero(self.glossy[index])
         if len(glossy):
             at = index[glossy]
