@@ -254,9 +254,11 @@ def test_a_lone_mesh_gets_no_culling_clusters_and_several_frames_do():
         assert not geometry.clusters.flags.writeable
 
 
-def test_culling_by_clusters_never_hides_a_hit(monkeypatch):
+@pytest.mark.parametrize("cones", ["where they pay", "always"])
+def test_culling_by_clusters_never_hides_a_hit(monkeypatch, cones):
     """Camera rays through several moving bodies (one in many pieces): the hits with the
-    culling cones are the hits without them, and the cones did skip rays."""
+    culling (body boxes, and the clusters' cones where they pay or for every frame) are the
+    hits without it, and the culling did skip rays."""
     monkeypatch.setattr(frames, "_PIECE_TRIANGLES", PIECE)
     meshes = [Mesh("big", *shuffled_sphere(), velocity=Velocity((0.5, 0.2, 0.0)))]
     for i, beta in enumerate((-0.3, 0.35, 0.1)):
@@ -266,24 +268,27 @@ def test_culling_by_clusters_never_hides_a_hit(monkeypatch):
     scene = Scene(camera=look_at_camera((0.0, -7.0, 0.5), (0.0, 0.0, 0.0)), meshes=meshes)
     frame_set = build_frames(scene)
     assert len(frame_set.geometry) == 4
-    rng = np.random.default_rng(8)
-    d = np.column_stack([rng.uniform(-0.6, 0.6, 20000), np.ones(20000), rng.uniform(-0.8, 0.8, 20000)])
+    px, pz = np.meshgrid(np.linspace(-0.6, 0.6, 200), np.linspace(-0.8, 0.8, 100))  # pixels, row by row
+    d = np.column_stack([px.ravel(), np.ones(px.size), pz.ravel()])
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     x0 = np.broadcast_to(np.array([0.0, -7.0, 0.5]), d.shape)  # one shared origin, as a camera's
     tau0 = np.broadcast_to(np.array(0.0), (len(d),))
+    if cones == "always":
+        monkeypatch.setattr(tracer, "_cones_pay", lambda frame_set, src, ks, cache: [True] * len(ks))
 
     skipped = []
 
-    def counted_toward(*args):
-        rays = toward(*args)
-        skipped.append(len(d) if rays is None else len(d) - len(rays))
-        return rays
+    def counted_cull(frame_set, src, ks, *args):
+        kept, culled = cull(frame_set, src, ks, *args)
+        skipped.append(len(d) * (len(ks) - len(kept)) + sum(0 if rays is None else len(d) - len(rays)
+                                                           for rays in culled))
+        return kept, culled
 
-    toward = tracer._toward
-    monkeypatch.setattr(tracer, "_toward", counted_toward)
+    cull = tracer._cull_bundle
+    monkeypatch.setattr(tracer, "_cull_bundle", counted_cull)
     culled = trace_nearest(frame_set, frame_set.camera, tau0, x0, d, 0.05, np.inf)
     assert sum(skipped) > len(d)  # rays were skipped
-    monkeypatch.setattr(tracer, "_toward", lambda *args: None)
+    monkeypatch.setattr(tracer, "_cull_bundle", lambda frame_set, src, ks, *args: (list(ks), [None] * len(ks)))
     full = trace_nearest(frame_set, frame_set.camera, tau0, x0, d, 0.05, np.inf)
     assert len(np.unique(full.frame)) == 5  # every body is hit, and the background
     for name in ("frame", "prim", "s", "u", "v"):
