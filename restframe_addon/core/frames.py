@@ -633,7 +633,7 @@ def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) ->
     def halves(group: np.ndarray, at: int) -> list[np.ndarray]:
         """The group split at its centroids' median along their longest axis (``at``: where
         its stretch of the scratch array starts)."""
-        if len(group) < 64:
+        if len(group) < _SMALLEST_SPLIT:
             return [group]
         c = np.take(centroids, group, axis=1, out=stretch(at, at + len(group)), mode="clip")
         axis = int(np.argmax(c.max(axis=1) - c.min(axis=1)))
@@ -653,6 +653,8 @@ def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) ->
     for _ in range(depth):
         if should_stop():
             return None
+        if all(len(group) < _SMALLEST_SPLIT for group in groups):  # none splits any more
+            break
         groups = [half for split in _side_by_side(halves, _with_starts(groups), threaded) for half in split]
     if should_stop():
         return None
@@ -661,10 +663,15 @@ def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) ->
     # (the centroids, split by now, are the second gather's scratch)
     lo, hi = (b.T for b in _side_by_side(boxes, [(np.minimum, tri_lo, scratch), (np.maximum, tri_hi, centroids)],
                                             threaded))
-    return np.array([[*(0.5 * (l + h)), 0.5 * float(np.linalg.norm(h - l))] for l, h in zip(lo, hi)])
+    spheres = np.empty((len(groups), 4))
+    spheres[:, :3] = 0.5 * (lo + hi)
+    # the radii as np.linalg.norm works each out (sqrt(x . x)), without its per-call checks
+    spheres[:, 3] = [0.5 * math.sqrt(float(span.dot(span))) for span in hi - lo]
+    return spheres
 
 
 _CHUNK = 2**16  # triangles per task of the culling clusters' first pass
+_SMALLEST_SPLIT = 64  # triangles: a culling cluster of fewer is not split
 
 
 def _with_starts(groups: list[np.ndarray]) -> list[tuple[np.ndarray, int]]:
