@@ -241,6 +241,33 @@ def test_culling_clusters_hold_every_triangle_and_match_the_plain_computation(me
     assert inside.all(axis=1).any(axis=1).all()
 
 
+def test_the_clusters_of_small_meshes_worked_out_together_are_each_mesh_own(monkeypatch):
+    """Meshes of one size (whose groups are split at once, row by row), of other sizes (odd, too
+    few to split, exactly the smallest split) and with ties, in one pass: each mesh's clusters
+    are those of the plain computation; and build_frames gives each small frame its own."""
+    rng = np.random.default_rng(4)
+    meshes = []
+    for count in (132, 132, 132, 63, 64, 65, 200, 1001):
+        vertices = rng.normal(size=(count, 3)) * rng.uniform(0.2, 3.0, 3)
+        if count == 200:
+            vertices = np.round(vertices)
+        meshes.append((vertices, rng.integers(0, count, size=(count, 3))))
+    together = frames._clusters_of(meshes)
+    assert len(together) == len(meshes)
+    for (vertices, triangles), clusters in zip(meshes, together):
+        np.testing.assert_array_equal(clusters, plain_clusters(vertices, triangles))
+    passes = []
+    clusters_of = frames._clusters_of
+    monkeypatch.setattr(frames, "_clusters_of", lambda meshes, *args: passes.append(len(meshes)) or clusters_of(meshes, *args))
+    rows = [Mesh(f"row {i}", *uv_sphere((3.0 * i, 0.0, 0.0), 1.0, 12, 6), velocity=Velocity((0.1 * i, 0.0, 0.0)))
+            for i in range(5)]
+    frame_set = build_frames(Scene(camera=grid_scene().camera, meshes=rows))
+    assert passes == [5]
+    for k in frame_set.geometry:
+        geometry = frame_set.frames[k].geometry
+        np.testing.assert_array_equal(geometry.clusters, plain_clusters(geometry.vertices, geometry.triangles))
+
+
 def test_a_lone_mesh_gets_no_culling_clusters_and_several_frames_do():
     """The tracer culls by clusters only between frames: a scene of one geometry frame skips them."""
     lone = build_frames(grid_scene(shuffled_sphere(), velocity=Velocity((0.3, 0.0, 0.0))))
