@@ -298,6 +298,7 @@ class FrameSet:
         self.surface_offsets[list(self.geometry)] = [frames[k].surface_offset for k in self.geometry]
         self.surface_offsets.flags.writeable = False
         self._inverse = tuple(f.boost.inverse() for f in frames)  # into S from each frame
+        self._rigid = np.array([frames[k].spin is None for k in self.geometry], dtype=bool)  # (not spinning)
         self._world_lines, self._rest_half = self._body_world_lines()
 
     def candidates(self, src: int, tau0, x0) -> list[int]:
@@ -316,17 +317,13 @@ class FrameSet:
     def _body_world_lines(self):
         """Two events (t, x) of each geometry frame's body centre in S, (len(self.geometry), 2, 4),
         and the half-extents of its box in its rest frame (a spinning body: the cube around its sphere)."""
-        lines, half = [], []
-        for k in self.geometry:
+        lines, half = np.empty((len(self.geometry), 2, 4)), np.empty((len(self.geometry), 3))
+        for line, rest_half, k in zip(lines, half, self.geometry):
             frame = self.frames[k]
             spinning = frame.spin is not None
             centre = frame.offset if spinning else frame.geometry.anchor + frame.offset
-            to_world = self.map(k, self.world)
-            lines.append([np.concatenate([np.atleast_1d(t), x]) for t, x in
-                          (to_world.events(np.array(0.0), centre), to_world.events(np.array(1.0), centre))])
-            half.append(np.full(3, frame.geometry.radius) if spinning else 0.5 * (frame.geometry.hi - frame.geometry.lo))
-        lines = np.array(lines).reshape(len(self.geometry), 2, 4)
-        half = np.array(half).reshape(len(self.geometry), 3)
+            line[:, 0], line[:, 1:] = self.map(k, self.world).events(np.array([0.0, 1.0]), np.array([centre, centre]))
+            rest_half[:] = frame.geometry.radius if spinning else 0.5 * (frame.geometry.hi - frame.geometry.lo)
         lines.flags.writeable = half.flags.writeable = False
         return lines, half
 
@@ -344,12 +341,13 @@ class FrameSet:
         t, x = self.map(self.world, src).events(lines[..., 0], lines[..., 1:])
         velocity = (x[:, 1] - x[:, 0]) / (t[:, 1] - t[:, 0])[:, None]
         half = self._rest_half.copy()
-        speed = np.linalg.norm(velocity, axis=1)
-        moving = (speed > 0.0) & np.array([self.frames[k].spin is None for k in self.geometry], dtype=bool)
+        speed = np.sqrt(np.einsum("ij,ij->i", velocity, velocity))
+        moving = (speed > 0.0) & self._rigid
         if moving.any():
-            n = velocity[moving] / speed[moving, None]
-            contracted = np.abs(np.eye(3) - n[:, :, None] * n[:, None, :])
-            half[moving] = np.einsum("kij,kj->ki", np.maximum(np.eye(3), contracted), half[moving])
+            # max(I, |I - n n^T|) has 1 on its diagonal (0 <= n_i^2 <= 1) and |n_i n_j| off it
+            along = np.abs(velocity[moving] / speed[moving, None])
+            weighted = along * half[moving]
+            half[moving] += along * (weighted.sum(axis=1, keepdims=True) - weighted)
         return t[:, 0], x[:, 0], velocity, half
 
     def map(self, a: int, b: int) -> FrameMap:

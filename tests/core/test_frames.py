@@ -241,6 +241,30 @@ def test_culling_clusters_hold_every_triangle_and_match_the_plain_computation(me
     assert inside.all(axis=1).any(axis=1).all()
 
 
+def test_body_boxes_hold_each_body_at_every_time_of_every_frame():
+    """Every vertex of every body, at many times of its own frame, mapped into each frame (bodies
+    moving along an axis, obliquely, near c, and a spinning one): inside its body box there,
+    which moves uniformly (plain numpy here: the box's centre at the vertex event's time)."""
+    meshes = [Mesh("oblique", *uv_sphere((1.0, 2.0, 0.5), 0.7, 8, 4), velocity=Velocity((0.5, -0.4, 0.3)), pivot=(1.0, 2.0, 0.5)),
+              Mesh("along", *uv_sphere((-3.0, 0.0, 0.0), 1.0, 8, 4), velocity=Velocity((0.9, 0.0, 0.0))),
+              Mesh("fast", *uv_sphere((0.0, 4.0, 1.0), 0.5, 8, 4), velocity=Velocity((0.0, 0.6, -0.79))),
+              Mesh("spinning", *uv_sphere((0.0, -3.0, 0.0), 0.8, 8, 4), pivot=(0.0, -3.0, 0.0),
+                   angular_velocity=(0.0, 0.0, 0.5)),
+              Mesh("still", *uv_sphere((4.0, 0.0, 0.0), 0.5, 8, 4))]
+    frame_set = build_frames(Scene(camera=grid_scene().camera, meshes=meshes))
+    times = np.linspace(-20.0, 20.0, 9)
+    for src in range(len(frame_set.frames)):
+        t_box, x_box, velocity, half = frame_set.body_boxes(src)
+        for slot, k in enumerate(frame_set.geometry):
+            frame = frame_set.frames[k]
+            used = frame.geometry.vertices[np.unique(frame.geometry.triangles)]
+            for tau in times:
+                local = used if frame.spin is None else used @ frame.pose(np.array([tau]))[0].T
+                t, x = frame_set.map(k, src).events(np.full(len(used), tau), local + frame.offset)
+                centre = x_box[slot] + np.outer(t - t_box[slot], velocity[slot])
+                assert np.all(np.abs(x - centre) <= half[slot] * (1 + 1e-12) + 1e-12), (src, k, tau)
+
+
 def test_the_clusters_of_small_meshes_worked_out_together_are_each_mesh_own(monkeypatch):
     """Meshes of one size (whose groups are split at once, row by row), of other sizes (odd, too
     few to split, exactly the smallest split) and with ties, in one pass: each mesh's clusters
