@@ -33,7 +33,7 @@ from .lorentz import RowBoosts
 from .passes import facing_normals, hit_doppler, hit_times
 from .scene import RAY_CAMERA, RAY_GLOSSY, RAY_TRANSMISSION, Light, Material, Scene
 from .tracer import Hits, TraceCache, frames_hit, occluded, trace_nearest
-from .world import image_lookup
+from .world import image_lookup, lookup_layout
 
 MIRROR_ROUGHNESS = 0.05  # smoother surfaces reflect by traced mirror rays, rougher ones by GGX highlights
 _MIN_ALPHA = 1e-3
@@ -78,8 +78,10 @@ class MaterialTable:
         self.coat_ior = np.maximum([m.coat_ior for m in materials], 1.0 + 1e-6)
         self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
         self.emits = np.any(self.emission != 0.0, axis=1)
-        # images kept contiguous: looked up from flat indices without a copy (world.image_lookup)
-        self.textures = [_contiguous(m.base_color_texture) for m in materials]
+        # images kept contiguous: looked up from flat indices without a copy (world.image_lookup);
+        # base colours (looked up as 3 channels) padded to 4, which are gathered faster
+        self.textures = [None if m.base_color_texture is None else lookup_layout(m.base_color_texture)
+                         for m in materials]
         self.closest = [m.base_color_interpolation == "Closest" for m in materials]
         self.principled_alpha = np.clip([m.alpha for m in materials], 0.0, 1.0)  # cut-outs (not the GGX alpha)
         self.alpha_textures = [_contiguous(m.alpha_texture) for m in materials]

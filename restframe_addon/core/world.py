@@ -140,6 +140,18 @@ def image_lookup(image, u, v, interpolation: str = "Linear", channels: int | Non
     return out
 
 
+def lookup_layout(image):
+    """``image`` (H, W, C) laid out as :func:`image_lookup` gathers it fastest: C-contiguous, an RGB
+    image's pixels padded with a fourth channel of 0 (numpy's take copies rows of 16 or 32 bytes
+    2-2.5x faster than rows of 12 or 24); look it up with ``channels`` set."""
+    image = np.ascontiguousarray(image)
+    if image.shape[2] != 3:
+        return image
+    padded = np.zeros(image.shape[:2] + (4,), dtype=image.dtype)
+    padded[..., :3] = image
+    return padded
+
+
 def _wrap(index, size: int):
     """``index % size`` (repeat) in place, by a bit mask when size is a power of two (as fast as an add)."""
     if (size & (size - 1)) == 0:
@@ -198,6 +210,7 @@ class EnvironmentWorld:
                 or np.linalg.det(mapping) < 0.0:
             raise ValueError(f"{name}: the environment mapping must be a rotation (no scale, shear or mirror)")
         self.image = np.maximum(image[..., :3], 0.0) * float(strength)
+        self._pixels = lookup_layout(self.image)
         self.mapping = mapping
         self._unmapping = mapping if mapping is _IDENTITY else mapping.T  # texture -> world directions
         self.interpolation = interpolation
@@ -249,7 +262,7 @@ class EnvironmentWorld:
     def radiance(self, d):
         """Radiance (n, 3) arriving from backward world directions d."""
         u, v = direction_to_equirectangular(_rotate(self.mapping, d))
-        return image_lookup(self.image, u, v, self.interpolation)
+        return image_lookup(self._pixels, u, v, self.interpolation, channels=3)
 
     def _cell(self, t):
         w = self._columns

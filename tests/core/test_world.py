@@ -96,6 +96,21 @@ def test_image_lookup_bilinear_between_pixel_centres_and_closest():
     assert np.allclose(closest, [image[2, 0], image[0, 3]])
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_lookup_layout_pads_rgb_to_four_channels_and_looks_up_the_same_bits(dtype):
+    rng = np.random.default_rng(7)
+    image = rng.random((5, 8, 3)).astype(dtype)
+    padded = world.lookup_layout(image)
+    assert padded.shape == (5, 8, 4) and padded.flags.c_contiguous and padded.dtype == dtype
+    assert np.array_equal(padded[..., :3], image) and not padded[..., 3].any()
+    u, v = rng.uniform(-2.0, 3.0, 1000), rng.uniform(-2.0, 3.0, 1000)
+    for interpolation in world.INTERPOLATIONS:
+        assert np.array_equal(world.image_lookup(padded, u, v, interpolation, channels=3),
+                              world.image_lookup(image, u, v, interpolation))
+    grey = rng.random((5, 8, 1))
+    assert world.lookup_layout(grey) is grey  # (rows of one float are gathered fast as they are)
+
+
 def test_mapping_rotates_the_lookup_and_the_samples():
     image = test_image()
     rotation = world.mapping_rotation((0.3, -0.2, 1.2))
