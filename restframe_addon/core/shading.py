@@ -308,8 +308,7 @@ class LayeredLobes:
         glossy = np.flatnonzero(self.glossy if index is None else self.glossy[index])
         if len(glossy):
             r = glossy if index is None else index[glossy]
-            single, above, cos_vh = ggx_single_scattering(self.ns[r], self.view[r], light[glossy], self.alpha[r],
-                                                          self.cos_v[r])
+            single, above, cos_vh = ggx_single_scattering(self.ns[r], self.view[r], light[glossy], self.alpha[r])
             value[glossy] += rows.scale(self.fresnel(cos_vh, index=r), np.where(above, single, 0.0))
         return value
 
@@ -557,11 +556,12 @@ class Shader:
         return ns
 
     # ------------------------------------------------------------------ direct light
-    def brdf(self, ns, view, light, base, mat, lobes: LayeredLobes | None = None):
+    def brdf(self, ns, view, light, base, mat, lobes: LayeredLobes | None = None, cos_l=None):
         """The surfaces' non-delta BSDF f (n, C) (without the cosine), in their rest frame: the
         diffuse lobe and, on rough surfaces with a specular lobe, GGX highlights (``layered``: as
-        :class:`LayeredLobes`; ``lobes``: those of these very points, if already made).  Mirror
-        reflection and refraction are delta lobes, traced instead (DIRECT: ``_secondary``)."""
+        :class:`LayeredLobes`; ``lobes``: those of these very points, if already made; ``cos_l``:
+        ns . light where the caller has it).  Mirror reflection and refraction are delta lobes,
+        traced instead (DIRECT: ``_secondary``)."""
         mats = self.materials
         if self.layered:
             return (lobes if lobes is not None else LayeredLobes(mats, base, mat, ns, view)).value(light)
@@ -579,7 +579,8 @@ class Shader:
             f0 = rows.scale(base[r], mats.metallic[m]) + f0
         else:
             f0 = np.broadcast_to(f0, (len(value) if one is not None else len(r), 1))
-        specular = ggx_reflection(ns[r], view[r], light[r], mats.alpha[m], f0, mats.f90[m])
+        specular = ggx_reflection(ns[r], view[r], light[r], mats.alpha[m], f0, mats.f90[m],
+                                  None if cos_l is None else cos_l[r])
         if one is not None and value.shape[1] <= 4:  # column by column (see rows)
             for c in range(value.shape[1]):
                 value[:, c] += specular[:, min(c, specular.shape[1] - 1)]
@@ -625,7 +626,8 @@ class Shader:
             elif shadowed:  # a few: cheaper to shade them too, with no light
                 weight[blocked] = 0.0
             part = None if lobes is None else lobes.take(sel)
-            f = self.brdf(_take(ns, sel), _take(view, sel), e_sel, _take(base, sel), _take(mat, sel), part)
+            f = self.brdf(_take(ns, sel), _take(view, sel), e_sel, _take(base, sel), _take(mat, sel), part,
+                          _take(cos_n, sel))
             emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), _take(doppler, sel)), len(f),
                                         None if clock is None else _take(clock, sel))
             f = _weighted_product(f, emitted, weight)
