@@ -33,7 +33,7 @@ from .lorentz import RowBoosts
 from .passes import facing_normals, hit_doppler, hit_times
 from .scene import RAY_CAMERA, RAY_GLOSSY, RAY_TRANSMISSION, Light, Material, Scene
 from .tracer import Hits, TraceCache, frames_hit, occluded, trace_nearest
-from .world import image_lookup, lookup_layout
+from .world import Texels, image_lookup
 
 MIRROR_ROUGHNESS = 0.05  # smoother surfaces reflect by traced mirror rays, rougher ones by GGX highlights
 _MIN_ALPHA = 1e-3
@@ -78,15 +78,13 @@ class MaterialTable:
         self.coat_ior = np.maximum([m.coat_ior for m in materials], 1.0 + 1e-6)
         self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
         self.emits = np.any(self.emission != 0.0, axis=1)
-        # images kept contiguous: looked up from flat indices without a copy (world.image_lookup);
-        # base colours (looked up as 3 channels) padded to 4, which are gathered faster
-        self.textures = [None if m.base_color_texture is None else lookup_layout(m.base_color_texture)
-                         for m in materials]
+        # images laid out for world.image_lookup once
+        self.textures = [_texels(m.base_color_texture) for m in materials]
         self.closest = [m.base_color_interpolation == "Closest" for m in materials]
         self.principled_alpha = np.clip([m.alpha for m in materials], 0.0, 1.0)  # cut-outs (not the GGX alpha)
-        self.alpha_textures = [_contiguous(m.alpha_texture) for m in materials]
+        self.alpha_textures = [_texels(m.alpha_texture) for m in materials]
         self.cuts_out = bool(np.any(self.principled_alpha < 1.0)) or any(t is not None for t in self.alpha_textures)
-        self.normal_textures = [_contiguous(m.normal_texture) for m in materials]
+        self.normal_textures = [_texels(m.normal_texture) for m in materials]
         self.normal_strength = np.maximum([m.normal_strength for m in materials], 0.0)
         self.normal_mapped = any(t is not None for t in self.normal_textures)
         self.holdout = np.array([m.holdout for m in materials], dtype=bool)
@@ -912,8 +910,8 @@ def _combine(*weights_and_vectors):
     return out
 
 
-def _contiguous(image):
-    return None if image is None else np.ascontiguousarray(image)
+def _texels(image):
+    return None if image is None else Texels(image)
 
 
 def _only_material(mat):

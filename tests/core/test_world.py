@@ -97,18 +97,31 @@ def test_image_lookup_bilinear_between_pixel_centres_and_closest():
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
-def test_lookup_layout_pads_rgb_to_four_channels_and_looks_up_the_same_bits(dtype):
+@pytest.mark.parametrize("channels", [1, 3, 4])
+def test_texels_look_up_the_bits_of_a_plain_bilinear_repeat_lookup(dtype, channels):
+    """world.Texels (a border row and column, RGB padded to 4 channels) looks up bit for bit what
+    the bilinear blend written out with modulo indexing gives, and the nearest pixel (Closest)."""
     rng = np.random.default_rng(7)
-    image = rng.random((5, 8, 3)).astype(dtype)
-    padded = world.lookup_layout(image)
-    assert padded.shape == (5, 8, 4) and padded.flags.c_contiguous and padded.dtype == dtype
-    assert np.array_equal(padded[..., :3], image) and not padded[..., 3].any()
+    h, w = 5, 8
+    image = rng.random((h, w, channels)).astype(dtype)
+    texels = world.Texels(image)
+    assert texels.pixels.shape == ((h + 1) * (w + 1), 4 if channels == 3 else channels)
     u, v = rng.uniform(-2.0, 3.0, 1000), rng.uniform(-2.0, 3.0, 1000)
-    for interpolation in world.INTERPOLATIONS:
-        assert np.array_equal(world.image_lookup(padded, u, v, interpolation, channels=3),
-                              world.image_lookup(image, u, v, interpolation))
-    grey = rng.random((5, 8, 1))
-    assert world.lookup_layout(grey) is grey  # (rows of one float are gathered fast as they are)
+    fx, fy = u * w - 0.5, v * h - 0.5
+    x0, y0 = np.floor(fx), np.floor(fy)
+    fx, fy = fx - x0, fy - y0
+    x0, y0 = x0.astype(int) % w, y0.astype(int) % h
+    x1, y1 = (x0 + 1) % w, (y0 + 1) % h
+    expected = ((1 - fx) * (1 - fy))[:, None] * image[y0, x0]
+    expected += ((1 - fy) * fx)[:, None] * image[y0, x1]
+    expected += ((1 - fx) * fy)[:, None] * image[y1, x0]
+    expected += (fx * fy)[:, None] * image[y1, x1]
+    for looked_up in (world.image_lookup(texels, u, v), world.image_lookup(image, u, v)):
+        assert looked_up.dtype == np.float64
+        np.testing.assert_array_equal(looked_up, expected)
+    nearest = image[np.floor(v * h).astype(int) % h, np.floor(u * w).astype(int) % w]
+    np.testing.assert_array_equal(world.image_lookup(texels, u, v, "Closest"), nearest)
+    np.testing.assert_array_equal(world.image_lookup(texels, u, v, channels=1), expected[:, :1])
 
 
 def test_mapping_rotates_the_lookup_and_the_samples():
