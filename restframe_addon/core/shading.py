@@ -407,13 +407,13 @@ class Shader:
             tau_hit = hit_times(hits, sel)
             u, v = _take(hits.u, sel), _take(hits.v, sel)
             if fmap.is_identity and frame.spin is None:  # at rest with the viewer: D = 1
-                values[sel] = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, _take(pixel, sel),
-                                                  _take(sample, sel), _rows(lam, sel), cache)
+                _put(values, sel, self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, _take(pixel, sel),
+                                                      _take(sample, sel), _rows(lam, sel), cache))
                 continue
             doppler = hit_doppler(frame, prim, u, v, tau_hit, d_k, w)
             local = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, _take(pixel, sel), _take(sample, sel),
                                         self.colour.shift(_rows(lam, sel), doppler), cache)
-            values[sel] = rows.scale(local, self.searchlight_power(doppler, 4))
+            _put(values, sel, rows.scale(local, self.searchlight_power(doppler, 4)))
         return values, hits
 
     # ------------------------------------------------------------------ tracing
@@ -635,7 +635,7 @@ class Shader:
                 total = f
             else:
                 total = np.zeros_like(base)
-                total[sel] = f
+                _put(total, sel, f)
         return np.zeros_like(base) if total is None else total
 
     def _incident(self, pl: PreparedLight, k, tau, position, xi1, xi2):
@@ -833,6 +833,14 @@ def _put_rows(values, mask, index, new):
         return
     for channel in range(values.shape[1]):
         np.copyto(values[:, channel], new[0, channel], where=mask)
+
+
+def _put(a, sel, new):
+    """``a[sel] = new`` for rows ``sel`` (a slice or indices) of an array (see rows.put)."""
+    if isinstance(sel, slice):
+        a[sel] = new
+    else:
+        rows.put(a, sel, new)
 
 
 def _take(a, sel):

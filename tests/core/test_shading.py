@@ -302,3 +302,20 @@ def test_one_material_shades_bit_for_bit_as_gathered_per_hit():
 
 def rows_normalized(a):
     return a / np.linalg.norm(a, axis=1, keepdims=True)
+
+
+def test_rows_put_assigns_rows_as_fancy_indexing_does():
+    """rows.put (whole rows copied by np.put) gives what ``a[index] = new`` gives: (n, 3) and
+    (n, 16) rows, a float32 or broadcast ``new``, a non-contiguous target."""
+    from restframe_addon.core import rows
+
+    rng = np.random.default_rng(3)
+    for columns in (3, 16):
+        index = rng.choice(500, 200, replace=False)
+        for new in (rng.random((200, columns)), rng.random((200, columns)).astype(np.float32),
+                    np.broadcast_to(rng.random(columns), (200, columns))):
+            for target in (rng.random((500, columns)), rng.random((columns, 500)).T):
+                expected = target.copy()
+                expected[index] = new
+                rows.put(target, index, new)
+                np.testing.assert_array_equal(target, expected)
