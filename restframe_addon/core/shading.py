@@ -567,7 +567,7 @@ class Shader:
         # arrays, no gathers, no specular work unless it has a lobe
         one = _only_material(mat)
         pick = (lambda table: table[mat]) if one is None else (lambda table: table[one:one + 1])
-        value = rows.scale(base, pick(mats.diffuse_weight))
+        value = rows.scale(base, pick(mats.diffuse_weight), columns=True)
         r = np.flatnonzero(mats.glossy[mat]) if one is None else slice(None) if mats.glossy[one] else None
         if r is None or (one is None and not len(r)):
             return value
@@ -790,9 +790,10 @@ def hit_uv(frame, prim, u, v):
     cuv = np.take(corner_uvs, prim, axis=0)
     first = 1.0 - u  # the barycentric weight of the first corner
     first -= v
-    uv = np.empty((len(prim), 2), dtype=np.result_type(first, cuv))
+    # column by column (see rows), into contiguous columns, in place (temporaries cost page faults)
+    uv = np.empty((2, len(prim)), dtype=np.result_type(first, cuv)).T
     term = np.empty(len(prim), dtype=uv.dtype)
-    for c in range(2):  # column by column (see rows), in place (temporaries cost page faults)
+    for c in range(2):
         column = uv[:, c]
         np.multiply(first, cuv[:, 0, c], out=column)
         column += np.multiply(u, cuv[:, 1, c], out=term)
@@ -836,9 +837,10 @@ def _put_rows(values, mask, index, new):
 
 
 def _put(a, sel, new):
-    """``a[sel] = new`` for rows ``sel`` (a slice or indices) of an array (see rows.put)."""
+    """``a[sel] = new`` for rows ``sel`` (a slice or indices) of an array (see rows.put; ``new`` may
+    have contiguous columns)."""
     if isinstance(sel, slice):
-        a[sel] = new
+        a[sel] = rows.c_contiguous(new)
     else:
         rows.put(a, sel, new)
 

@@ -96,7 +96,9 @@ def image_lookup(image, u, v, interpolation: str = "Linear", channels: int | Non
     out = np.empty((len(u), channels), dtype=np.result_type(pixels, np.float64))
     if interpolation == "Closest":
         index = _wrap(np.floor(v * h).astype(np.int64), h) * stride + _wrap(np.floor(u * w).astype(np.int64), w)
-        out[:] = np.take(pixels, index, axis=0, mode="clip")[:, :channels]
+        found = np.take(pixels, index, axis=0, mode="clip")
+        for c in range(channels):
+            out[:, c] = found[:, c]
         return out
     fx, fy = u * w, v * h
     fx -= 0.5
@@ -116,19 +118,20 @@ def image_lookup(image, u, v, interpolation: str = "Linear", channels: int | Non
     fx *= fy
     weights = (weight00, gy, gx, fx)
     found = np.empty((len(u), pixels.shape[1]), dtype=pixels.dtype)
-    # the blend in the weights' and pixels' precision (float32 coordinates and image: float32)
-    blend = out if np.result_type(fx, pixels) == out.dtype else np.empty(out.shape, np.result_type(fx, pixels))
+    # the blend in the weights' and pixels' precision (float32 coordinates and image: float32), one
+    # contiguous row per channel (twice as fast as the output's strided columns)
+    blend = np.empty((channels, len(u)), np.result_type(fx, pixels))
     term = np.empty(len(u), dtype=blend.dtype)
     for i, (view, weight) in enumerate(zip(views, weights)):
         np.take(view, corner, axis=0, out=found, mode="clip")  # in range: clip only skips the check
         for c in range(channels):
             if i == 0:
-                np.multiply(weight, found[:, c], out=blend[:, c])
+                np.multiply(weight, found[:, c], out=blend[c])
             else:
                 np.multiply(weight, found[:, c], out=term)
-                blend[:, c] += term
-    if blend is not out:
-        out[:] = blend
+                blend[c] += term
+    for c in range(channels):
+        out[:, c] = blend[c]
     return out
 
 

@@ -306,14 +306,14 @@ def rows_normalized(a):
 
 def test_rows_put_assigns_rows_as_fancy_indexing_does():
     """rows.put (whole rows copied by np.put) gives what ``a[index] = new`` gives: (n, 3) and
-    (n, 16) rows, a float32 or broadcast ``new``, a non-contiguous target."""
+    (n, 16) rows, a float32, broadcast or column-major ``new``, a non-contiguous target."""
     from restframe_addon.core import rows
 
     rng = np.random.default_rng(3)
     for columns in (3, 16):
         index = rng.choice(500, 200, replace=False)
         for new in (rng.random((200, columns)), rng.random((200, columns)).astype(np.float32),
-                    np.broadcast_to(rng.random(columns), (200, columns))):
+                    np.broadcast_to(rng.random(columns), (200, columns)), rng.random((columns, 200)).T):
             for target in (rng.random((500, columns)), rng.random((columns, 500)).T):
                 expected = target.copy()
                 expected[index] = new
