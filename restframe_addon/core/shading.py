@@ -20,6 +20,7 @@ power of D for spectral densities).  Values are in the frame they are evaluated 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from types import MappingProxyType
 
 import numpy as np
@@ -881,9 +882,17 @@ def _disc_sample(axis, radius, xi1, xi2):
     return _combine(r * cos_phi, t1, r * sin_phi, t2)
 
 
+@lru_cache(maxsize=64)
+def _axis_basis(axis: tuple) -> tuple:
+    """:func:`_orthonormal_basis` of one axis (a lamp's, the same for every batch of rays)."""
+    t1, t2 = (t[0] for t in _orthonormal_basis(np.array([axis], dtype=np.float64)))
+    t1.flags.writeable = t2.flags.writeable = False
+    return t1, t2
+
+
 def _cone_sample(axis, half_angle, xi1, xi2):
     """Directions uniform in the cone about one unit axis (3,): its basis is worked out once."""
-    t1, t2 = (t[0] for t in _orthonormal_basis(axis[None, :]))
+    t1, t2 = _axis_basis(tuple(axis))
     cos_t = xi1 * (1.0 - np.cos(half_angle))  # in place from here: temporaries cost page faults
     np.subtract(1.0, cos_t, out=cos_t)
     sin_t = cos_t * cos_t
@@ -911,12 +920,12 @@ def _combine(*weights_and_vectors):
     """Rows ``a t1 + b t2 (+ c t3)`` of (n,) weights and (n, 3) or (3,) vectors, summed in that order."""
     pairs = list(zip(weights_and_vectors[::2], weights_and_vectors[1::2]))
     out = np.empty((len(pairs[0][0]), 3))
-    term = np.empty(len(out))
+    column, term = np.empty(len(out)), np.empty(len(out))  # contiguous: twice as fast as out's columns
     for c in range(3):
-        column = out[:, c]
         np.multiply(pairs[0][0], pairs[0][1][..., c], out=column)
         for weight, vector in pairs[1:]:
             column += np.multiply(weight, vector[..., c], out=term)
+        out[:, c] = column
     return out
 
 
