@@ -119,7 +119,12 @@ class MaterialTable:
         return factor
 
     def clamp(self, index):
-        return np.clip(index, 0, len(self.materials) - 1)
+        """Material numbers as rows of the table (out of range: the nearest end; in range, as
+        they always are from the export, the array itself: two reductions cost a third of a clip)."""
+        last = len(self.materials) - 1
+        if len(index) and index.min() >= 0 and index.max() <= last:
+            return index
+        return np.clip(index, 0, last)
 
     def base_color(self, index, uv):
         """Base colour per hit, with image textures looked up (bilinear or closest, repeat) where present."""
@@ -477,7 +482,7 @@ class Shader:
         index at hits of frame k (``cache``: the calling thread's)."""
         frame = self.frames.frames[k]
         position, ng, ns, back = facing_normals(frame, prim, u, v, d_k, tau_hit, cache)
-        material = self.materials.clamp(frame.geometry.tri_material[prim])
+        material = self.materials.clamp(np.take(frame.geometry.tri_material, prim))
         if self.materials.normal_mapped and frame.geometry.corner_uvs is not None:
             ns = self._normal_mapped(frame, prim, material, hit_uv(frame, prim, u, v), ng, ns, back, d_k,
                                      np.zeros(len(prim)) if tau_hit is None else tau_hit)
