@@ -80,7 +80,7 @@ class MaterialTable:
         self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
         self.emits = np.any(self.emission != 0.0, axis=1)
         # images laid out for world.image_lookup once
-        self.textures = [_texels(m.base_color_texture) for m in materials]
+        self.textures = [_texels(m.base_color_texture, colour=True) for m in materials]
         self.closest = [m.base_color_interpolation == "Closest" for m in materials]
         self.principled_alpha = np.clip([m.alpha for m in materials], 0.0, 1.0)  # cut-outs (not the GGX alpha)
         self.alpha_textures = [_texels(m.alpha_texture) for m in materials]
@@ -934,8 +934,8 @@ def _combine(*weights_and_vectors):
     return out
 
 
-def _texels(image):
-    return None if image is None else Texels(image)
+def _texels(image, colour: bool = False):
+    return None if image is None else Texels(image, colour)
 
 
 def _only_material(mat):

@@ -106,6 +106,8 @@ def image_lookup(image, u, v, interpolation: str = "Linear", channels: int | Non
     x0, y0 = np.floor(fx), np.floor(fy)
     fx -= x0  # the fractions from the pixel centre below
     fy -= y0
+    if texels.colour:
+        fx, fy = fx.astype(pixels.dtype, copy=False), fy.astype(pixels.dtype, copy=False)
     corner = _wrap(y0.astype(np.int64), h)
     corner *= stride
     corner += _wrap(x0.astype(np.int64), w)
@@ -118,7 +120,7 @@ def image_lookup(image, u, v, interpolation: str = "Linear", channels: int | Non
     fx *= fy
     weights = (weight00, gy, gx, fx)
     found = np.empty((len(u), pixels.shape[1]), dtype=pixels.dtype)
-    # the blend in the weights' and pixels' precision (float32 coordinates and image: float32), one
+    # the blend in the weights' and pixels' precision (float32 weights and image: float32), one
     # contiguous row per channel (twice as fast as the output's strided columns)
     blend = np.empty((channels, len(u)), np.result_type(fx, pixels))
     term = np.empty(len(u), dtype=blend.dtype)
@@ -140,10 +142,16 @@ class Texels:
     with one more row and column repeating the first ones, so that the four pixels of a bilinear
     lookup are rows i, i + 1, i + W + 1 and i + W + 2 of the repeat-wrapped first one (one index,
     four views); an RGB image's pixels padded with a fourth channel of 0 (np.take copies rows of
-    16 or 32 bytes 2-2.5x faster than rows of 12 or 24)."""
+    16 or 32 bytes 2-2.5x faster than rows of 12 or 24).
 
-    def __init__(self, image):
+    ``colour``: a colour image (a base colour), blended in its pixels' own precision: a float32
+    image (as Blender's) in float32, twice as fast as in float64, to a few float32 steps of the
+    brightest of the four pixels (tests/core/test_world.py); images that steer rays (normal maps,
+    cut-out alpha) and float64 ones blend in float64."""
+
+    def __init__(self, image, colour: bool = False):
         image = np.asarray(image)
+        self.colour = colour
         self.height, self.width, self.channels = image.shape
         padded = np.zeros((self.height + 1, self.width + 1, 4 if self.channels == 3 else self.channels), image.dtype)
         padded[:-1, :-1, :self.channels] = image

@@ -124,6 +124,21 @@ def test_texels_look_up_the_bits_of_a_plain_bilinear_repeat_lookup(dtype, channe
     np.testing.assert_array_equal(world.image_lookup(texels, u, v, channels=1), expected[:, :1])
 
 
+def test_colour_texels_blend_in_their_pixels_precision_to_a_few_float32_steps():
+    """Texels(colour=True) of a float32 image blend in float32: within 3 float32 steps of the
+    brightest pixel of the image of the float64 blend (Linear; Closest is a copy either way); a
+    float64 image blends in float64 whatever ``colour`` says (the same bits)."""
+    rng = np.random.default_rng(5)
+    image = (rng.random((16, 32, 3)) ** 4 * 50.0).astype(np.float32)  # dark and bright pixels side by side
+    u, v = rng.uniform(-3.0, 4.0, 20000), rng.uniform(-3.0, 4.0, 20000)
+    fast, exact = (world.image_lookup(world.Texels(image, colour), u, v) for colour in (True, False))
+    assert fast.dtype == exact.dtype == np.float64 and not np.array_equal(fast, exact)  # the trade is exercised
+    np.testing.assert_allclose(fast, exact, rtol=0.0, atol=3 * np.finfo(np.float32).eps * image.max())
+    for interpolation, dtype in (("Closest", np.float32), ("Linear", np.float64)):
+        np.testing.assert_array_equal(*(world.image_lookup(world.Texels(image.astype(dtype), colour), u, v,
+                                                           interpolation) for colour in (True, False)))
+
+
 def test_mapping_rotates_the_lookup_and_the_samples():
     image = test_image()
     rotation = world.mapping_rotation((0.3, -0.2, 1.2))
