@@ -38,16 +38,23 @@ def put(a, index, new) -> None:
 
 
 def c_contiguous(a, dtype=None) -> np.ndarray:
-    """``np.ascontiguousarray(a, dtype)`` of (n, C) rows, column by column when ``a`` is not
-    (numpy copies a column-major (n, 3) array three elements at a time, 6x slower)."""
+    """``np.ascontiguousarray(a, dtype)`` of (n, C) rows (see :func:`assign`)."""
     a = np.asarray(a)
-    dtype = a.dtype if dtype is None else dtype
-    if a.flags.c_contiguous or a.ndim != 2 or a.shape[1] > 4:
-        return np.ascontiguousarray(a, dtype=dtype)
-    out = np.empty(a.shape, dtype=dtype)
+    if a.flags.c_contiguous:
+        return a if dtype is None else np.ascontiguousarray(a, dtype=dtype)
+    out = np.empty(a.shape, dtype=a.dtype if dtype is None else dtype)
+    assign(out, a)
+    return out
+
+
+def assign(out, a) -> None:
+    """``out[...] = a`` for (n, C) rows, column by column between arrays of different layouts
+    (numpy copies a column-major (n, 3) array into rows three elements at a time, 6x slower)."""
+    if a.ndim != 2 or a.shape[1] > 4 or a.flags.c_contiguous == out.flags.c_contiguous:
+        out[...] = a
+        return
     for axis in range(a.shape[1]):
         out[:, axis] = a[:, axis]
-    return out
 
 
 def dot(a, b) -> np.ndarray:

@@ -846,7 +846,7 @@ def _put(a, sel, new):
     """``a[sel] = new`` for rows ``sel`` (a slice or indices) of an array (see rows.put; ``new`` may
     have contiguous columns)."""
     if isinstance(sel, slice):
-        a[sel] = rows.c_contiguous(new)
+        rows.assign(a[sel], new)
     else:
         rows.put(a, sel, new)
 

@@ -330,8 +330,9 @@ def rows_normalized(a):
 
 
 def test_rows_put_assigns_rows_as_fancy_indexing_does():
-    """rows.put (whole rows copied by np.put) gives what ``a[index] = new`` gives: (n, 3) and
-    (n, 16) rows, a float32, broadcast or column-major ``new``, a non-contiguous target."""
+    """rows.put (whole rows copied by np.put) gives what ``a[index] = new`` gives, and rows.assign
+    (column by column between layouts) what ``a[...] = new`` gives: (n, 3) and (n, 16) rows, a
+    float32, broadcast or column-major ``new``, a non-contiguous target."""
     from restframe_addon.core import rows
 
     rng = np.random.default_rng(3)
@@ -344,3 +345,5 @@ def test_rows_put_assigns_rows_as_fancy_indexing_does():
                 expected[index] = new
                 rows.put(target, index, new)
                 np.testing.assert_array_equal(target, expected)
+                rows.assign(target[:200], new)
+                np.testing.assert_array_equal(target[:200], new)
