@@ -672,8 +672,15 @@ class Shader:
             if to_surface.is_identity:  # at rest with the surface: D = 1, so D^p = 1
                 one = np.broadcast_to(1.0, (n,))
                 return e_j, one, one, np.inf, clock
-            e_k, doppler = to_surface.rays(e_j)
-            return e_k, self.searchlight_power(doppler, 2), doppler, np.inf, clock
+            # a sharp sun, one broadcast direction for every hit: mapped once (a one-row view of
+            # the same broadcast rows, the same steps on the same numbers) and broadcast back
+            sharp = e_j.strides[0] == 0
+            e_k, doppler = to_surface.rays(e_j[:1] if sharp else e_j)
+            sun_strength = self.searchlight_power(doppler, 2)
+            if sharp:
+                e_k, sun_strength, doppler = (np.broadcast_to(a, (n,) + a.shape[1:])
+                                              for a in (e_k, sun_strength, doppler))
+            return e_k, sun_strength, doppler, np.inf, clock
         if light.trajectory is None:
             tau_j, x_j = self.frames.map(k, pl.frame).events(tau, position)
             sample = np.broadcast_to(pl.position, (n, 3))
