@@ -162,6 +162,30 @@ def test_sun_seen_from_a_moving_surface_is_aberrated_and_scaled_by_d_squared():
     assert centre(still)[0] == pytest.approx(2.0 / g / math.pi, rel=1e-6)  # only the aberrated cosine
 
 
+def test_a_sharp_suns_light_mapped_once_per_frame_is_bit_for_bit_each_hits_own():
+    """The sharp sun's direction is one for every hit: it is mapped into the surface's frame once
+    and broadcast.  Every hit's direction, D and irradiance factor must be exactly those of
+    mapping that hit's own copy of the direction (contiguous rows), on a floor sliding obliquely."""
+    from restframe_addon.core.prepared import prepare
+
+    tilt = np.linalg.qr(np.array([[1.0, 0.3, -0.2], [-0.3, 1.0, 0.1], [0.2, -0.1, 1.0]]))[0]  # a rotation
+    sun = Light("sun", "SUN", (0, 0, 5.0), matrix=tilt * np.sign(np.linalg.det(tilt)), power=2.0)
+    prepared = prepare(floor_scene([sun], floor_velocity=Velocity((0.6, -0.3, 0.2))), settings())
+    shader = prepared.shader
+    (k,) = shader.frames.geometry  # the floor's frame
+    pl = shader.lights[0]
+    to_surface = shader.frames.map(pl.frame, k)
+    assert not to_surface.is_identity
+    n = 7
+    rng = np.random.default_rng(3)
+    e_k, strength, doppler, s_max, _ = shader._incident(pl, k, rng.uniform(-1, 1, n), rng.uniform(-1, 1, (n, 3)),
+                                                        None, None)
+    own_e, own_w = to_surface.rays(np.tile(pl.axes[:, 2], (n, 1)))
+    assert e_k.shape == (n, 3) and np.array_equal(e_k, own_e)
+    assert np.array_equal(doppler, own_w) and np.array_equal(strength, shader.searchlight_power(own_w, 2))
+    assert s_max == np.inf
+
+
 @pytest.mark.parametrize("sun", [False, True])
 def test_culled_shadow_rays_block_exactly_as_unculled_ones(monkeypatch, sun):
     """Shadow-ray bundles skip frames whose body cannot reach them (finite rays: a swept
