@@ -1,0 +1,62 @@
+"""Red team of the core's input checks: a NaN or infinite number anywhere in the camera, a light,
+a material or the world (a driver dividing by zero, a script) stops the render with a message
+naming the object and the setting, instead of black or NaN pixels without a word."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from restframe_addon.core.prepared import prepare
+from restframe_addon.core.render import RenderError
+from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, WorldTexture
+from shapes import look_at_camera, uv_sphere
+
+NAN, INF = float("nan"), float("inf")
+
+
+def lit_ball(**changes):
+    """A lit ball; ``changes`` maps "camera" / "lamp" / "material" / "world_texture" to the fields to replace."""
+    v, t = uv_sphere((0, 0, 0), 1.0, 8, 4)
+    camera = dataclasses.replace(look_at_camera((0, -6, 0), (0, 0, 0)), **changes.get("camera", {}))
+    lamp = dataclasses.replace(Light("Lamp", "SPOT", (2.0, -3.0, 4.0), power=500.0), **changes.get("lamp", {}))
+    material = dataclasses.replace(Material("Paint"), **changes.get("material", {}))
+    world = dataclasses.replace(WorldTexture(np.full((4, 8, 3), 0.1)), **changes.get("world_texture", {}))
+    return Scene(camera=camera, meshes=[Mesh("Ball", v, t)], lights=[lamp], materials=[material],
+                 world_texture=world, world_color=changes.get("world_color", (0.05, 0.05, 0.05)))
+
+
+SETTINGS = RenderSettings(resolution=(5, 4), threads=1)
+
+
+def test_the_finite_scene_prepares():
+    assert prepare(lit_ball(), SETTINGS).scene.lights[0].name == "Lamp"
+
+
+@pytest.mark.parametrize("part, field, value, named", [
+    ("lamp", "power", NAN, "Lamp: its power"),
+    ("lamp", "power", INF, "Lamp: its power"),
+    ("lamp", "color", (1.0, NAN, 1.0), "Lamp: its color"),
+    ("lamp", "position", (NAN, 0.0, 0.0), "Lamp: its position"),
+    ("lamp", "matrix", np.full((3, 3), NAN), "Lamp: its world transform"),
+    ("lamp", "radius", NAN, "Lamp: its radius"),
+    ("lamp", "spot_size", NAN, "Lamp: its spot size"),
+    ("lamp", "temperature", INF, "Lamp: its temperature"),
+    ("lamp", "power_curve", (np.array([0.0, 1.0]), np.array([1.0, NAN])), "Lamp: its keyed power"),
+    ("camera", "matrix", np.full((4, 4), NAN), "Camera: its world transform"),
+    ("camera", "frame", np.full((4, 3), NAN), "Camera: its view frame"),
+    ("camera", "clip_end", NAN, "Camera: its clip end"),
+    ("material", "base_color", (NAN, 0.5, 0.5), "material Paint: its base color"),
+    ("material", "roughness", NAN, "material Paint: its roughness"),
+    ("material", "emission", (INF, 0.0, 0.0), "material Paint: its emission"),
+    ("material", "ior", NAN, "material Paint: its ior"),
+    ("world_texture", "strength", NAN, "world World: its strength"),
+])
+def test_a_non_finite_setting_is_an_error_naming_the_object_and_the_setting(part, field, value, named):
+    with pytest.raises(RenderError, match=f"^{named}.* is not a finite number"):
+        prepare(lit_ball(**{part: {field: value}}), SETTINGS)
+
+
+def test_a_non_finite_world_colour_is_an_error():
+    with pytest.raises(RenderError, match="world colour .* is not a finite number"):
+        prepare(lit_ball(world_color=(0.1, NAN, 0.1)), SETTINGS)
