@@ -29,3 +29,77 @@ def test_a_nan_setting_stops_the_render_naming_the_object_and_writes_nothing(sce
     with pytest.raises(RuntimeError, match=message):
         render_exr(scene, path)
     assert not path.exists()
+
+
+def _points(scene, name, xs, velocity):
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata([(x, 0.0, 0.0) for x in xs], [], [])
+    obj = bpy.data.objects.new(name, mesh)
+    obj.restframe.velocity = velocity
+    scene.collection.objects.link(obj)
+    return obj
+
+
+def _instance_on_points(obj, instanced):
+    """A geometry-nodes modifier putting ``instanced``'s geometry (Object Info, not as an instance of
+    the object) on every point of ``obj``."""
+    tree = bpy.data.node_groups.new("OnPoints", 'GeometryNodeTree')
+    tree.interface.new_socket("Geometry", in_out='INPUT', socket_type='NodeSocketGeometry')
+    tree.interface.new_socket("Geometry", in_out='OUTPUT', socket_type='NodeSocketGeometry')
+    into, out = tree.nodes.new("NodeGroupInput"), tree.nodes.new("NodeGroupOutput")
+    on_points, info = tree.nodes.new("GeometryNodeInstanceOnPoints"), tree.nodes.new("GeometryNodeObjectInfo")
+    info.inputs["Object"].default_value = instanced
+    tree.links.new(into.outputs[0], on_points.inputs["Points"])
+    tree.links.new(info.outputs["Geometry"], on_points.inputs["Instance"])
+    tree.links.new(on_points.outputs[0], out.inputs[0])
+    obj.modifiers.new("OnPoints", 'NODES').node_group = tree
+
+
+def test_geometry_nodes_instances_contract_with_their_instancer_as_one_body(scene, tmp_path):
+    """Squares put on the points of a mesh moving at 0.8 c by geometry nodes are one body with it:
+    seen as the same squares in one plain mesh at that velocity (contracted about the mesh's origin,
+    their spacing too), not each about its own point."""
+    scene.render.resolution_x, scene.render.resolution_y = 96, 24  # 0.09 units a pixel
+    add_camera(scene, location=(-9.0, 0.0, 12.0))  # above where the squares were when the light left them
+    add_sun(scene)
+    square = bpy.data.objects.new("Square", bpy.data.meshes.new("Square"))  # in no scene: only instanced
+    square.data.from_pydata([(-0.4, -0.4, 0), (0.4, -0.4, 0), (0.4, 0.4, 0), (-0.4, 0.4, 0)], [], [(0, 1, 2, 3)])
+    xs = (-2.0, 0.5, 2.5)
+    dots = _points(scene, "Dots", xs, (0.8, 0.0, 0.0))
+    dots.location = (0.5, 0.0, 0.0)
+    _instance_on_points(dots, square)
+    instanced = render_exr(scene, tmp_path / "instanced.exr")
+
+    bpy.data.objects.remove(dots)
+    plain = add_plane(scene, "Plain", size=0.8, location=(0.5, 0.0, 0.0), velocity=(0.8, 0.0, 0.0))
+    plain.data = bpy.data.meshes.new("Squares")
+    plain.data.from_pydata([(x + dx, dy, 0.0) for x in xs for dx, dy in ((-0.4, -0.4), (0.4, -0.4), (0.4, 0.4), (-0.4, 0.4))],
+                           [], [(4 * i, 4 * i + 1, 4 * i + 2, 4 * i + 3) for i in range(len(xs))])
+    placed = render_exr(scene, tmp_path / "plain.exr")
+    assert (placed["Doppler"] > 0).sum() > 50  # the squares are in view
+    for name in ("Doppler", "Emission Time", "Combined"):
+        np.testing.assert_allclose(instanced[name], placed[name], atol=1e-6, err_msg=name)
+
+
+def test_text_parented_to_a_moving_body_contracts_about_the_bodys_pivot(scene, tmp_path):
+    """A text label riding on a ship (the same velocity, parented) is part of the ship's assembly, as
+    a mesh child is: it renders as the same letters converted to a mesh in its place."""
+    scene.render.resolution_x, scene.render.resolution_y = 96, 24
+    add_camera(scene, location=(-7.0, 0.0, 12.0))  # above where the label was when the light left it
+    add_sun(scene)
+    ship = add_plane(scene, "Ship", size=0.5, location=(0.5, 0.0, 0.0), velocity=(0.8, 0.0, 0.0))
+    label = bpy.data.objects.new("Label", bpy.data.curves.new("Label", 'FONT'))
+    label.data.body = "RF"
+    scene.collection.objects.link(label)
+    label.parent, label.location, label.restframe.velocity = ship, (3.0, -0.3, 0.0), (0.8, 0.0, 0.0)
+    text = render_exr(scene, tmp_path / "text.exr")
+
+    letters = bpy.data.meshes.new_from_object(label.evaluated_get(bpy.context.evaluated_depsgraph_get()))
+    as_mesh = bpy.data.objects.new("Letters", letters)
+    scene.collection.objects.link(as_mesh)
+    as_mesh.parent, as_mesh.location, as_mesh.restframe.velocity = ship, (3.0, -0.3, 0.0), (0.8, 0.0, 0.0)
+    bpy.data.objects.remove(label)
+    mesh = render_exr(scene, tmp_path / "mesh.exr")
+    assert (mesh["Doppler"] > 0).sum() > 40  # ship and letters in view
+    for name in ("Doppler", "Emission Time", "Combined"):
+        np.testing.assert_allclose(text[name], mesh[name], atol=1e-6, err_msg=name)
