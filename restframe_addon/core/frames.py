@@ -406,6 +406,7 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
                     for light in scene.lights]
 
     inertial: dict[int, list] = {}
+    part_names: dict[int, list[str]] = {}  # the meshes of each frame's parts, for their warnings
     groups: list[SegmentGroup] = []
     special: dict[int, tuple] = {}  # id(trajectory) or mesh id -> (kind, meshes)
     for mesh in scene.meshes:
@@ -420,11 +421,14 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
             part = _mesh_part(mesh, frame.boost, warnings)
             if part is not None:
                 inertial.setdefault(frame.index, []).append(part)
+                part_names.setdefault(frame.index, []).append(mesh.name)
 
     for index, parts in inertial.items():
         if should_stop():
             break
         frames[index].geometry = build(parts)
+        if len(parts) > 1 and frames[index].geometry is not None:
+            warnings.extend(_rounding_warnings(part_names[index], parts, frames[index].geometry.anchor))
     for kind, meshes in special.values():
         if should_stop():
             break
@@ -436,6 +440,30 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
     if geometry_cache is not None and not should_stop():
         geometry_cache.finish_frame()
     return FrameSet(frames, world, camera, light_frames, warnings, groups)
+
+
+# how much of an object's size its float32 vertices may be rounded by, relative to its frame's
+# anchor, before the render warns (1e-3: a pixel of an object 1000 pixels across)
+_ROUNDING_WARNING = 1e-3
+
+
+def _rounding_warnings(names: list[str], parts: list[dict], anchor) -> list[str]:
+    """A warning naming the meshes that float32 coordinates round badly in their shared frame's
+    embree scene (one anchor for every body of one velocity): small objects far from the others
+    (a 2-unit ball 1e5 units from another object has its depth off by 1 %; 1e7 away it falls apart)."""
+    rounded, worst = [], 0.0
+    for name, part in zip(names, parts):
+        x, y, z = (part["vertices"][:, axis] for axis in range(3))  # by column: numpy is slow along a length-3 axis
+        lo, hi = np.array([x.min(), y.min(), z.min()]), np.array([x.max(), y.max(), z.max()])
+        rounding = float(np.max(np.maximum(np.abs(lo - anchor), np.abs(hi - anchor)))) * 2.0**-24  # half an ulp
+        if rounding > _ROUNDING_WARNING * float(np.max(hi - lo)):
+            rounded.append(name)
+            worst = max(worst, rounding)
+    if not rounded:
+        return []
+    return [f"{', '.join(rounded)}: too far from the other objects with the same velocity for float32 geometry "
+            f"(rounded by up to {worst:.2g} scene units): move far objects nearer and scale them down "
+            "(they look the same from a camera at rest), or scale the scene down"]
 
 
 def _add_clusters(geometries: list[Geometry], should_stop) -> None:

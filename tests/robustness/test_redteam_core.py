@@ -9,8 +9,8 @@ import pytest
 
 from restframe_addon.core.prepared import prepare
 from restframe_addon.core.render import RenderError
-from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, WorldTexture
-from shapes import look_at_camera, uv_sphere
+from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity, WorldTexture
+from shapes import look_at_camera, quad, uv_sphere
 
 NAN, INF = float("nan"), float("inf")
 
@@ -60,3 +60,25 @@ def test_a_non_finite_setting_is_an_error_naming_the_object_and_the_setting(part
 def test_a_non_finite_world_colour_is_an_error():
     with pytest.raises(RenderError, match="world colour .* is not a finite number"):
         prepare(lit_ball(world_color=(0.1, NAN, 0.1)), SETTINGS)
+
+
+def _ball_and_far_card(distance, card_velocity=(0.0, 0.0, 0.0)):
+    v, t = uv_sphere((0, 0, 0), 1.0, 8, 4)
+    meshes = [Mesh("Ball", v, t)]
+    if distance:
+        meshes.append(Mesh("Card", *quad((distance, 0, 0), (1.0, 1.0)), velocity=Velocity(card_velocity),
+                           pivot=(distance, 0.0, 0.0)))
+    return Scene(camera=look_at_camera((0, -6, 0), (0, 0, 0)), meshes=meshes)
+
+
+@pytest.mark.parametrize("distance", [1e5, 1e8])
+def test_objects_too_far_apart_for_float32_geometry_are_named(distance):
+    """Bodies of one velocity share one float32 embree scene about the middle of their bounds: a
+    ball with a card 1e5 units away is rounded by 1.5e-3 of its size (1e8 away it falls apart)."""
+    warnings = prepare(_ball_and_far_card(distance), SETTINGS).warnings
+    assert len(warnings) == 1 and warnings[0].startswith("Ball, Card: too far from the other objects")
+
+
+@pytest.mark.parametrize("distance, card_velocity", [(0, (0, 0, 0)), (1e4, (0, 0, 0)), (1e8, (0.5, 0, 0))])
+def test_objects_near_enough_or_in_frames_of_their_own_are_not_warned_about(distance, card_velocity):
+    assert prepare(_ball_and_far_card(distance, card_velocity), SETTINGS).warnings == ()
