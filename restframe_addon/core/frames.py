@@ -427,8 +427,8 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
         if should_stop():
             break
         frames[index].geometry = build(parts)
-        if len(parts) > 1 and frames[index].geometry is not None:
-            warnings.extend(_rounding_warnings(part_names[index], parts, frames[index].geometry.anchor))
+        if frames[index].geometry is not None:
+            warnings.extend(_precision_warnings(part_names[index], parts, frames[index].geometry))
     for kind, meshes in special.values():
         if should_stop():
             break
@@ -447,10 +447,20 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
 _ROUNDING_WARNING = 1e-3
 
 
-def _rounding_warnings(names: list[str], parts: list[dict], anchor) -> list[str]:
-    """A warning naming the meshes that float32 coordinates round badly in their shared frame's
-    embree scene (one anchor for every body of one velocity): small objects far from the others
-    (a 2-unit ball 1e5 units from another object has its depth off by 1 %; 1e7 away it falls apart)."""
+_EMBREE_REACH = 2.0**41  # local coordinates embree still hits (raw embreex misses triangles at 2**42)
+
+
+def _precision_warnings(names: list[str], parts: list[dict], geometry: Geometry) -> list[str]:
+    """A warning naming the meshes of one frame that embree cannot trace as they are: beyond its
+    reach, or rounded badly by float32 coordinates about the frame's one anchor (small objects far
+    from the others with the same velocity: a 2-unit ball 1e5 units from another object has its
+    depth off by 1 %; 1e7 away it falls apart)."""
+    if geometry.extent / 2 >= _EMBREE_REACH:
+        return [f"{', '.join(names)}: {geometry.extent:.3g} scene units across, more than Embree can trace "
+                f"({2 * _EMBREE_REACH:.2g}): triangles will be missing; scale the scene down"]
+    if len(parts) < 2:
+        return []
+    anchor = geometry.anchor
     rounded, worst = [], 0.0
     for name, part in zip(names, parts):
         x, y, z = (part["vertices"][:, axis] for axis in range(3))  # by column: numpy is slow along a length-3 axis

@@ -82,3 +82,11 @@ def test_objects_too_far_apart_for_float32_geometry_are_named(distance):
 @pytest.mark.parametrize("distance, card_velocity", [(0, (0, 0, 0)), (1e4, (0, 0, 0)), (1e8, (0.5, 0, 0))])
 def test_objects_near_enough_or_in_frames_of_their_own_are_not_warned_about(distance, card_velocity):
     assert prepare(_ball_and_far_card(distance, card_velocity), SETTINGS).warnings == ()
+
+
+def test_an_object_beyond_embrees_reach_is_named():
+    """Embree misses triangles whose coordinates reach 2^42 (4.4e12) units: a floor 1e13 across."""
+    floor = Mesh("Floor", *quad((0, 0, -1e12), (1e13, 1e13)))
+    scene = Scene(camera=look_at_camera((0, -6e12, 1e12), (0, 0, 0)), meshes=[floor])
+    warnings = prepare(scene, SETTINGS).warnings
+    assert len(warnings) == 1 and warnings[0].startswith("Floor: 1e+13 scene units across, more than Embree can trace")
