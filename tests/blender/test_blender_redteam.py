@@ -7,7 +7,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_helpers import add_camera, add_plane, add_sun, principled, render_exr
+from blender_helpers import add_camera, add_plane, add_sun, export_now, principled, render_exr
 
 
 @pytest.mark.parametrize("spoil, message", [
@@ -103,3 +103,29 @@ def test_text_parented_to_a_moving_body_contracts_about_the_bodys_pivot(scene, t
     assert (mesh["Doppler"] > 0).sum() > 40  # ship and letters in view
     for name in ("Doppler", "Emission Time", "Combined"):
         np.testing.assert_allclose(text[name], mesh[name], atol=1e-6, err_msg=name)
+
+
+@pytest.mark.parametrize("name, value", [("Subsurface Weight", 0.5), ("Sheen Weight", 1.0), ("Anisotropic", 0.7),
+                                         ("Specular Tint", (1.0, 0.2, 0.2, 1.0)), ("Thin Film Thickness", 300.0)])
+def test_principled_inputs_not_modelled_are_warned_about_once(scene, name, value):
+    add_camera(scene)
+    plane = add_plane(scene)
+    add_plane(scene, "Twin", location=(3.0, 0.0, 0.0)).data.materials.append(bpy.data.materials.new("Unused"))
+    paint = principled("Velvet", **{name.replace(" ", "_"): value})
+    plane.data.materials.append(paint)
+    add_plane(scene, "Other", location=(-3.0, 0.0, 0.0)).data.materials.append(paint)
+    _, _, warnings = export_now(scene)
+    assert warnings == [f"Material 'Velvet': Principled {name} not supported yet, rendered without"]
+
+
+def test_a_linked_input_not_modelled_is_warned_about_and_the_defaults_are_not(scene):
+    add_camera(scene)
+    plain = principled("Plain")
+    linked = principled("Linked")
+    noise = linked.node_tree.nodes.new("ShaderNodeTexNoise")
+    linked.node_tree.links.new(noise.outputs["Fac"], linked.node_tree.nodes["Principled BSDF"].inputs["Sheen Weight"])
+    add_plane(scene, "A").data.materials.append(plain)
+    add_plane(scene, "B", location=(3.0, 0.0, 0.0)).data.materials.append(linked)
+    _, _, warnings = export_now(scene)
+    assert warnings == ["Material 'Linked': Principled Sheen Weight not supported yet, rendered without"]
+
