@@ -10,6 +10,7 @@ from ..core.scene import Light, Velocity, WorldTexture
 from ..motion_query import fcurves
 from .images import ImageMissing, image_texture
 from .materials import output_node, upstream
+from .meshes import without_scale
 from .motion import MAX_SAMPLES, SUBFRAMES
 
 
@@ -40,8 +41,12 @@ def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Calla
     """The lamp as the core sees it; with ``scene``, its keyed strength and colour as curves on
     its own clock, and ``trajectory`` its world line (Motion = Animation)."""
     data = obj.data
-    rotation = matrix[:3, :3] / np.linalg.norm(matrix[:3, :3], axis=0)
+    unit, scale = without_scale(matrix)
+    rotation = unit[:3, :3]
     tint, strength = node_emission(data, obj.name, warn)
+    flattened = bool(np.all(np.isfinite(scale)) and np.any(scale == 0.0))
+    if flattened:  # as Cycles: a point lamp shines on (its axes do not matter), any other goes dark
+        rotation = np.eye(3)
     light = Light(
         name=obj.name,
         kind=data.type,
@@ -59,6 +64,9 @@ def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Calla
     )
     if scene is not None:
         light.power_curve, light.color_curve = keyed_output(data, scene, tint, strength)
+    if flattened and data.type != 'POINT':
+        warn(f"Light '{obj.name}': scaled to zero along an axis, it gives no light")
+        light.power, light.power_curve = 0.0, None
     if data.type in {'POINT', 'SPOT'}:
         light.radius = float(data.shadow_soft_size)
     if data.type == 'SPOT':
@@ -66,7 +74,6 @@ def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Calla
     elif data.type == 'SUN':
         light.sun_angle = float(data.angle)
     elif data.type == 'AREA':
-        scale = np.linalg.norm(matrix[:3, :3], axis=0)
         light.area_shape = data.shape
         size_y = data.size_y if data.shape in {'RECTANGLE', 'ELLIPSE'} else data.size
         light.area_size = (float(data.size * scale[0]), float(size_y * scale[1]))

@@ -129,3 +129,26 @@ def test_a_linked_input_not_modelled_is_warned_about_and_the_defaults_are_not(sc
     _, _, warnings = export_now(scene)
     assert warnings == ["Material 'Linked': Principled Sheen Weight not supported yet, rendered without"]
 
+
+
+@pytest.mark.parametrize("kind", ['POINT', 'SPOT', 'AREA', 'SUN'])
+def test_a_lamp_scaled_to_zero_renders_as_in_cycles(scene, tmp_path, kind):
+    """A zero scale (a common way to switch a lamp off): a point lamp shines on as before (its
+    axes do not matter, as in Cycles); the others give no light, as a spot or area lamp in Cycles,
+    and say so, instead of a NaN direction."""
+    add_camera(scene)
+    add_plane(scene)
+    lamp = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", kind))
+    lamp.data.energy = 3.0 if kind == 'SUN' else 100.0
+    lamp.location = (0.0, 0.0, 3.0)
+    scene.collection.objects.link(lamp)
+    lit = render_exr(scene, tmp_path / "lit.exr")["Combined"]
+    lamp.scale = (1.0, 1.0, 0.0)
+    _, _, warnings = export_now(scene)
+    flat = render_exr(scene, tmp_path / "flat.exr")["Combined"]
+    assert lit[..., :3].mean() > 0.01
+    if kind == 'POINT':
+        assert warnings == [] and np.array_equal(flat, lit)
+    else:
+        assert warnings == ["Light 'Lamp': scaled to zero along an axis, it gives no light"]
+        assert flat[..., :3].max() == 0.0
