@@ -152,3 +152,23 @@ def test_a_lamp_scaled_to_zero_renders_as_in_cycles(scene, tmp_path, kind):
     else:
         assert warnings == ["Light 'Lamp': scaled to zero along an axis, it gives no light"]
         assert flat[..., :3].max() == 0.0
+
+
+@pytest.mark.parametrize("kind, spoil, message", [
+    ('SUN', lambda lamp: setattr(lamp.data, "use_shadow", False), "Cast Shadow off is not supported yet"),
+    ('POINT', lambda lamp: setattr(lamp, "visible_diffuse", False), "Ray Visibility Diffuse off is not supported"),
+    ('SPOT', lambda lamp: (setattr(lamp, "visible_glossy", False), setattr(lamp, "visible_transmission", False)),
+     "Ray Visibility Glossy, Transmission off is not supported"),
+    ('AREA', lambda lamp: setattr(lamp.data, "spread", math.radians(60)), "a Spread below 180 degrees is not supported"),
+])
+def test_lamp_settings_the_render_leaves_out_are_warned_about(scene, kind, spoil, message):
+    """Cycles honours these (a sun with Diffuse off lights a diffuse floor 0.018 where it lit it 0.19);
+    the renderer does not yet, and says so."""
+    add_camera(scene)
+    add_plane(scene)
+    lamp = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", kind))
+    scene.collection.objects.link(lamp)
+    assert export_now(scene)[2] == []
+    spoil(lamp)
+    warnings = export_now(scene)[2]
+    assert len(warnings) == 1 and warnings[0].startswith(f"Light 'Lamp': {message}")
