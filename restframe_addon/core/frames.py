@@ -747,8 +747,8 @@ def _add_segments(frames, meshes, scene: Scene, settings: MotionSettings, warnin
     if geometry.radius > trajectory.body_radius:  # built for a smaller body: round the corners for this one
         trajectory = replace(trajectory, body_radius=geometry.radius, warnings=[])
     warnings.extend(trajectory.warnings)
-    segments = motion.segment_world_line(trajectory, trajectory.tau[0], trajectory.tau[-1], settings.tolerance)
     name = meshes[0].name
+    segments = motion.segment_world_line(trajectory, trajectory.tau[0], trajectory.tau[-1], settings.tolerance, name)
     mids = np.array([seg.mid for seg in segments])
     proper = trajectory.proper_time(mids)
     first = len(frames)

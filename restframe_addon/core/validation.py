@@ -82,6 +82,12 @@ def non_finite_motion(name: str) -> str:
     return f"{name}: the animated location is not a finite number"
 
 
+def too_many_segments(name: str, tolerance: float, limit: int) -> str:
+    """The message for an animated body whose world line the motion tolerance would split too finely."""
+    return (f"{name}: following its motion within the Motion Tolerance of {tolerance:g} scene units needs more "
+            f"than {limit} inertial segments: raise the tolerance (Render Properties > Relativity)")
+
+
 def check_finite_motion(values, name: str) -> None:
     """Raises ValueError (naming the object) unless an animated world line's samples are all finite."""
     if not np.all(np.isfinite(values)):
@@ -213,6 +219,8 @@ def check_render(scene, settings, known_passes) -> None:
     for name in _BOUNCE_LIMITS:
         if int(getattr(settings, name)) < 0:
             raise RenderError(f"the light-path limit {name} must be 0 or more (got {getattr(settings, name)})")
+    if not (math.isfinite(settings.motion_tolerance) and settings.motion_tolerance > 0.0):
+        raise RenderError(f"the motion tolerance must be a positive number of scene units (got {settings.motion_tolerance:g})")
     for name in _CLAMPS:
         value = float(getattr(settings, name))
         if not (math.isfinite(value) and value >= 0.0):

@@ -90,3 +90,30 @@ def test_an_object_beyond_embrees_reach_is_named():
     scene = Scene(camera=look_at_camera((0, -6e12, 1e12), (0, 0, 0)), meshes=[floor])
     warnings = prepare(scene, SETTINGS).warnings
     assert len(warnings) == 1 and warnings[0].startswith("Floor: 1e+13 scene units across, more than Embree can trace")
+
+
+def _accelerating_ball():
+    """A ball speeding up from rest to 0.5 c along x, sampled at 11 times (c*t units)."""
+    from restframe_addon.core.motion import Trajectory
+    tau = np.linspace(-20.0, 0.0, 11)
+    x = 0.5 * 0.5 * (tau + 20.0) ** 2 / 20.0 - 5.0  # x' = 0.5 (tau + 20) / 20: from 0 to 0.5
+    trajectory = Trajectory(tau, np.column_stack([x, np.zeros_like(x), np.zeros_like(x)]), name="Probe")
+    v, t = uv_sphere((0, 0, 0), 0.5, 8, 4)
+    return Scene(camera=look_at_camera((0, -8, 0), (-5, 0, 0)), meshes=[Mesh("Probe", v, t, trajectory=trajectory)])
+
+
+@pytest.mark.parametrize("tolerance", [NAN, INF, 0.0, -1e-3])
+def test_a_motion_tolerance_that_is_not_a_positive_number_is_refused(tolerance):
+    """NaN split the world line until Python's recursion depth, for hours, without a word."""
+    with pytest.raises(RenderError, match=r"^the motion tolerance must be a positive number"):
+        prepare(_accelerating_ball(), RenderSettings(resolution=(5, 4), threads=1, motion_tolerance=tolerance))
+
+
+def test_a_motion_tolerance_far_too_small_is_an_error_naming_the_body():
+    """1e-9 (the Blender property's floor: what typing 0 gives) would cut this gentle motion into
+    millions of inertial segments; it stops at 8 per sample of the world line, naming the body."""
+    scene = _accelerating_ball()
+    assert len(prepare(scene, RenderSettings(resolution=(5, 4), threads=1, motion_tolerance=1e-3)).frames.frames) > 3
+    with pytest.raises(RenderError, match=r"^Probe: following its motion within the Motion Tolerance of 1e-09 "
+                                          r"scene units needs more than 1000 inertial segments"):
+        prepare(scene, RenderSettings(resolution=(5, 4), threads=1, motion_tolerance=1e-9))
