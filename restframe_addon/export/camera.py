@@ -98,6 +98,9 @@ def _world_line(camera_object, scene, position, warn):
     return point_trajectory(root, scene, position, position, camera_object.name, warn=warn)
 
 
+_OBJECT_KINDS = {"FONT": "text", "GPENCIL": "grease pencil", "GREASEPENCIL": "grease pencil"}  # as the UI says
+
+
 def export_camera(camera_object, scene, warn=print) -> Camera:
     """Blender's camera as the core sees it; ``view_frame`` gives the exact image plane.
 
@@ -108,7 +111,9 @@ def export_camera(camera_object, scene, warn=print) -> Camera:
     if camera_object is None:
         raise ExportError("the scene has no camera: add one and set it as the scene camera")
     if camera_object.type != 'CAMERA':
-        raise ExportError(f"{camera_object.name}: the scene camera is a {camera_object.type.lower()} object, not a camera")
+        kind = _OBJECT_KINDS.get(camera_object.type, camera_object.type.lower().replace("_", " "))
+        article = "an" if kind[0] in "aeiou" else "a"
+        raise ExportError(f"{camera_object.name}: the scene camera is {article} {kind} object, not a camera")
     cam = camera_object.data
     matrix, _ = without_scale(camera_object.matrix_world)  # a zero scale: NaN, refused by the core's check
     render = scene.render

@@ -172,3 +172,14 @@ def test_lamp_settings_the_render_leaves_out_are_warned_about(scene, kind, spoil
     spoil(lamp)
     warnings = export_now(scene)[2]
     assert len(warnings) == 1 and warnings[0].startswith(f"Light 'Lamp': {message}")
+
+
+@pytest.mark.parametrize("data, message", [(None, "Rig: the scene camera is an empty object, not a camera"),
+                                           ("FONT", "Rig: the scene camera is a text object, not a camera")])
+def test_a_scene_camera_that_is_not_a_camera_is_named_in_plain_words(scene, data, message):
+    rig = bpy.data.objects.new("Rig", None if data is None else bpy.data.curves.new("Rig", data))
+    scene.collection.objects.link(rig)
+    scene.camera = rig
+    add_plane(scene)
+    with pytest.raises(RuntimeError, match=message):
+        render_exr(scene, "/nonexistent/never_written.exr")
