@@ -89,6 +89,9 @@ def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Calla
     if flattened and data.type != 'POINT':
         warn(f"Light '{obj.name}': scaled to zero along an axis, it gives no light")
         light.power, light.power_curve = 0.0, None
+    elif data.type == 'AREA' and not (data.size > 0.0 and (data.shape not in {'RECTANGLE', 'ELLIPSE'} or data.size_y > 0.0)):
+        warn(f"Light '{obj.name}': an area lamp of size 0 gives no light (as in Cycles)")
+        light.power, light.power_curve = 0.0, None
     if data.type in {'POINT', 'SPOT'}:
         light.radius = float(data.shadow_soft_size)
     if data.type == 'SPOT':

@@ -183,3 +183,21 @@ def test_a_scene_camera_that_is_not_a_camera_is_named_in_plain_words(scene, data
     add_plane(scene)
     with pytest.raises(RuntimeError, match=message):
         render_exr(scene, "/nonexistent/never_written.exr")
+
+
+@pytest.mark.parametrize("shape, size, size_y", [('SQUARE', 0.0, 1.0), ('DISK', 0.0, 1.0), ('RECTANGLE', 1.0, 0.0),
+                                                 ('ELLIPSE', 0.0, 2.0)])
+def test_an_area_lamp_of_size_zero_gives_no_light_as_in_cycles(scene, tmp_path, shape, size, size_y):
+    """Cycles' area lamp of no area lights nothing (a 21x15 render of a plane under it: 0.0, where
+    size 1 gives 0.23); it lit the plane as a point lamp here, without a word."""
+    add_camera(scene)
+    add_plane(scene)
+    lamp = bpy.data.objects.new("Panel", bpy.data.lights.new("Panel", 'AREA'))
+    lamp.data.energy, lamp.data.shape, lamp.data.size, lamp.data.size_y = 100.0, shape, size, size_y
+    lamp.location = (0.0, 0.0, 3.0)
+    scene.collection.objects.link(lamp)
+    assert export_now(scene)[2] == ["Light 'Panel': an area lamp of size 0 gives no light (as in Cycles)"]
+    assert render_exr(scene, tmp_path / "dark.exr")["Combined"][..., :3].max() == 0.0
+    lamp.data.size = lamp.data.size_y = 1.0
+    assert export_now(scene)[2] == []
+    assert render_exr(scene, tmp_path / "lit.exr")["Combined"][..., :3].mean() > 0.01
