@@ -39,7 +39,8 @@ from . import validation
 from .validation import check_finite_motion
 
 _MAX_DEPTH = 40
-SEGMENTS_PER_SAMPLE = 8  # at most, per animation sample (a gentle motion needs about one at 1e-3)
+SEGMENTS_PER_SAMPLE = 64  # at most, per animation sample (a gentle motion needs about one at 1e-3,
+MIN_SEGMENT_LIMIT = 20000  # a random 41-sample one of a large body 46; 1e-9 millions), and never fewer
 
 
 @dataclass
@@ -258,7 +259,7 @@ def segment_world_line(trajectory: Trajectory, start: float, end: float, toleran
     the world line (a tolerance far below what the samples carry, such as the property's floor of
     1e-9, would split a gentle motion into millions of segments, for hours)."""
     out: list[Segment] = []
-    limit = max(SEGMENTS_PER_SAMPLE * len(trajectory.tau), 1000)
+    limit = max(SEGMENTS_PER_SAMPLE * len(trajectory.tau), MIN_SEGMENT_LIMIT)
 
     def split(a, b, depth):
         x_mid, b_mid, error = segment_error(trajectory, a, b, trajectory.body_radius)

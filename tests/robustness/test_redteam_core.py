@@ -109,9 +109,12 @@ def test_a_motion_tolerance_that_is_not_a_positive_number_is_refused(tolerance):
         prepare(_accelerating_ball(), RenderSettings(resolution=(5, 4), threads=1, motion_tolerance=tolerance))
 
 
-def test_a_motion_tolerance_far_too_small_is_an_error_naming_the_body():
+def test_a_motion_tolerance_far_too_small_is_an_error_naming_the_body(monkeypatch):
     """1e-9 (the Blender property's floor: what typing 0 gives) would cut this gentle motion into
-    millions of inertial segments; it stops at 8 per sample of the world line, naming the body."""
+    millions of inertial segments; it stops at 64 per sample of the world line (at least 20000; here
+    1000, to be quick), naming the body."""
+    from restframe_addon.core import motion
+    monkeypatch.setattr(motion, "MIN_SEGMENT_LIMIT", 1000)
     scene = _accelerating_ball()
     assert len(prepare(scene, RenderSettings(resolution=(5, 4), threads=1, motion_tolerance=1e-3)).frames.frames) > 3
     with pytest.raises(RenderError, match=r"^Probe: following its motion within the Motion Tolerance of 1e-09 "
