@@ -299,7 +299,7 @@ class FrameSet:
         self.surface_offsets.flags.writeable = False
         self._inverse = tuple(f.boost.inverse() for f in frames)  # into S from each frame
         self._rigid = np.array([frames[k].spin is None for k in self.geometry], dtype=bool)  # (not spinning)
-        self._rigid.flags.writeable = False  # shared by every render thread, as the other arrays
+        self._rigid.flags.writeable = False
         self._world_lines, self._rest_half = self._body_world_lines()
 
     def candidates(self, src: int, tau0, x0) -> list[int]:
@@ -699,9 +699,9 @@ def _clusters_of(meshes: list[tuple], should_stop=lambda: False, depth: int = 4)
         count, size = rows.shape
         c = np.take(centroids, rows, axis=1, out=stretch(at, at + rows.size).reshape(3, count, size), mode="clip")
         axis = np.argmax(c.max(axis=2) - c.min(axis=2), axis=0)
-        order = np.argpartition(c[axis, np.arange(count)], size // 2, axis=1)  # row by row, as for each alone
-        lower, upper = (np.take_along_axis(rows, part, axis=1) for part in (order[:, :size // 2], order[:, size // 2:]))
-        return [half for pair in zip(lower, upper) for half in pair]
+        along = c[axis, np.arange(count)] if count > 1 else c[int(axis[0])]
+        order = np.argpartition(along, size // 2, axis=1)  # row by row, as for each alone
+        return [half for group, row in zip(rows, order) for half in (group[row[:size // 2]], group[row[size // 2:]])]
 
     def split(groups: list[np.ndarray]) -> list[np.ndarray]:
         """Every group of ``_SMALLEST_SPLIT`` triangles or more split in two, in place."""
