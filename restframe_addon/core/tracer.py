@@ -371,7 +371,9 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
     hits = None
     candidates = frames.candidates(src, tau0, x0)
     shared = _shared_origin(tau0, x0)
-    bundle = _bundle_cone(d) if shared is not None and len(candidates) > 1 and n else None
+    # rays from one event are culled by the frames' body boxes and bounding cones, a lone frame's
+    # too: a ray embree sends past the bounds still costs ~70 ns, several times the culling
+    bundle = _bundle_cone(d) if shared is not None and n else None
     if bundle is not None:
         bundle = (*bundle, _sub_bundle_cones(d))
         cones = dict(zip(candidates, _frame_cones(frames, src, candidates, shared, cache)))
@@ -609,6 +611,17 @@ def _frame_cones(frames: FrameSet, src: int, ks, origin_event, cache: TraceCache
                        lambda missing: _cones(frames, src, [ks[i] for i in missing], origin_event))
 
 
+def _lone_sphere(geometry, offset) -> list[float]:
+    """(centre, radius) in frame coordinates of a sphere holding a geometry without culling
+    clusters: the smaller of the one about its local origin (a body's pivot) and the one
+    around its bounds."""
+    half = 0.5 * (geometry.hi - geometry.lo)
+    around_bounds = float(np.linalg.norm(half))
+    if geometry.radius <= around_bounds:
+        return [*offset, geometry.radius]
+    return [*(offset + geometry.lo + half), around_bounds]
+
+
 def _cones(frames: FrameSet, src: int, ks, origin_event) -> list:
     """Per frame k of ``ks``: (axes (m, 3), half-angles (m,)) in frame src of the cones that
     frame k's bounding spheres subtend at one event, or None when the event is inside one.
@@ -625,6 +638,8 @@ def _cones(frames: FrameSet, src: int, ks, origin_event) -> list:
         _, x_k = frames.map(src, k).events(np.array(origin_event[0]), origin_event[1])
         if frame.spin is not None:  # any pose: the sphere about the pivot
             frame_spheres = np.array([[*frame.offset, geometry.radius]])
+        elif geometry.clusters is None:  # a lone frame (no clusters built): one sphere holding it
+            frame_spheres = np.array([_lone_sphere(geometry, frame.offset)])
         else:
             frame_spheres = geometry.clusters + np.append(frame.offset, 0.0)
         spheres.append(frame_spheres)
