@@ -375,19 +375,24 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
     # too: a ray embree sends past the bounds still costs ~70 ns, several times the culling
     bundle = _bundle_cone(d) if shared is not None and n else None
     if bundle is not None:
-        bundle = (*bundle, _sub_bundle_cones(d))
+        runs = None  # the sub-bundles' cones, worked out for the first frame the whole bundle's cone does not settle
         cones = dict(zip(candidates, _frame_cones(frames, src, candidates, shared, cache)))
         extent = (float(np.max(np.abs(shared[1]))), abs(shared[0]))  # (for the rounding margin of the body boxes)
         path_range = float(np.min(s_lo)), float(np.max(best))  # every ray's, for the body boxes
     for k in candidates:
         frame = frames.frames[k]
         fmap = frames.map(src, k)
-        # culling by bounding cones pays off only when several frames share the rays; the runs
-        # that miss the frame's body box first (a few numbers per run), then the sphere cones
+        # the whole bundle against the frame's sphere cones first; then the runs that miss the
+        # frame's body box (a few numbers per run), then the sphere cones
         rays = None
         if bundle is not None and cones[k] is not None:
-            rays = _toward(cones[k], d, bundle, _runs_near_body(frames, src, k, cache, extent, shared, bundle[2][3:],
-                                                                path_range))
+            meeting = _cones_meeting(cones[k], *bundle)
+            if meeting is not None and len(meeting) == 0:  # the bundle misses the frame's every sphere
+                continue
+            if meeting is not None:
+                runs = _sub_bundle_cones(d) if runs is None else runs
+                rays = _toward(cones[k], d, (*bundle, runs), _runs_near_body(frames, src, k, cache, extent, shared,
+                                                                             runs[3:], path_range))
         if rays is not None and len(rays) == 0:
             continue
         d_rays, lo, hi = (d, s_lo, best) if rays is None else (rows.take(d, rays), s_lo[rays], best[rays])
@@ -503,10 +508,9 @@ def _toward(cones, d, bundle, near_runs=None):
         return None
     axes, spread = cones
     bundle_axis, bundle_angle, (run_axes, run_cos, run_sin, _, _) = bundle
-    apart = np.arccos(np.clip(axes @ bundle_axis, -1.0, 1.0))
-    if np.any(apart + bundle_angle <= spread):
+    meeting = _cones_meeting(cones, bundle_axis, bundle_angle)
+    if meeting is None:
         return None
-    meeting = np.flatnonzero(apart <= spread + bundle_angle)
     axes, spread = axes[meeting], spread[meeting]
     inside = np.zeros(len(d), dtype=bool)
     tested = np.arange(_RUN * len(run_axes), len(d))  # the rays past the last whole run: one by one
@@ -528,6 +532,16 @@ def _toward(cones, d, bundle, near_runs=None):
         # those rays against every cone at once: one (m, 3) x (3, r) product, reduced over the cones
         inside[tested] = (axes @ rows.take(d, tested).T >= np.cos(spread)[:, None]).any(axis=0)
     return np.flatnonzero(inside)
+
+
+def _cones_meeting(cones, bundle_axis, bundle_angle: float):
+    """Indices of the sphere ``cones`` (axes, half-angles) that a bundle's cone meets, or None
+    when one of them holds it whole."""
+    axes, spread = cones
+    apart = np.arccos(np.clip(axes @ bundle_axis, -1.0, 1.0))
+    if np.any(apart + bundle_angle <= spread):
+        return None
+    return np.flatnonzero(apart <= spread + bundle_angle)
 
 
 _RUN = 16  # rays per sub-bundle (consecutive rays: a run of pixels in a row of the tile)

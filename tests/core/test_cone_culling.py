@@ -9,7 +9,7 @@ from dataclasses import fields
 
 import numpy as np
 import pytest
-from shapes import box, look_at_camera
+from shapes import box, look_at_camera, uv_sphere
 
 from restframe_addon.core import tracer
 from restframe_addon.core.frames import build_frames
@@ -189,6 +189,34 @@ def test_camera_rays_that_miss_a_body_box_are_not_traced_in_its_frame(monkeypatc
     assert len(np.unique(culled.frame[hit])) == 3 and hit.mean() > 0.02  # every row seen
     for f in fields(culled):
         assert np.array_equal(getattr(culled, f.name)[hit], getattr(cones_only, f.name)[hit]), f.name
+
+
+def test_a_lone_frame_is_culled_too(monkeypatch):
+    """A lone moving body (no culling clusters: one sphere around it) still has the rays of a
+    camera bundle that miss its sphere's cone dropped before they are mapped into its frame and
+    queried, and a bundle whose cone misses it whole queries nothing; the very same hits."""
+    v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, 24, 12)
+    frame_set = build_frames(Scene(camera=look_at_camera(tuple(EYE), (0.0, 0.0, 0.0)),
+                                   meshes=[Mesh("ball", v, t, velocity=Velocity((0.5, 0.2, 0.0)))]))
+    assert len(frame_set.geometry) == 1 and frame_set.frames[frame_set.geometry[0]].geometry.clusters is None
+    d = camera_bundle()
+    n = len(d)
+    tau0, x0 = np.broadcast_to(0.0, (n,)), np.broadcast_to(EYE, (n, 3))
+    queried = []
+    query = tracer._query
+    monkeypatch.setattr(tracer, "_query", lambda frame, tau, origin, dk, *rest, **kw: queried.append(len(dk))
+                        or query(frame, tau, origin, dk, *rest, **kw))
+    culled = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
+    culled_rays, queried[:] = sum(queried), []
+    away = tracer.trace_nearest(frame_set, frame_set.world, tau0[:64], x0[:64], -d[:64], 1e-6, np.inf)
+    assert queried == [] and (away.frame < 0).all()
+    monkeypatch.setattr(tracer, "_frame_cones", lambda frames, src, ks, *args: [None] * len(ks))  # no culling
+    unculled = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
+    assert queried == [n] and culled_rays < 0.5 * n
+    hit = culled.frame >= 0
+    assert np.array_equal(hit, unculled.frame >= 0) and 0.02 < hit.mean() < 0.5
+    for f in fields(culled):
+        assert np.array_equal(getattr(culled, f.name)[hit], getattr(unculled, f.name)[hit]), f.name
 
 
 @pytest.mark.parametrize("ufunc", [np.minimum, np.maximum, np.add])
