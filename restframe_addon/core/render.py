@@ -27,7 +27,7 @@ from .passes import (ALL_PASSES, DENOISING_PASSES, EXTRA_PASSES, PASSES, pixel_p
                      ray_doppler)
 from .prepared import PreparedScene, prepare
 from .scene import RAY_CAMERA, RenderSettings, Scene, render_workers
-from .tracer import TraceCache
+from .tracer import TraceCache, no_hits
 from .validation import DOPPLER_MODES, RenderError  # noqa: F401 (public names of this module)
 
 _MAX_VALUES = 3 << 16  # ray colour values per batch: bounds memory whatever the tile size, samples and wavelengths
@@ -67,9 +67,13 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     xs, ys, pixel = prepared.pixel_grid(rect)
     n = len(pixel)
     shader = prepared.shader
-    centre = prepared.centre_rays(rect)
-    centre_hits = shader.trace(frames.camera, *centre, RAY_CAMERA, pixel, np.zeros_like(pixel), 0, cache,
-                               for_passes=True)
+    empty = prepared.misses_everything(rect, cache)  # then no ray of the tile is made or traced
+    if empty:
+        centre, centre_hits = prepared.missing_rays(n), no_hits(n)
+    else:
+        centre = prepared.centre_rays(rect)
+        centre_hits = shader.trace(frames.camera, *centre, RAY_CAMERA, pixel, np.zeros_like(pixel), 0, cache,
+                                   for_passes=True)
     passes = pixel_passes(frames, prepared.scene.light_speed, prepared.passes, centre, centre_hits,
                           shader.shading_normals if prepared.materials.normal_mapped else None)
     samples = max(int(settings.samples), 1)
@@ -91,7 +95,9 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
             rays = tuple(a[part] for a in centre)
             # already traced, unless cut-outs pass it by chance (the passes' trace used a threshold)
             hits = (shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache)
-                    if prepared.materials.cuts_out else centre_hits.take(part))
+                    if prepared.materials.cuts_out and not empty else centre_hits.take(part))
+        elif empty:
+            rays, hits = prepared.missing_rays(len(pix)), no_hits(len(pix))
         else:
             px, py = sampling.stratified_positions(xs[part], ys[part], pixel[part], first, count, samples)
             rays, observed = prepared.sample_rays(px, py, keys=(pix, smp, samples))

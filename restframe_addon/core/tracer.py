@@ -420,7 +420,7 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
                 best = np.minimum(best, s)
             continue
         if hits is None:
-            hits = _no_hits(n)
+            hits = no_hits(n)
             best = best.copy()
         if rays is None:
             _update(hits, best, nearer, k, s, t, w, prim, u, v, dk, tau_k)
@@ -428,7 +428,7 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
             keep = np.flatnonzero(nearer)
             _update(hits, best, rays[keep], k, s[keep], t[keep], None if w is None else w[keep],
                     prim[keep], u[keep], v[keep], rows.take(dk, keep), tau_k[keep])
-    return _no_hits(n) if hits is None else hits
+    return no_hits(n) if hits is None else hits
 
 
 def _per_ray(value, n: int) -> np.ndarray:
@@ -450,7 +450,8 @@ def frames_hit(hits: Hits) -> np.ndarray:
     return np.flatnonzero(np.bincount(frame + 1)[1:])
 
 
-def _no_hits(n: int) -> Hits:
+def no_hits(n: int) -> Hits:
+    """The hits of ``n`` rays that hit nothing."""
     return Hits(frame=np.full(n, -1, dtype=np.int32), s=np.full(n, np.inf), s_frame=np.full(n, np.inf),
                 w=np.ones(n), prim=np.full(n, -1, dtype=np.int32), u=np.zeros(n, dtype=np.float32),
                 v=np.zeros(n, dtype=np.float32), d_frame=np.zeros((n, 3)), tau_frame=np.zeros(n))
@@ -612,6 +613,23 @@ def _bundle_cone(d):
         return np.array([1.0, 0.0, 0.0]), np.pi
     axis /= length
     return axis, float(np.arccos(np.clip((d @ axis).min(), -1.0, 1.0)))
+
+
+def misses_everything(frames: FrameSet, src: int, origin_event, cone, cache: TraceCache | None = None) -> bool:
+    """Whether every backward ray from one event (tau, x) of frame src whose direction lies in
+    ``cone`` (axis, half-angle) misses every surface: the cone meets none of the frames' sphere
+    cones, so the tracer's own cull would drop each such ray (in a scene without animated
+    segments, whose candidate frames depend on the rays' events)."""
+    if frames.groups:
+        return False
+    ks = list(frames.geometry)
+    for cones in _frame_cones(frames, src, ks, origin_event, cache):
+        if cones is None:
+            return False
+        meeting = _cones_meeting(cones, *cone)
+        if meeting is None or len(meeting):
+            return False
+    return True
 
 
 def _frame_cones(frames: FrameSet, src: int, ks, origin_event, cache: TraceCache | None) -> list:
