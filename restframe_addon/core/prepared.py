@@ -109,7 +109,13 @@ class PreparedScene:
         x0, y0, x1, y1 = rect
         xs = np.tile(np.arange(x0, x1, dtype=np.int64), y1 - y0)
         ys = np.repeat(np.arange(y0, y1, dtype=np.int64), x1 - x0)
-        return xs, ys, ys * self.settings.resolution[0] + xs
+        return xs, ys, self.pixel_ids(rect)
+
+    def pixel_ids(self, rect):
+        """Flat image indices of a rectangle of pixels, in row-major order (row starts plus columns: one pass)."""
+        x0, y0, x1, y1 = rect
+        return np.add.outer(np.arange(y0, y1, dtype=np.int64) * self.settings.resolution[0],
+                            np.arange(x0, x1, dtype=np.int64)).ravel()
 
     # ------------------------------------------------------------------ rays
     @property
