@@ -395,6 +395,8 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
                                                                              runs[3:], path_range))
         if rays is not None and len(rays) == 0:
             continue
+        if rays is not None and len(rays) > _GATHER_SHARE * n:  # gathering the kept rays would cost more than
+            rays = None  # tracing the others (they miss: the same hits)
         d_rays, lo, hi = (d, s_lo, best) if rays is None else (rows.take(d, rays), s_lo[rays], best[rays])
         if shared is not None:
             tau_k, origin = fmap.events(np.array(shared[0]), shared[1])
@@ -545,6 +547,7 @@ def _cones_meeting(cones, bundle_axis, bundle_angle: float):
     return np.flatnonzero(apart <= spread + bundle_angle)
 
 
+_GATHER_SHARE = 0.5  # the share of a bundle's rays above which the culled ones are traced too (no gathers)
 _RUN = 16  # rays per sub-bundle (consecutive rays: a run of pixels in a row of the tile)
 _RUN_MARGIN = 1e-6  # radians: a run is dropped whole only this far clear of every cone (rounding)
 
