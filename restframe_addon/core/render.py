@@ -70,7 +70,7 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     shader = prepared.shader
     empty = prepared.misses_everything(rect, cache)  # then no ray of the tile is made or traced
     if empty:
-        centre, centre_hits = prepared.missing_rays(n), no_hits(n)
+        centre, centre_hits = prepared.missing_rays(n), no_hits(n, read_only=True)
     else:
         centre = prepared.centre_rays(rect)
         centre_hits = shader.trace(frames.camera, *centre, RAY_CAMERA, pixel, np.broadcast_to(np.int64(0), (n,)), 0,
@@ -101,7 +101,7 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
             hits = (shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache)
                     if prepared.materials.cuts_out and not empty else centre_hits.take(part))
         elif empty:
-            rays, hits = prepared.missing_rays(len(pix)), no_hits(len(pix))
+            rays, hits = prepared.missing_rays(len(pix)), no_hits(len(pix), read_only=True)
         else:
             if xs is None:
                 xs, ys, _ = prepared.pixel_grid(rect)

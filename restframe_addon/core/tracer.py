@@ -452,11 +452,17 @@ def frames_hit(hits: Hits) -> np.ndarray:
     return np.flatnonzero(np.bincount(frame + 1)[1:])
 
 
-def no_hits(n: int) -> Hits:
-    """The hits of ``n`` rays that hit nothing."""
+def no_hits(n: int, read_only: bool = False) -> Hits:
+    """The hits of ``n`` rays that hit nothing (``read_only``: broadcast views, for callers that only read them)."""
+    if read_only:
+        return Hits(*(np.broadcast_to(getattr(_NO_HIT, f.name), (n, *getattr(_NO_HIT, f.name).shape[1:]))
+                      for f in fields(Hits)))
     return Hits(frame=np.full(n, -1, dtype=np.int32), s=np.full(n, np.inf), s_frame=np.full(n, np.inf),
                 w=np.ones(n), prim=np.full(n, -1, dtype=np.int32), u=np.zeros(n, dtype=np.float32),
                 v=np.zeros(n, dtype=np.float32), d_frame=np.zeros((n, 3)), tau_frame=np.zeros(n))
+
+
+_NO_HIT = no_hits(1)  # one ray's, for read-only views
 
 
 def _update(hits: Hits, best, where, k, s, t, w, prim, u, v, d_frame, tau_frame):
