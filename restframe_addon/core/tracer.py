@@ -383,13 +383,17 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         frame = frames.frames[k]
         fmap = frames.map(src, k)
         # the whole bundle against the frame's sphere cones first; then the runs that miss the
-        # frame's body box (a few numbers per run), then the sphere cones
+        # frame's body box (a few numbers per run), then the sphere cones (a lone frame: its rays)
         rays = None
         if bundle is not None and cones[k] is not None:
             meeting = _cones_meeting(cones[k], *bundle)
             if meeting is not None and len(meeting) == 0:  # the bundle misses the frame's every sphere
                 continue
-            if meeting is not None:
+            if meeting is not None and frame.geometry.clusters is None:
+                # a lone frame's one sphere: each ray against its cone (its sub-bundles cost more than they save)
+                (axis,), (spread,) = cones[k]
+                rays = np.flatnonzero(d @ axis >= np.cos(spread))
+            elif meeting is not None:
                 runs = _sub_bundle_cones(d) if runs is None else runs
                 rays = _toward(cones[k], d, (*bundle, runs), _runs_near_body(frames, src, k, cache, extent, shared,
                                                                              runs[3:], path_range))
