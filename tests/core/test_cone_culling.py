@@ -168,17 +168,27 @@ def camera_bundle(width: int = 384, height: int = 64):
     return d / np.linalg.norm(d, axis=1)[:, None]
 
 
+def from_the_eye(d):
+    """(tau0, x0) of rays d from the eye at time 0, as a perspective camera's (broadcast views)."""
+    return np.broadcast_to(0.0, (len(d),)), np.broadcast_to(EYE, (len(d), 3))
+
+
+def queried_rays(monkeypatch) -> list:
+    """The number of rays of each frame query from now on (``tracer._query`` counted)."""
+    queried = []
+    query = tracer._query
+    monkeypatch.setattr(tracer, "_query", lambda frame, tau, origin, dk, *rest, **kw: queried.append(len(dk))
+                        or query(frame, tau, origin, dk, *rest, **kw))
+    return queried
+
+
 def test_camera_rays_that_miss_a_body_box_are_not_traced_in_its_frame(monkeypatch):
     """The runs of a camera bundle that pass no part of a frame's body box are dropped before the
     cone test and before being mapped into the frame: fewer rays queried, the very same hits."""
     frame_set = rows_of_bars()
     d = camera_bundle()
-    n = len(d)
-    tau0, x0 = np.broadcast_to(0.0, (n,)), np.broadcast_to(EYE, (n, 3))
-    queried = []
-    query = tracer._query
-    monkeypatch.setattr(tracer, "_query", lambda frame, tau, origin, dk, *rest, **kw: queried.append(len(dk))
-                        or query(frame, tau, origin, dk, *rest, **kw))
+    tau0, x0 = from_the_eye(d)
+    queried = queried_rays(monkeypatch)
     culled = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
     box_culled, queried[:] = sum(queried), []
     monkeypatch.setattr(tracer, "_runs_near_body", lambda *args: None)  # every run to the cone test
@@ -201,11 +211,8 @@ def test_a_lone_frame_is_culled_too(monkeypatch):
     assert len(frame_set.geometry) == 1 and frame_set.frames[frame_set.geometry[0]].geometry.clusters is None
     d = camera_bundle()
     n = len(d)
-    tau0, x0 = np.broadcast_to(0.0, (n,)), np.broadcast_to(EYE, (n, 3))
-    queried = []
-    query = tracer._query
-    monkeypatch.setattr(tracer, "_query", lambda frame, tau, origin, dk, *rest, **kw: queried.append(len(dk))
-                        or query(frame, tau, origin, dk, *rest, **kw))
+    tau0, x0 = from_the_eye(d)
+    queried = queried_rays(monkeypatch)
     culled = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
     culled_rays, queried[:] = sum(queried), []
     away = tracer.trace_nearest(frame_set, frame_set.world, tau0[:64], x0[:64], -d[:64], 1e-6, np.inf)
