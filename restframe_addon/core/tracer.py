@@ -373,7 +373,7 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
     shared = _shared_origin(tau0, x0)
     bundle = _bundle_cone(d) if shared is not None and len(candidates) > 1 and n else None
     if bundle is not None:
-        bundle = (*bundle, _sub_bundle_cones(d))
+        runs = None  # _sub_bundle_cones(d), worked out for the first frame whose cones meet the bundle's
         cones = dict(zip(candidates, _frame_cones(frames, src, candidates, shared, cache)))
         extent = (float(np.max(np.abs(shared[1]))), abs(shared[0]))  # (for the rounding margin of the body boxes)
         path_range = float(np.min(s_lo)), float(np.max(best))  # every ray's, for the body boxes
@@ -384,8 +384,13 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         # that miss the frame's body box first (a few numbers per run), then the sphere cones
         rays = None
         if bundle is not None and cones[k] is not None:
-            rays = _toward(cones[k], d, bundle, _runs_near_body(frames, src, k, cache, extent, shared, bundle[2][3:],
-                                                                path_range))
+            holds, meeting = _cones_meeting(cones[k], *bundle)
+            if not holds:
+                if len(meeting) == 0:  # no ray can meet the frame's spheres
+                    continue
+                runs = _sub_bundle_cones(d) if runs is None else runs
+                rays = _toward(cones[k], d, (*bundle, runs), _runs_near_body(frames, src, k, cache, extent, shared,
+                                                                             runs[3:], path_range))
         if rays is not None and len(rays) == 0:
             continue
         d_rays, lo, hi = (d, s_lo, best) if rays is None else (rows.take(d, rays), s_lo[rays], best[rays])
@@ -499,13 +504,11 @@ def _toward(cones, d, bundle, near_runs=None):
     """
     if cones is None:
         return None
-    axes, spread = cones
     bundle_axis, bundle_angle, (run_axes, run_cos, run_sin, _, _) = bundle
-    apart = np.arccos(np.clip(axes @ bundle_axis, -1.0, 1.0))
-    if np.any(apart + bundle_angle <= spread):
+    holds, meeting = _cones_meeting(cones, bundle_axis, bundle_angle)
+    if holds:
         return None
-    meeting = np.flatnonzero(apart <= spread + bundle_angle)
-    axes, spread = axes[meeting], spread[meeting]
+    axes, spread = cones[0][meeting], cones[1][meeting]
     inside = np.zeros(len(d), dtype=bool)
     tested = np.arange(_RUN * len(run_axes), len(d))  # the rays past the last whole run: one by one
     if len(run_axes):
@@ -528,6 +531,14 @@ def _toward(cones, d, bundle, near_runs=None):
     return np.flatnonzero(inside)
 
 
+def _cones_meeting(cones, bundle_axis, bundle_angle: float):
+    """(whether one of the sphere ``cones`` holds the bundle's cone whole, indices of the cones that
+    meet it): the bundle-wide step of :func:`_toward`."""
+    axes, spread = cones
+    apart = np.arccos(np.clip(axes @ bundle_axis, -1.0, 1.0))
+    return bool(np.any(apart + bundle_angle <= spread)), np.flatnonzero(apart <= spread + bundle_angle)
+
+
 _RUN = 16  # rays per sub-bundle (consecutive rays: a run of pixels in a row of the tile)
 _RUN_MARGIN = 1e-6  # radians: a run is dropped whole only this far clear of every cone (rounding)
 
@@ -535,32 +546,38 @@ _RUN_MARGIN = 1e-6  # radians: a run is dropped whole only this far clear of eve
 def _sub_bundle_cones(d):
     """(axes (b, 3), cosines and sines of the half-angles (b,), lowest and highest direction
     components (3, b)) of cones and boxes holding each run of ``_RUN`` consecutive directions d
-    (the rays past the last whole run are left out)."""
+    (the rays past the last whole run are left out).
+
+    A run's cone is drawn about its box's centre: a unit direction d in the box [lo, hi] is at
+    most ``g`` (the box corner farthest from the unit axis a, per component) away from a, so
+    ``d . a = 1 - |d - a|^2 / 2 >= 1 - |g|^2 / 2``, less a margin for rounding.  No pass over the
+    rays beyond the box's.
+    """
+    low, high = _per_run_bounds(d)
+    centre = (low + high) * 0.5
+    length = rows.norm(centre)
+    spread_out = length < 1e-9  # a box about the origin: no axis, the cone holds every direction
+    axes = centre / np.where(spread_out, 1.0, length)[:, None]
+    gap = np.maximum(np.abs(low - axes), np.abs(high - axes))
+    run_cos = 1.0 - 0.5 * rows.dot(gap, gap) - _RUN_COS_MARGIN
+    run_cos = np.where(spread_out, -1.0, np.clip(run_cos, -1.0, 1.0))
+    return axes, run_cos, np.sqrt(1.0 - run_cos * run_cos), low.T, high.T
+
+
+_RUN_COS_MARGIN = 1e-12  # rounding of unit directions (|d|^2 = 1 to a few ulp) and of the bound itself
+
+
+def _per_run_bounds(d):
+    """Lowest and highest components (b, 3) of each run of ``_RUN`` consecutive directions d
+    (the rays past the last whole run left out), by folding halves of each run's row of
+    3 _RUN numbers: numpy reduces a short axis one row at a time, several times slower."""
     count = len(d) // _RUN
-    # one axis at a time: numpy is slow along a length-3 last axis
-    columns = [d[:count * _RUN, axis] for axis in range(3)]
-    axes = np.stack([_per_run(np.add, column) for column in columns], axis=1)
-    length = np.linalg.norm(axes, axis=1)
-    spread_out = length < 1e-9 * _RUN  # directions that cancel: no axis, the cone holds every direction
-    axes /= np.where(spread_out, 1.0, length)[:, None]
-    cosines = columns[0].reshape(count, _RUN) * axes[:, :1]
-    cosines += columns[1].reshape(count, _RUN) * axes[:, 1:2]
-    cosines += columns[2].reshape(count, _RUN) * axes[:, 2:]
-    run_cos = np.where(spread_out, -1.0, np.clip(_per_run(np.minimum, cosines.ravel()), -1.0, 1.0))
-    low = np.stack([_per_run(np.minimum, column) for column in columns])
-    high = np.stack([_per_run(np.maximum, column) for column in columns])
-    return axes, run_cos, np.sqrt(1.0 - run_cos * run_cos), low, high
-
-
-def _per_run(ufunc, values):
-    """``ufunc`` (add, minimum, maximum) over each run of ``_RUN`` consecutive values, by folding
-    neighbours pairwise: numpy reduces the short last axis of a (b, _RUN) array one row at a
-    time, several times slower."""
-    width = 1
-    while width < _RUN:
-        values = ufunc(values[0::2], values[1::2])
-        width *= 2
-    return values
+    low = high = np.reshape(d[:count * _RUN], (count, 3 * _RUN))
+    width = 3 * _RUN
+    while width > 3:
+        width //= 2
+        low, high = np.minimum(low[:, :width], low[:, width:]), np.maximum(high[:, :width], high[:, width:])
+    return low, high
 
 
 def _runs_near_body(frames: FrameSet, src: int, k: int, cache, extent, shared, run_bounds, path_range) -> np.ndarray:

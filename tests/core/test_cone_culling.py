@@ -191,12 +191,33 @@ def test_camera_rays_that_miss_a_body_box_are_not_traced_in_its_frame(monkeypatc
         assert np.array_equal(getattr(culled, f.name)[hit], getattr(cones_only, f.name)[hit]), f.name
 
 
-@pytest.mark.parametrize("ufunc", [np.minimum, np.maximum, np.add])
-def test_per_run_reductions_are_those_of_each_run(ufunc):
-    values = np.random.default_rng(2).normal(size=(37 * tracer._RUN, 3))[:, 1]  # a strided column, as a ray's
-    expected = ufunc.reduce(values.reshape(-1, tracer._RUN), axis=1)
-    folded = tracer._per_run(ufunc, values)
-    if ufunc is np.add:  # (another order of the same sums)
-        np.testing.assert_allclose(folded, expected, rtol=1e-13, atol=1e-13)
-    else:
-        np.testing.assert_array_equal(folded, expected)
+def test_per_run_bounds_are_those_of_each_run():
+    d = np.random.default_rng(2).normal(size=(37 * tracer._RUN + 5, 3))  # and some rays past the last whole run
+    low, high = tracer._per_run_bounds(d)
+    runs = d[:37 * tracer._RUN].reshape(37, tracer._RUN, 3)
+    np.testing.assert_array_equal(low, runs.min(axis=1))
+    np.testing.assert_array_equal(high, runs.max(axis=1))
+
+
+def test_each_run_lies_in_its_cone():
+    """The cone of a run is drawn about its box: every direction of the run is within it, the
+    cone is hardly wider than the run's own spread about the axis, and runs of opposite
+    directions have a cone that holds every direction."""
+    frame_set = frames()
+    d = rays_on_cone_rims(frame_set, 6)
+    count = len(d) // tracer._RUN
+    axes, run_cos, run_sin, low, high = tracer._sub_bundle_cones(d)
+    np.testing.assert_allclose(np.linalg.norm(axes[run_cos > -1.0], axis=1), 1.0, rtol=1e-15)
+    np.testing.assert_allclose(run_sin, np.sqrt(1.0 - run_cos ** 2))
+    runs = d[:count * tracer._RUN].reshape(count, tracer._RUN, 3)
+    cosines = np.einsum("brj,bj->br", runs, axes)
+    assert (cosines.min(axis=1) >= run_cos).all()
+    narrow = cosines.min(axis=1) > 0.99  # runs within about 8 degrees
+    assert narrow.sum() > count // 2
+    spread, bound = np.arccos(cosines.min(axis=1)[narrow]), np.arccos(run_cos[narrow])
+    assert (bound <= 2.0 * spread + 1e-5).all()
+    np.testing.assert_array_equal(low.T, runs.min(axis=1))
+    half = np.random.default_rng(7).normal(size=(5, tracer._RUN // 2, 3))
+    opposite = np.concatenate([half, -half], axis=1).reshape(-1, 3)  # each run: directions and their opposites
+    opposite /= np.linalg.norm(opposite, axis=1)[:, None]
+    assert (tracer._sub_bundle_cones(opposite)[1] == -1.0).all()
