@@ -702,7 +702,7 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         if not fmap.is_identity:
             # before mapping them into the frame: only rays that pass the body's box can meet it
             if extent is None:
-                extent = (max(float(np.max(np.abs(x0[:, axis]))) for axis in range(3)), float(np.max(np.abs(tau0))))
+                extent = (_largest_magnitude(x0), _largest_magnitude(tau0))
             near = _near_body(frames, src, k, cache, extent, *_rows_of(rays, tau0, x0, d, s_lo, s_hi))
             if not near.all():
                 rays = np.flatnonzero(near) if rays is None else rays[near]
@@ -731,6 +731,11 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
     return blocked
 
 
+def _largest_magnitude(values) -> float:
+    """The largest |value| of an array: two fast reductions over all of it, no array of magnitudes."""
+    return max(float(values.max()), -float(values.min()))
+
+
 def _rows_of(rays, tau0, x0, d, s_lo, s_hi):
     """(tau0, x0, d, s_lo, s_hi) of the rays with indices ``rays`` (None: all, as they are)."""
     if rays is None:
@@ -751,21 +756,27 @@ def _near_body(frames: FrameSet, src: int, k: int, cache, extent, tau0, x0, d, s
     if n == 0:
         return np.zeros(0, dtype=bool)
     t_box, x_box, velocity, widen = _body_box(frames, src, k, cache, extent)
-    since = tau0 - t_box
-    enter, leave = np.array(s_lo, dtype=np.float64), np.array(s_hi, dtype=np.float64)
-    offset, e, t_a, t_b, near = (np.empty(n) for _ in range(5))
+    since = None
+    enter, leave, offset, moving, t_a, t_b, near = (np.empty(n) for _ in range(7))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         for axis in range(3):
             v = float(velocity[axis])
-            np.multiply(since, v, out=offset)  # the box centre's displacement at the ray's start
-            offset += x_box[axis]
-            np.subtract(x0[:, axis], offset, out=offset)
-            np.add(d[:, axis], v, out=e)
+            if v == 0.0:  # (x + 0 * since = x; d + 0 turns -0 into +0, which decides only rays that stay
+                # at a constant coordinate outside the slab: they miss the box either way)
+                np.subtract(x0[:, axis], x_box[axis], out=offset)
+                e = d[:, axis]
+            else:
+                since = tau0 - t_box if since is None else since
+                np.multiply(since, v, out=offset)  # the box centre's displacement at the ray's start
+                offset += x_box[axis]
+                np.subtract(x0[:, axis], offset, out=offset)
+                e = moving
+                np.add(d[:, axis], v, out=e)
             np.divide(np.subtract(-widen[axis], offset, out=t_a), e, out=t_a)
             np.divide(np.subtract(widen[axis], offset, out=t_b), e, out=t_b)
             # fmin/fmax ignore the NaN of 0 / 0 (a ray along a slab face)
-            np.fmax(enter, np.fmin(t_a, t_b, out=near), out=enter)
-            np.fmin(leave, np.fmax(t_a, t_b, out=near), out=leave)
+            np.fmax(s_lo if axis == 0 else enter, np.fmin(t_a, t_b, out=near), out=enter)
+            np.fmin(s_hi if axis == 0 else leave, np.fmax(t_a, t_b, out=near), out=leave)
     return enter <= leave
 
 
@@ -805,7 +816,7 @@ def _bundle_reach(tau0, x0, d, s_lo, s_hi) -> Reach | None:
     if len(d) == 0:
         return None
     bounded = bool(np.all(np.isfinite(s_hi)))
-    if not bounded and not np.all(d == d[0]):
+    if not bounded and not (np.array_equal(d[-1], d[0]) and np.all(d == d[0])):  # (the ends first: no pass)
         return None
     lo, hi = np.empty(3), np.empty(3)
     ends = np.empty(len(d))
