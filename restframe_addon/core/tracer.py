@@ -899,19 +899,27 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
         p0, p1, p2, ng = (hit_rows[:, 3 * i:3 * i + 3] for i in range(4))
     else:
         p0, p1, p2, ng = _triangle_rows(geometry, prim)
-    # p0 + u e1 + v e2, summed into p0's own array column by column (float32 u, v widen exactly)
-    position, term = p0, np.empty(len(p0))
+    # p0 + u e1 + v e2 one axis at a time in a contiguous column, written once into its column of
+    # the positions (the gathered rows are 96 bytes apart: each strided pass reads all of them);
+    # float32 u, v widened once (exactly).  A body that does not spin is moved to frame coordinates
+    # (RestFrame.to_frame: + offset) in the same column.
+    u = np.asarray(u, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    n, spins = len(p0), frame.spin is not None
+    position, column, term = np.empty((n, 3)), np.empty(n), np.empty(n)
     for axis in range(3):
-        position[:, axis] += np.multiply(u, p1[:, axis], out=term)
-        position[:, axis] += np.multiply(v, p2[:, axis], out=term)
+        np.multiply(u, p1[:, axis], out=column)
+        column += p0[:, axis]
+        column += np.multiply(v, p2[:, axis], out=term)
+        if not spins:
+            column += frame.offset[axis]
+        position[:, axis] = column
     if geometry.corner_normals is None:
         ns = ng
     else:
         cn = rows.take(geometry.corner_normals, prim)
-        u = np.asarray(u, dtype=np.float64)
-        v = np.asarray(v, dtype=np.float64)
         ns = rows.normalized(rows.add_scaled(rows.add_scaled(rows.scale(cn[:, 0], 1.0 - u - v), u, cn[:, 1]), v, cn[:, 2]))
-    position, ng = frame.to_frame(position, ng, tau)
-    if frame.spin is not None:
+    if spins:
+        position, ng = frame.to_frame(position, ng, tau)
         _, ns = frame.to_frame(position, ns, tau)
     return position, ng, ns
