@@ -561,7 +561,8 @@ def _sub_bundle_cones(d):
     gap = np.maximum(np.abs(low - axes), np.abs(high - axes))
     run_cos = 1.0 - 0.5 * rows.dot(gap, gap) - _RUN_COS_MARGIN
     run_cos = np.where(spread_out, -1.0, np.clip(run_cos, -1.0, 1.0))
-    return axes, run_cos, np.sqrt(1.0 - run_cos * run_cos), low.T, high.T
+    # the bounds as (3, b) rows: _runs_near_body reduces over their first axis, slow on a transposed view
+    return axes, run_cos, np.sqrt(1.0 - run_cos * run_cos), np.ascontiguousarray(low.T), np.ascontiguousarray(high.T)
 
 
 _RUN_COS_MARGIN = 1e-12  # rounding of unit directions (|d|^2 = 1 to a few ulp) and of the bound itself
