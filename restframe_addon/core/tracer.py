@@ -553,31 +553,31 @@ def _sub_bundle_cones(d):
     ``d . a = 1 - |d - a|^2 / 2 >= 1 - |g|^2 / 2``, less a margin for rounding.  No pass over the
     rays beyond the box's.
     """
-    low, high = _per_run_bounds(d)
+    low, high = _per_run_bounds(d)  # (3, b): one row per axis, all runs at once
     centre = (low + high) * 0.5
-    length = rows.norm(centre)
+    length = np.sqrt(centre[0] * centre[0] + centre[1] * centre[1] + centre[2] * centre[2])
     spread_out = length < 1e-9  # a box about the origin: no axis, the cone holds every direction
-    axes = centre / np.where(spread_out, 1.0, length)[:, None]
+    axes = centre / np.where(spread_out, 1.0, length)
     gap = np.maximum(np.abs(low - axes), np.abs(high - axes))
-    run_cos = 1.0 - 0.5 * rows.dot(gap, gap) - _RUN_COS_MARGIN
+    run_cos = 1.0 - 0.5 * (gap[0] * gap[0] + gap[1] * gap[1] + gap[2] * gap[2]) - _RUN_COS_MARGIN
     run_cos = np.where(spread_out, -1.0, np.clip(run_cos, -1.0, 1.0))
-    # the bounds as (3, b) rows: _runs_near_body reduces over their first axis, slow on a transposed view
-    return axes, run_cos, np.sqrt(1.0 - run_cos * run_cos), np.ascontiguousarray(low.T), np.ascontiguousarray(high.T)
+    return np.ascontiguousarray(axes.T), run_cos, np.sqrt(1.0 - run_cos * run_cos), low, high
 
 
 _RUN_COS_MARGIN = 1e-12  # rounding of unit directions (|d|^2 = 1 to a few ulp) and of the bound itself
 
 
 def _per_run_bounds(d):
-    """Lowest and highest components (b, 3) of each run of ``_RUN`` consecutive directions d
-    (the rays past the last whole run left out), by folding halves of each run's row of
-    3 _RUN numbers: numpy reduces a short axis one row at a time, several times slower."""
+    """Lowest and highest components (3, b) of each run of ``_RUN`` consecutive directions d (the
+    rays past the last whole run left out): the runs' 3 _RUN numbers as columns of one transposed
+    copy, folded in halves along its rows (long contiguous rows; numpy reduces a short axis one
+    row at a time, several times slower)."""
     count = len(d) // _RUN
-    low = high = np.reshape(d[:count * _RUN], (count, 3 * _RUN))
+    low = high = np.ascontiguousarray(np.reshape(d[:count * _RUN], (count, 3 * _RUN)).T)
     width = 3 * _RUN
     while width > 3:
         width //= 2
-        low, high = np.minimum(low[:, :width], low[:, width:]), np.maximum(high[:, :width], high[:, width:])
+        low, high = np.minimum(low[:width], low[width:]), np.maximum(high[:width], high[width:])
     return low, high
 
 

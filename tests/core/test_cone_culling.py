@@ -195,8 +195,8 @@ def test_per_run_bounds_are_those_of_each_run():
     d = np.random.default_rng(2).normal(size=(37 * tracer._RUN + 5, 3))  # and some rays past the last whole run
     low, high = tracer._per_run_bounds(d)
     runs = d[:37 * tracer._RUN].reshape(37, tracer._RUN, 3)
-    np.testing.assert_array_equal(low, runs.min(axis=1))
-    np.testing.assert_array_equal(high, runs.max(axis=1))
+    np.testing.assert_array_equal(low, runs.min(axis=1).T)
+    np.testing.assert_array_equal(high, runs.max(axis=1).T)
 
 
 def test_each_run_lies_in_its_cone():
@@ -216,7 +216,7 @@ def test_each_run_lies_in_its_cone():
     assert narrow.sum() > count // 2
     spread, bound = np.arccos(cosines.min(axis=1)[narrow]), np.arccos(run_cos[narrow])
     assert (bound <= 2.0 * spread + 1e-5).all()
-    np.testing.assert_array_equal(low.T, runs.min(axis=1))
+    np.testing.assert_array_equal(low, runs.min(axis=1).T)
     half = np.random.default_rng(7).normal(size=(5, tracer._RUN // 2, 3))
     opposite = np.concatenate([half, -half], axis=1).reshape(-1, 3)  # each run: directions and their opposites
     opposite /= np.linalg.norm(opposite, axis=1)[:, None]
