@@ -374,10 +374,12 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
     shared = _shared_origin(tau0, x0)
     bundle = _bundle_cone(d) if shared is not None and len(candidates) > 1 and n else None
     if bundle is not None:
-        runs = None  # _sub_bundle_cones(d), worked out for the first frame whose cones meet the bundle's
+        # _sub_bundle_cones(d) and every ray's (lowest s_lo, highest s_hi), for the body boxes: worked
+        # out for the first frame whose cones meet the bundle's
+        runs = path_range = None
         cones = dict(zip(candidates, _frame_cones(frames, src, candidates, shared, cache)))
         extent = (float(np.max(np.abs(shared[1]))), abs(shared[0]))  # (for the rounding margin of the body boxes)
-        path_range = float(np.min(s_lo)), float(np.max(best))  # every ray's, for the body boxes
+        s_hi = best
     for k in candidates:
         frame = frames.frames[k]
         fmap = frames.map(src, k)
@@ -389,7 +391,8 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
             if not holds:
                 if len(meeting) == 0:  # no ray can meet the frame's spheres
                     continue
-                runs = _sub_bundle_cones(d) if runs is None else runs
+                if runs is None:
+                    runs, path_range = _sub_bundle_cones(d), (float(np.min(s_lo)), float(np.max(s_hi)))
                 rays = _toward(cones[k], d, (*bundle, runs), _runs_near_body(frames, src, k, cache, extent, shared,
                                                                              runs[3:], path_range))
         if rays is not None and len(rays) == 0:
@@ -411,8 +414,9 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         nearer = s < (best if rays is None else best[rays])  # ties keep the earlier frame
         if hits is None and rays is None:  # the first frame to see every ray: its hits as they are
             last = k == candidates[-1]  # later frames write into the arrays: they must be our own
-            hits = Hits(frame=np.where(nearer, np.int32(k), np.int32(-1)), s=np.where(nearer, s, np.inf),
-                        s_frame=np.where(nearer, t, np.inf), w=np.ones(n) if w is None else w,
+            s = np.where(nearer, s, np.inf)
+            hits = Hits(frame=np.where(nearer, np.int32(k), np.int32(-1)), s=s,
+                        s_frame=s.copy() if w is None else np.where(nearer, t, np.inf), w=np.ones(n) if w is None else w,
                         prim=np.where(nearer, prim, np.int32(-1)), u=u, v=v,
                         d_frame=dk if last else np.array(dk), tau_frame=tau_k if last else np.array(tau_k))
             if not last:  # (the later frames' bound)
