@@ -416,18 +416,22 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         s = t if w is None else t / w
         nearer = s < (best if rays is None else best[rays])  # ties keep the earlier frame
         if hits is None and rays is None:  # the first frame to see every ray: its hits as they are
-            last = k == candidates[-1]  # later frames write into the arrays: they must be our own
             s = np.where(nearer, s, np.inf)
+            # s_frame, w, d_frame and tau_frame shared (s, a broadcast 1, the rays' own arrays) until a
+            # later frame writes into them
             hits = Hits(frame=np.where(nearer, np.int32(k), np.int32(-1)), s=s,
-                        s_frame=s.copy() if w is None else np.where(nearer, t, np.inf), w=np.ones(n) if w is None else w,
-                        prim=np.where(nearer, prim, np.int32(-1)), u=u, v=v,
-                        d_frame=dk if last else np.array(dk), tau_frame=tau_k if last else np.array(tau_k))
-            if not last:  # (the later frames' bound)
+                        s_frame=s if w is None else np.where(nearer, t, np.inf),
+                        w=np.broadcast_to(1.0, (n,)) if w is None else w, prim=np.where(nearer, prim, np.int32(-1)),
+                        u=u, v=v, d_frame=dk, tau_frame=tau_k)
+            borrowed = True
+            if k != candidates[-1]:  # (the later frames' bound)
                 best = np.minimum(best, s)
             continue
         if hits is None:
-            hits = _no_hits(n)
+            hits, borrowed = _no_hits(n), False
             best = best.copy()
+        if borrowed and (rays is None or nearer.any()):
+            hits, borrowed = _owned(hits), False
         if rays is None:
             _update(hits, best, nearer, k, s, t, w, prim, u, v, dk, tau_k)
         elif nearer.any():
@@ -435,6 +439,12 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
             _update(hits, best, rays[keep], k, s[keep], t[keep], None if w is None else w[keep],
                     prim[keep], u[keep], v[keep], rows.take(dk, keep), tau_k[keep])
     return _no_hits(n) if hits is None else hits
+
+
+def _owned(hits: Hits) -> Hits:
+    """The first frame's hits (:func:`_nearest`) with arrays of their own to write into."""
+    return Hits(hits.frame, hits.s, np.array(hits.s_frame), np.array(hits.w), hits.prim, hits.u, hits.v,
+                np.array(hits.d_frame), np.array(hits.tau_frame))
 
 
 def _per_ray(value, n: int) -> np.ndarray:
