@@ -321,3 +321,24 @@ def test_each_run_lies_in_its_cone():
     opposite = np.concatenate([half, -half], axis=1).reshape(-1, 3)  # each run: directions and their opposites
     opposite /= np.linalg.norm(opposite, axis=1)[:, None]
     assert (tracer._sub_bundle_cones(tracer._run_bounds(opposite))[1] == -1.0).all()
+
+
+def test_a_trace_writes_nothing_into_the_rays_arrays():
+    """The first frame's hits share the rays' own arrays (directions, start times) until a later
+    frame's nearer hits are written: those go into the tracer's own copies, never the caller's."""
+    wall = Mesh("wall", *box((0.0, 8.0, 0.0), (10.0, 0.5, 6.0)))  # at rest in the rays' frame, behind the bar
+    v, t = box((0.0, 2.0, 0.5), (1.0, 1.0, 2.0))
+    frame_set = build_frames(Scene(camera=look_at_camera(tuple(EYE), (0.0, 0.0, 0.0)),
+                                   meshes=[wall, Mesh("bar", v, t, velocity=Velocity((0.6, 0.0, 0.0)),
+                                                      pivot=(0.0, 2.0, 0.5))]))
+    d = camera_bundle(96, 32)
+    n = len(d)
+    tau0, x0 = np.zeros(n), np.tile(EYE, (n, 1))  # the rays' own arrays (not one shared event)
+    given = tau0.copy(), x0.copy(), d.copy()
+    hits = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
+    assert all(np.array_equal(a, b) for a, b in zip((tau0, x0, d), given))
+    ks, counts = np.unique(hits.frame[hits.frame >= 0], return_counts=True)
+    assert frame_set.world in ks and len(ks) == 2 and counts.min() > 20  # the wall and, in front of it, the bar
+    on_wall = hits.frame == frame_set.world
+    np.testing.assert_array_equal(hits.d_frame[on_wall], d[on_wall])
+    assert not np.allclose(hits.d_frame[(hits.frame >= 0) & ~on_wall], d[(hits.frame >= 0) & ~on_wall])
