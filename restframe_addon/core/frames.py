@@ -299,6 +299,7 @@ class FrameSet:
         self.surface_offsets.flags.writeable = False
         self._inverse = tuple(f.boost.inverse() for f in frames)  # into S from each frame
         self._rigid = np.array([frames[k].spin is None for k in self.geometry], dtype=bool)  # (not spinning)
+        self._rigid.flags.writeable = False
         self._world_lines, self._rest_half = self._body_world_lines()
 
     def candidates(self, src: int, tau0, x0) -> list[int]:
