@@ -298,6 +298,7 @@ class FrameSet:
         self.surface_offsets[list(self.geometry)] = [frames[k].surface_offset for k in self.geometry]
         self.surface_offsets.flags.writeable = False
         self._inverse = tuple(f.boost.inverse() for f in frames)  # into S from each frame
+        self._rigid = np.array([frames[k].spin is None for k in self.geometry], dtype=bool)  # (not spinning)
         self._world_lines, self._rest_half = self._body_world_lines()
 
     def candidates(self, src: int, tau0, x0) -> list[int]:
@@ -316,17 +317,13 @@ class FrameSet:
     def _body_world_lines(self):
         """Two events (t, x) of each geometry frame's body centre in S, (len(self.geometry), 2, 4),
         and the half-extents of its box in its rest frame (a spinning body: the cube around its sphere)."""
-        lines, half = [], []
-        for k in self.geometry:
+        lines, half = np.empty((len(self.geometry), 2, 4)), np.empty((len(self.geometry), 3))
+        for line, rest_half, k in zip(lines, half, self.geometry):
             frame = self.frames[k]
             spinning = frame.spin is not None
             centre = frame.offset if spinning else frame.geometry.anchor + frame.offset
-            to_world = self.map(k, self.world)
-            lines.append([np.concatenate([np.atleast_1d(t), x]) for t, x in
-                          (to_world.events(np.array(0.0), centre), to_world.events(np.array(1.0), centre))])
-            half.append(np.full(3, frame.geometry.radius) if spinning else 0.5 * (frame.geometry.hi - frame.geometry.lo))
-        lines = np.array(lines).reshape(len(self.geometry), 2, 4)
-        half = np.array(half).reshape(len(self.geometry), 3)
+            line[:, 0], line[:, 1:] = self.map(k, self.world).events(np.array([0.0, 1.0]), np.array([centre, centre]))
+            rest_half[:] = frame.geometry.radius if spinning else 0.5 * (frame.geometry.hi - frame.geometry.lo)
         lines.flags.writeable = half.flags.writeable = False
         return lines, half
 
@@ -344,12 +341,13 @@ class FrameSet:
         t, x = self.map(self.world, src).events(lines[..., 0], lines[..., 1:])
         velocity = (x[:, 1] - x[:, 0]) / (t[:, 1] - t[:, 0])[:, None]
         half = self._rest_half.copy()
-        speed = np.linalg.norm(velocity, axis=1)
-        moving = (speed > 0.0) & np.array([self.frames[k].spin is None for k in self.geometry], dtype=bool)
+        speed = np.sqrt(np.einsum("ij,ij->i", velocity, velocity))
+        moving = (speed > 0.0) & self._rigid
         if moving.any():
-            n = velocity[moving] / speed[moving, None]
-            contracted = np.abs(np.eye(3) - n[:, :, None] * n[:, None, :])
-            half[moving] = np.einsum("kij,kj->ki", np.maximum(np.eye(3), contracted), half[moving])
+            # max(I, |I - n n^T|) has 1 on its diagonal (0 <= n_i^2 <= 1) and |n_i n_j| off it
+            along = np.abs(velocity[moving] / speed[moving, None])
+            weighted = along * half[moving]
+            half[moving] += along * (weighted.sum(axis=1, keepdims=True) - weighted)
         return t[:, 0], x[:, 0], velocity, half
 
     def map(self, a: int, b: int) -> FrameMap:
@@ -440,18 +438,30 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
 
 def _add_clusters(geometries: list[Geometry], should_stop) -> None:
     """Culling clusters for every geometry, where there are several: the tracer culls a ray
-    bundle by them only between frames (a lone mesh pays nothing).  Stops once
-    ``should_stop()`` is true."""
+    bundle by them only between frames (a lone mesh pays nothing).  Small meshes go together,
+    up to ``_CHUNK`` triangles at a time (one pass for all: many small frames, as many rows of
+    bars each moving at its own speed, paid a pass each).  Stops once ``should_stop()`` is true."""
     if len(geometries) < 2:
         return
+    batches: list[list[Geometry]] = [[]]
     for geometry in {id(g): g for g in geometries}.values():  # segments share one geometry
         if geometry.clusters is not None:  # reused from an earlier frame (persistent data): the same clusters
             continue
-        clusters = _clusters(geometry.vertices, geometry.triangles, should_stop)
+        if len(geometry.triangles) > _CHUNK:
+            batches.append([geometry])
+        elif sum(len(g.triangles) for g in batches[0]) + len(geometry.triangles) <= _CHUNK:
+            batches[0].append(geometry)
+        else:
+            batches.insert(0, [geometry])
+    for batch in batches:
+        if not batch:
+            continue
+        clusters = _clusters_of([(g.vertices, g.triangles) for g in batch], should_stop)
         if clusters is None:
             return
-        clusters.flags.writeable = False  # as Geometry's own arrays
-        geometry.clusters = clusters
+        for geometry, spheres in zip(batch, clusters):
+            spheres.flags.writeable = False  # as Geometry's own arrays
+            geometry.clusters = spheres
 
 
 def _mesh_part(mesh, boost: Boost, warnings: list[str], relative_to=None):
@@ -596,20 +606,34 @@ def _attach_piece(scene, vertices, triangles, claimed_by, shared=None) -> None:
 def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) -> np.ndarray | None:
     """Bounding spheres of up to 2**depth groups of triangles (median splits of their centroids
     along the longest axis): a tighter outline than one sphere, for culling whole ray bundles.
-    None once ``should_stop()`` is true (checked between steps).
+    None once ``should_stop()`` is true (checked between steps)."""
+    clusters = _clusters_of([(vertices, triangles)], should_stop, depth)
+    return None if clusters is None else clusters[0]
+
+
+def _clusters_of(meshes: list[tuple], should_stop=lambda: False, depth: int = 4) -> list[np.ndarray] | None:
+    """:func:`_clusters` of each mesh (vertices, triangles), all in one pass.
 
     Worked on (3, n) arrays, coordinate by triangle (numpy is slow along a length-3 last axis,
     and on a small mesh the calls cost more than their arithmetic): a group's box is the box of
-    its triangles' own boxes.  The triangles go in chunks, and the groups of each split and the
-    groups' lower and upper bounds side by side, to the build's threads (numpy lets go of the GIL
-    on long arrays); each gathers into its own stretch of one scratch array (fresh arrays this
-    size cost more in page faults than the arithmetic).  The triangles' indices are valid, so
-    ``take`` has nothing to clip.
+    its triangles' own boxes.  The groups of a split that have the same size are split at once
+    (one row each).  The triangles go in chunks, and (for a large mesh) the groups of each split
+    and the groups' lower and upper bounds side by side, to the build's threads (numpy lets go
+    of the GIL on long arrays); each gathers into its own stretch of one scratch array (fresh
+    arrays this size cost more in page faults than the arithmetic).  The triangles' indices are
+    valid, so ``take`` has nothing to clip.
     """
-    n = len(triangles)
+    counts = [len(triangles) for _, triangles in meshes]
+    first = np.cumsum([0] + counts)  # each mesh's first triangle
+    n = int(first[-1])
     scratch = np.empty((3, n))
-    corner_index = np.ascontiguousarray(triangles.T)
-    columns = np.ascontiguousarray(vertices.T)
+    if len(meshes) == 1:
+        corner_index = np.ascontiguousarray(meshes[0][1].T)
+        columns = np.ascontiguousarray(meshes[0][0].T)
+    else:  # every mesh's triangles and vertices in a row
+        offsets = np.cumsum([0] + [len(vertices) for vertices, _ in meshes[:-1]])
+        corner_index = np.concatenate([triangles.T + offset for (_, triangles), offset in zip(meshes, offsets)], axis=1)
+        columns = np.concatenate([vertices.T for vertices, _ in meshes], axis=1)
     centroids, tri_lo, tri_hi = np.empty((3, n)), np.empty((3, n)), np.empty((3, n))  # [axis, triangle]
 
     def stretch(start: int, stop: int) -> np.ndarray:
@@ -630,15 +654,29 @@ def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) ->
                 centroid += corner
         centroid /= 3.0
 
-    def halves(group: np.ndarray, at: int) -> list[np.ndarray]:
-        """The group split at its centroids' median along their longest axis (``at``: where
-        its stretch of the scratch array starts)."""
-        if len(group) < 64:
-            return [group]
-        c = np.take(centroids, group, axis=1, out=stretch(at, at + len(group)), mode="clip")
-        axis = int(np.argmax(c.max(axis=1) - c.min(axis=1)))
-        order = np.argpartition(c[axis], len(group) // 2)
-        return [group[order[: len(group) // 2]], group[order[len(group) // 2:]]]
+    def halves(rows: np.ndarray, at: int) -> list[np.ndarray]:
+        """Groups of one size, one a row, each split at its centroids' median along their longest
+        axis (``at``: where their stretch of the scratch array starts): the halves in order."""
+        count, size = rows.shape
+        c = np.take(centroids, rows, axis=1, out=stretch(at, at + rows.size).reshape(3, count, size), mode="clip")
+        axis = np.argmax(c.max(axis=2) - c.min(axis=2), axis=0)
+        order = np.argpartition(c[axis, np.arange(count)], size // 2, axis=1)  # row by row, as for each alone
+        lower, upper = (np.take_along_axis(rows, part, axis=1) for part in (order[:, :size // 2], order[:, size // 2:]))
+        return [half for pair in zip(lower, upper) for half in pair]
+
+    def split(groups: list[np.ndarray]) -> list[np.ndarray]:
+        """Every group of ``_SMALLEST_SPLIT`` triangles or more split in two, in place."""
+        together: dict[int, list[int]] = {}  # the groups to split by size (each alone on threads)
+        for i, group in enumerate(groups):
+            if len(group) >= _SMALLEST_SPLIT:
+                together.setdefault(i if threaded else len(group), []).append(i)
+        tasks = list(together.values())
+        rows = [groups[task[0]][None, :] if len(task) == 1 else np.array([groups[i] for i in task]) for task in tasks]
+        at = np.cumsum([0] + [part.size for part in rows[:-1]]).tolist()
+        halved = {}
+        for task, pieces in zip(tasks, _side_by_side(halves, list(zip(rows, at)), threaded)):
+            halved.update((i, pieces[2 * j:2 * j + 2]) for j, i in enumerate(task))
+        return [piece for i, group in enumerate(groups) for piece in halved.get(i, [group])]
 
     def boxes(reduce, bounds, out) -> np.ndarray:
         """Every group's ``reduce`` (min or max) of its triangles' ``bounds`` (3, n): their
@@ -649,11 +687,13 @@ def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) ->
         return None
     threaded = n > _CHUNK  # a small mesh's steps take less than handing them to a thread
     _side_by_side(triangle_bounds, [(start, min(start + _CHUNK, n)) for start in range(0, n, _CHUNK)])
-    groups = [np.arange(n)]
+    groups = [np.arange(a, b) for a, b in zip(first[:-1], first[1:])]
     for _ in range(depth):
         if should_stop():
             return None
-        groups = [half for split in _side_by_side(halves, _with_starts(groups), threaded) for half in split]
+        if all(len(group) < _SMALLEST_SPLIT for group in groups):  # none splits any more
+            break
+        groups = split(groups)
     if should_stop():
         return None
     in_groups = np.concatenate(groups)
@@ -661,15 +701,16 @@ def _clusters(vertices, triangles, should_stop=lambda: False, depth: int = 4) ->
     # (the centroids, split by now, are the second gather's scratch)
     lo, hi = (b.T for b in _side_by_side(boxes, [(np.minimum, tri_lo, scratch), (np.maximum, tri_hi, centroids)],
                                             threaded))
-    return np.array([[*(0.5 * (l + h)), 0.5 * float(np.linalg.norm(h - l))] for l, h in zip(lo, hi)])
+    spheres = np.empty((len(groups), 4))
+    spheres[:, :3] = 0.5 * (lo + hi)
+    # the radii as np.linalg.norm works each out (sqrt(x . x)), without its per-call checks
+    spheres[:, 3] = [0.5 * math.sqrt(float(span.dot(span))) for span in hi - lo]
+    owner = np.searchsorted(first[1:], [int(group[0]) for group in groups], side="right")  # each group's mesh
+    return np.split(spheres, np.cumsum(np.bincount(owner, minlength=len(meshes)))[:-1])
 
 
 _CHUNK = 2**16  # triangles per task of the culling clusters' first pass
-
-
-def _with_starts(groups: list[np.ndarray]) -> list[tuple[np.ndarray, int]]:
-    """Each group with where its stretch of a scratch array of their total length starts."""
-    return list(zip(groups, np.cumsum([0] + [len(group) for group in groups[:-1]]).tolist()))
+_SMALLEST_SPLIT = 64  # triangles: a culling cluster of fewer is not split
 
 
 _POOL: ThreadPoolExecutor | None = None  # the build's threads, one per core

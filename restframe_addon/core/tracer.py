@@ -371,23 +371,14 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
     hits = None
     candidates = frames.candidates(src, tau0, x0)
     shared = _shared_origin(tau0, x0)
-    bundle = _bundle_cone(d) if shared is not None and len(candidates) > 1 and n else None
-    if bundle is not None:
-        bundle = (*bundle, _sub_bundle_cones(d))
-        cones = dict(zip(candidates, _frame_cones(frames, src, candidates, shared, cache)))
-        extent = (float(np.max(np.abs(shared[1]))), abs(shared[0]))  # (for the rounding margin of the body boxes)
-        path_range = float(np.min(s_lo)), float(np.max(best))  # every ray's, for the body boxes
-    for k in candidates:
+    # culling pays off only when several frames share the rays
+    if shared is not None and len(candidates) > 1 and n:
+        candidates, culled = _cull_bundle(frames, src, candidates, shared, d, s_lo, best, cache)
+    else:
+        culled = [None] * len(candidates)
+    for k, rays in zip(candidates, culled):
         frame = frames.frames[k]
         fmap = frames.map(src, k)
-        # culling by bounding cones pays off only when several frames share the rays; the runs
-        # that miss the frame's body box first (a few numbers per run), then the sphere cones
-        rays = None
-        if bundle is not None and cones[k] is not None:
-            rays = _toward(cones[k], d, bundle, _runs_near_body(frames, src, k, cache, extent, shared, bundle[2][3:],
-                                                                path_range))
-        if rays is not None and len(rays) == 0:
-            continue
         d_rays, lo, hi = (d, s_lo, best) if rays is None else (rows.take(d, rays), s_lo[rays], best[rays])
         if shared is not None:
             tau_k, origin = fmap.events(np.array(shared[0]), shared[1])
@@ -485,14 +476,75 @@ def _shared_origin(tau0, x0):
 _CONE_SAMPLES = 16
 
 
-def _toward(cones, d, bundle, near_runs=None):
-    """Indices of rays from one event that point into one of a frame's sphere ``cones`` (see
-    :func:`_cones`; or a superset of those rays), or None when every ray may (the event is
-    inside a sphere, or the bundle's own cone lies inside one).  ``near_runs``: a mask of the
-    runs (see below) that may meet the frame at all (:func:`_runs_near_body`; None: every run).
+def _cull_bundle(frames: FrameSet, src: int, ks, shared, d, s_lo, s_hi, cache: TraceCache | None):
+    """(frames, their rays): the frames of ``ks`` that some ray from one ``shared`` event may hit
+    and, for each, the indices of the rays that may (a superset of them; None: every ray).
+
+    The runs of ``_RUN`` consecutive rays that miss a frame's body box are dropped first, every
+    frame at once (:func:`_runs_near_bodies`); a frame whose bounding spheres are tighter than its
+    box (:func:`_cones_pay`) then keeps only the rays of those runs that point into their cones
+    (:func:`_toward`).  A frame left with no ray is left out: nothing is mapped or queried for it.
+    """
+    n = len(d)
+    extent = (float(np.max(np.abs(shared[1]))), abs(shared[0]))  # (for the rounding margin of the body boxes)
+    path_range = float(np.min(s_lo)), float(np.max(s_hi))  # every ray's, for the body boxes
+    near = _runs_near_bodies(frames, src, ks, cache, extent, shared, _run_bounds(d), path_range)
+    coned = [k for k, pays in zip(ks, _cones_pay(frames, src, ks, cache)) if pays]
+    cones = dict(zip(coned, _frame_cones(frames, src, coned, shared, cache))) if coned else {}
+    bundle = None  # the cones of the whole bundle and of its runs, for the first frame with cones
+    kept, culled = [], []
+    for k, runs in zip(ks, near):
+        rays = None
+        if cones.get(k) is not None and len(runs):
+            if bundle is None:
+                bundle = (*_bundle_cone(d), _sub_bundle_cones(d))
+            rays = _toward(cones[k], d, bundle, runs)
+        if rays is None:  # (no cones, or the bundle lies in one)
+            rays = _rays_of_runs(runs, n)
+        if len(rays):
+            kept.append(k)
+            culled.append(None if len(rays) == n else rays)
+    return kept, culled
+
+
+def _rays_of_runs(runs, n: int) -> np.ndarray:
+    """Indices of the rays of ``runs`` (indices of runs of ``_RUN`` consecutive rays, in
+    increasing order) and of the rays past the last whole run, of ``n`` rays."""
+    whole = (runs[:, None] * _RUN + np.arange(_RUN)).ravel()
+    return np.append(whole, np.arange(_RUN * (n // _RUN), n)) if n % _RUN else whole
+
+
+def _cones_pay(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> list[bool]:
+    """Whether each frame of ``ks`` is worth culling by its sphere cones after its body box: when
+    its bounding spheres (a spinning body's about its pivot, else the culling clusters) hold it
+    more tightly than its box, by mean projected area (over all directions: pi r^2 for a sphere,
+    2 (ab + bc + ca) for a box of half-extents a, b, c).  Else they drop few of the rays the box
+    keeps, for a per-frame cost of many rays' maps and queries (a row of the 11x11 bars: spheres
+    4x the box)."""
+    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
+    pays = []
+    for k in ks:
+        frame = frames.frames[k]
+        a, b, c = boxes[3][frames.geometry_slot[k]].tolist()
+        if frame.spin is not None:
+            squares = frame.geometry.radius ** 2
+        elif frame.geometry.clusters is not None:
+            squares = float(np.sum(frame.geometry.clusters[:, 3] ** 2))
+        else:
+            pays.append(False)
+            continue
+        pays.append(math.pi * squares < 2.0 * (a * b + b * c + c * a))
+    return pays
+
+
+def _toward(cones, d, bundle, runs):
+    """Indices of the rays of ``runs`` (indices of runs of ``_RUN`` consecutive rays, see below)
+    and of the rays past the last whole run that point into one of a frame's sphere ``cones``
+    (see :func:`_cones`; or a superset of those rays), from one event; or None when every ray may
+    (the event is inside a sphere, or the bundle's own cone lies inside one).
 
     ``bundle`` = (axis, half-angle, sub-bundles) of a cone holding every ray and of cones holding
-    runs of rays (:func:`_sub_bundle_cones`): sphere cones that miss the bundle's are skipped and,
+    the runs (:func:`_sub_bundle_cones`): sphere cones that miss the bundle's are skipped and,
     where one holds it whole, no ray needs testing; then each run that lies in a sphere cone is
     taken whole and one that misses them all is dropped whole, before the rays of the other runs
     are tested one by one.
@@ -500,7 +552,7 @@ def _toward(cones, d, bundle, near_runs=None):
     if cones is None:
         return None
     axes, spread = cones
-    bundle_axis, bundle_angle, (run_axes, run_cos, run_sin, _, _) = bundle
+    bundle_axis, bundle_angle, (run_axes, run_cos, run_sin) = bundle
     apart = np.arccos(np.clip(axes @ bundle_axis, -1.0, 1.0))
     if np.any(apart + bundle_angle <= spread):
         return None
@@ -508,9 +560,8 @@ def _toward(cones, d, bundle, near_runs=None):
     axes, spread = axes[meeting], spread[meeting]
     inside = np.zeros(len(d), dtype=bool)
     tested = np.arange(_RUN * len(run_axes), len(d))  # the rays past the last whole run: one by one
-    if len(run_axes):
-        chosen = np.arange(len(run_axes)) if near_runs is None else np.flatnonzero(near_runs)
-        run_axes, run_cos, run_sin = run_axes[chosen], run_cos[chosen], run_sin[chosen]
+    if len(runs):
+        run_axes, run_cos, run_sin = run_axes[runs], run_cos[runs], run_sin[runs]
         # the cone of cones: each run against each sphere cone by the cosine of sums of angles
         # (m, b); a run is taken whole where it lies in a cone, dropped where it misses them all
         apart = axes @ run_axes.T
@@ -519,8 +570,8 @@ def _toward(cones, d, bundle, near_runs=None):
         clear = spread + _RUN_MARGIN
         missable = (clear < np.pi / 2)[:, None] & (run_cos > 0.0)  # the sum of the angles below pi
         meets = ~missable | (apart >= np.cos(clear)[:, None] * run_cos - np.sin(clear)[:, None] * run_sin - 1e-12)
-        partial = chosen[~whole & meets.any(axis=0)]
-        inside[:_RUN * (len(d) // _RUN)].reshape(-1, _RUN)[chosen[whole]] = True
+        partial = runs[~whole & meets.any(axis=0)]
+        inside[:_RUN * (len(d) // _RUN)].reshape(-1, _RUN)[runs[whole]] = True
         tested = np.append((partial[:, None] * _RUN + np.arange(_RUN)).ravel(), tested)
     if len(tested):
         # those rays against every cone at once: one (m, 3) x (3, r) product, reduced over the cones
@@ -533,9 +584,8 @@ _RUN_MARGIN = 1e-6  # radians: a run is dropped whole only this far clear of eve
 
 
 def _sub_bundle_cones(d):
-    """(axes (b, 3), cosines and sines of the half-angles (b,), lowest and highest direction
-    components (3, b)) of cones and boxes holding each run of ``_RUN`` consecutive directions d
-    (the rays past the last whole run are left out)."""
+    """(axes (b, 3), cosines and sines of the half-angles (b,)) of cones holding each run of
+    ``_RUN`` consecutive directions d (the rays past the last whole run are left out)."""
     count = len(d) // _RUN
     # one axis at a time: numpy is slow along a length-3 last axis
     columns = [d[:count * _RUN, axis] for axis in range(3)]
@@ -547,15 +597,21 @@ def _sub_bundle_cones(d):
     cosines += columns[1].reshape(count, _RUN) * axes[:, 1:2]
     cosines += columns[2].reshape(count, _RUN) * axes[:, 2:]
     run_cos = np.where(spread_out, -1.0, np.clip(_per_run(np.minimum, cosines.ravel()), -1.0, 1.0))
-    low = np.stack([_per_run(np.minimum, column) for column in columns])
-    high = np.stack([_per_run(np.maximum, column) for column in columns])
-    return axes, run_cos, np.sqrt(1.0 - run_cos * run_cos), low, high
+    return axes, run_cos, np.sqrt(1.0 - run_cos * run_cos)
+
+
+def _run_bounds(d):
+    """Lowest and highest direction components (3, b) of each run of ``_RUN`` consecutive
+    directions d (the rays past the last whole run are left out)."""
+    columns = [d[:len(d) // _RUN * _RUN, axis] for axis in range(3)]  # one axis at a time, as above
+    return (np.stack([_per_run(np.minimum, column) for column in columns]),
+            np.stack([_per_run(np.maximum, column) for column in columns]))
 
 
 def _per_run(ufunc, values):
-    """``ufunc`` (add, minimum, maximum) over each run of ``_RUN`` consecutive values, by folding
-    neighbours pairwise: numpy reduces the short last axis of a (b, _RUN) array one row at a
-    time, several times slower."""
+    """``ufunc`` (add, minimum, maximum) over each run of ``_RUN`` consecutive values (along the
+    first axis), by folding neighbours pairwise: numpy reduces the short last axis of a (b, _RUN)
+    array one row at a time, several times slower."""
     width = 1
     while width < _RUN:
         values = ufunc(values[0::2], values[1::2])
@@ -563,29 +619,56 @@ def _per_run(ufunc, values):
     return values
 
 
-def _runs_near_body(frames: FrameSet, src: int, k: int, cache, extent, shared, run_bounds, path_range) -> np.ndarray:
-    """Which runs of ``_RUN`` rays from one ``shared`` event may pass through frame k's body box
-    (a mask, or a superset of it): :func:`_near_body` (``extent`` as there) for a whole run at
-    once.  ``run_bounds`` = the runs' lowest and highest direction components
-    (:func:`_sub_bundle_cones`); ``path_range`` = (lowest s_lo, highest s_hi) of the rays.
+def _runs_near_bodies(frames: FrameSet, src: int, ks, cache, extent, shared, run_bounds, path_range) -> list:
+    """For each frame k of ``ks``: the indices (increasing) of the runs of ``_RUN`` rays from one
+    ``shared`` event that may pass through k's body box (or a superset of them):
+    :func:`_near_body` (``extent`` as there) for a whole run at once.  ``run_bounds`` = the runs'
+    lowest and highest direction components (3, b) (:func:`_run_bounds`); ``path_range`` =
+    (lowest s_lo, highest s_hi) of the rays.
 
     Along each axis a ray passes the box's slab for path lengths between (+-half - offset) / e,
     e = d + v; those are monotonic in e, so for every e between a run's lowest and highest
     components they lie between their values at the two ends (floating-point rounding is
-    monotonic too), unless e may be 0 there.  The run's range is the widest of its rays'.
+    monotonic too), unless e may be 0 there.  The run's range is the widest of its rays'.  By
+    the same argument a block of ``_RUN`` runs, bounded by its runs' bounds, misses the box
+    only if each of its runs does: the blocks are tested first, every frame at once, then the
+    runs of the blocks that pass (all pairs of frame and run at once: the calls are what costs).
     """
-    low, high = run_bounds  # (3, b): all axes at once, the calls are what costs
-    t_box, x_box, velocity, widen = _body_box(frames, src, k, cache, extent)
-    offset = (shared[1] - ((shared[0] - t_box) * velocity + x_box))[:, None]  # as _near_body works it out per ray
-    e_low, e_high = low + velocity[:, None], high + velocity[:, None]
-    before, after = -widen[:, None] - offset, widen[:, None] - offset
+    low, high = run_bounds
+    count = low.shape[1]
+    t_box, x_box, velocity, widen = _body_boxes(frames, src, ks, cache, extent)
+    offset = shared[1] - ((shared[0] - t_box)[:, None] * velocity + x_box)  # as _near_body works it out per ray
+    before, after = -widen - offset, widen - offset  # (frames, 3)
+    # the blocks' bounds: the runs' folded (the last block filled up with copies of the last run)
+    pad = -count % _RUN
+    block_low, block_high = (_per_run(ufunc, np.concatenate([bound, np.repeat(bound[:, -1:], pad, axis=1)], axis=1).T).T
+                             for ufunc, bound in ((np.minimum, low), (np.maximum, high)))
+    frame, block = np.nonzero(_slabs_pass(before[:, :, None], after[:, :, None], velocity[:, :, None], block_low,
+                                          block_high, path_range))
+    pair_frame = np.repeat(frame, _RUN)
+    pair_run = (block[:, None] * _RUN + np.arange(_RUN)).ravel()
+    if pad:
+        real = pair_run < count
+        pair_frame, pair_run = pair_frame[real], pair_run[real]
+    near = _slabs_pass(*(np.take(a.T, pair_frame, axis=1) for a in (before, after, velocity)),
+                       np.take(low, pair_run, axis=1), np.take(high, pair_run, axis=1), path_range)
+    pair_frame, pair_run = pair_frame[near], pair_run[near]
+    return np.split(pair_run, np.cumsum(np.bincount(pair_frame, minlength=len(ks)))[:-1])
+
+
+def _slabs_pass(before, after, velocity, low, high, path_range) -> np.ndarray:
+    """Whether runs of rays whose direction components lie between ``low`` and ``high`` (3, b)
+    may pass through boxes moving with ``velocity`` whose slabs lie between ``before`` and
+    ``after`` relative to the rays' event (broadcast against them; the axes second to last),
+    within ``path_range``: see :func:`_runs_near_bodies`."""
+    e_low, e_high = low + velocity, high + velocity
     with np.errstate(divide="ignore", invalid="ignore"):
         ends = before / e_low, after / e_low, before / e_high, after / e_high
     near = np.minimum(np.minimum(ends[0], ends[1]), np.minimum(ends[2], ends[3]))
     far = np.maximum(np.maximum(ends[0], ends[1]), np.maximum(ends[2], ends[3]))
     either_way = (e_low <= 0.0) & (e_high >= 0.0)  # e may be 0 there: any path length
     near[either_way], far[either_way] = -np.inf, np.inf
-    return np.maximum(near.max(axis=0), path_range[0]) <= np.minimum(far.min(axis=0), path_range[1])
+    return np.maximum(near.max(axis=-2), path_range[0]) <= np.minimum(far.min(axis=-2), path_range[1])
 
 
 def _bundle_cone(d):
@@ -753,20 +836,26 @@ def _near_body(frames: FrameSet, src: int, k: int, cache, extent, tau0, x0, d, s
 
 
 def _body_box(frames: FrameSet, src: int, k: int, cache, extent):
-    """(t, x, velocity, widened half-extents) of frame k's body box (``FrameSet.body_boxes``) for
-    rays whose (largest |coordinate| of x0, largest |tau0|) is ``extent``."""
-    slot = frames.geometry_slot[k]
+    """(t, x, velocity, widened half-extents) of frame k's body box (:func:`_body_boxes`)."""
+    return tuple(a[0] for a in _body_boxes(frames, src, [k], cache, extent))
+
+
+def _body_boxes(frames: FrameSet, src: int, ks, cache, extent):
+    """(t, x, velocity, widened half-extents) of the body boxes (``FrameSet.body_boxes``) of the
+    frames ``ks``, (len(ks),) and (len(ks), 3), for rays whose (largest |coordinate| of x0,
+    largest |tau0|) is ``extent``."""
+    slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
     boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
-    t_box, x_box, velocity, half = (a[slot] for a in boxes)
+    t_box, x_box, velocity, half = (a[slots] for a in boxes)
     # the rays meet the box where |s (d + v)| is about |x0 - X(tau0)|: coordinates up to this
     x_max, tau_max = extent
-    scale = 1.0 + x_max + float(np.max(np.abs(x_box))) + float(np.max(np.abs(velocity))) * (tau_max + abs(float(t_box)))
-    return t_box, x_box, velocity, _widened(half[None, :], scale)[0]
+    scale = 1.0 + x_max + np.max(np.abs(x_box), axis=1) + np.max(np.abs(velocity), axis=1) * (tau_max + np.abs(t_box))
+    return t_box, x_box, velocity, _widened(half, scale[:, None])
 
 
-def _widened(half, scale: float) -> np.ndarray:
+def _widened(half, scale) -> np.ndarray:
     """Half-extents (m, 3) of body boxes widened for rounding: float32 geometry, float64 arithmetic
-    on coordinates up to ``scale``."""
+    on coordinates up to ``scale`` (one number, or one per box (m, 1))."""
     return half * (1.0 + 2 * _PAD) + 2 * _PAD * half.max(axis=1, keepdims=True) + 1e-9 * scale
 
 

@@ -1,7 +1,8 @@
-"""Rays from one event are culled against the cones that each frame's bounding spheres subtend
-there (tracer._toward), first run by run (the cone of a run of consecutive rays against each
-sphere cone) and then ray by ray: the cull may only drop rays that the per-ray cone test drops,
-and a culled trace finds the very hits of an unculled one."""
+"""Rays from one event are culled against each frame's body box run by run (tracer._runs_near_bodies:
+blocks of runs, then runs) and, where a frame's bounding spheres hold it more tightly than its
+box, against the cones they subtend there (tracer._toward), first run by run (the cone of a run
+of consecutive rays against each sphere cone) and then ray by ray: the cull may only drop rays
+that the per-ray tests drop, and a culled trace finds the very hits of an unculled one."""
 
 from __future__ import annotations
 
@@ -62,7 +63,7 @@ def test_run_by_run_cull_keeps_every_ray_the_per_ray_test_keeps():
     for cones in tracer._cones(frame_set, frame_set.world, list(frame_set.geometry), shared):
         axes, spread = cones
         per_ray = np.flatnonzero((axes @ d.T >= np.cos(spread)[:, None]).any(axis=0))
-        kept = tracer._toward(cones, d, bundle)
+        kept = tracer._toward(cones, d, bundle, np.arange(len(d) // tracer._RUN))
         assert kept is not None
         assert np.isin(per_ray, kept).all()
         dropped += len(d) - len(kept)
@@ -80,19 +81,32 @@ def test_cones_of_frames_at_once_are_those_of_each_frame():
     assert inside[0] is None and all(cones is not None for cones in inside[1:])
 
 
-def test_culled_trace_finds_the_hits_of_an_unculled_one(monkeypatch):
+def unculled(monkeypatch):
+    """Trace every ray in every frame from now on."""
+    monkeypatch.setattr(tracer, "_cull_bundle", lambda frame_set, src, ks, *args: (list(ks), [None] * len(ks)))
+
+
+def cones_always(monkeypatch):
+    """Cull every frame by its sphere cones too from now on, whether or not they pay."""
+    monkeypatch.setattr(tracer, "_cones_pay", lambda frame_set, src, ks, cache: [True] * len(ks))
+
+
+@pytest.mark.parametrize("cones", [False, True])
+def test_culled_trace_finds_the_hits_of_an_unculled_one(monkeypatch, cones):
     frame_set = frames()
     d = rays_on_cone_rims(frame_set, 4)
     n = len(d)
     tau0, x0 = np.broadcast_to(0.0, (n,)), np.broadcast_to(EYE, (n, 3))
+    if cones:
+        cones_always(monkeypatch)
     culled = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
-    monkeypatch.setattr(tracer, "_toward", lambda *args: None)
-    unculled = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
-    assert np.array_equal(culled.frame, unculled.frame)
+    unculled(monkeypatch)
+    everything = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
+    assert np.array_equal(culled.frame, everything.frame)
     hit = culled.frame >= 0
     assert 0.05 < hit.mean() < 0.95
     for f in fields(culled):  # (what a missing ray carries besides is no result)
-        assert np.array_equal(getattr(culled, f.name)[hit], getattr(unculled, f.name)[hit]), f.name
+        assert np.array_equal(getattr(culled, f.name)[hit], getattr(everything, f.name)[hit]), f.name
 
 
 def test_a_full_cone_cache_starts_afresh(monkeypatch):
@@ -125,6 +139,18 @@ def runs_across_body_boxes(frame_set, seed: int, count: int = 400):
     return d / np.linalg.norm(d, axis=1)[:, None]
 
 
+def near_masks(frame_set, d, s_hi, eye=EYE):
+    """_runs_near_bodies's runs of every geometry frame as masks over the runs of d."""
+    extent = (float(np.max(np.abs(eye))), 0.0)
+    near = tracer._runs_near_bodies(frame_set, frame_set.world, list(frame_set.geometry), None, extent, (0.0, eye),
+                                    tracer._run_bounds(d), (1e-6, s_hi))
+    masks = np.zeros((len(near), len(d) // tracer._RUN), dtype=bool)
+    for mask, runs in zip(masks, near):
+        assert np.all(np.diff(runs) > 0)
+        mask[runs] = True
+    return masks
+
+
 @pytest.mark.parametrize("s_hi", [np.inf, 14.0])
 def test_runs_the_body_box_test_drops_hold_no_ray_the_per_ray_test_keeps(s_hi):
     frame_set = frames()
@@ -133,19 +159,36 @@ def test_runs_the_body_box_test_drops_hold_no_ray_the_per_ray_test_keeps(s_hi):
     tau0, x0 = np.broadcast_to(0.0, (n,)), np.broadcast_to(EYE, (n, 3))
     s_lo, s_hi = np.full(n, 1e-6), np.full(n, s_hi)
     extent = (float(np.max(np.abs(EYE))), 0.0)
-    runs = tracer._sub_bundle_cones(d)
     dropped = kept = 0
-    for k in frame_set.geometry:
+    for k, per_run in zip(frame_set.geometry, near_masks(frame_set, d, float(s_hi[0]))):
         per_ray = tracer._near_body(frame_set, frame_set.world, k, None, extent, tau0, x0, d, s_lo, s_hi)
-        per_run = tracer._runs_near_body(frame_set, frame_set.world, k, None, extent, (0.0, EYE), runs[3:],
-                                         (1e-6, float(s_hi[0])))
         assert per_run[per_ray[:count * tracer._RUN].reshape(count, tracer._RUN).any(axis=1)].all()
         dropped += int(np.count_nonzero(~per_run))
         kept += int(np.count_nonzero(per_run & ~per_ray[:count * tracer._RUN].reshape(count, -1).all(axis=1)))
     assert dropped > count and kept > 0.1 * count  # runs dropped whole, and runs straddling a box kept
 
 
-def rows_of_bars():
+@pytest.mark.parametrize("width", [384, 376])
+def test_blocks_of_runs_drop_only_runs_that_miss_a_body_box_each(width):
+    """The blocks of runs tested first drop only runs that the run test itself drops: the runs
+    kept are those of each run tested alone (a camera bundle, the last block short or not)."""
+    frame_set = rows_of_bars()
+    d = camera_bundle(width)
+    count = len(d) // tracer._RUN
+    low, high = tracer._run_bounds(d)
+    extent = (float(np.max(np.abs(EYE))), 0.0)
+    ks = list(frame_set.geometry)
+    t_box, x_box, velocity, widen = tracer._body_boxes(frame_set, frame_set.world, ks, None, extent)
+    blocks = near_masks(frame_set, d, np.inf)
+    for i in range(len(ks)):
+        offset = EYE - ((0.0 - t_box[i]) * velocity[i] + x_box[i])
+        alone = [tracer._slabs_pass((-widen[i] - offset)[:, None], (widen[i] - offset)[:, None], velocity[i][:, None],
+                                    low[:, [run]], high[:, [run]], (1e-6, np.inf))[0] for run in range(count)]
+        np.testing.assert_array_equal(blocks[i], alone)
+        assert 0.01 * count < np.count_nonzero(alone) < 0.5 * count
+
+
+def rows_of_bars_meshes():
     """Three rows of five thin bars, each row one mesh moving along x: a row's bounding sphere
     (one culling cluster: the row has under 64 triangles) is far wider than its box."""
     meshes = []
@@ -154,23 +197,29 @@ def rows_of_bars():
         v = np.concatenate([p[0] for p in parts])
         t = np.concatenate([p[1] + 8 * j for j, p in enumerate(parts)])
         meshes.append(Mesh(f"row{i}", v, t, velocity=Velocity((speed, 0.0, 0.0)), pivot=(0.0, 3.0 * i, 0.0)))
-    return build_frames(Scene(camera=look_at_camera(tuple(EYE), (0.0, 0.0, 0.0)), meshes=meshes))
+    return meshes
 
 
-def camera_bundle(width: int = 384, height: int = 64):
-    """Pixel rays of a wide perspective camera at the eye looking at the bars, row by row as in a tile."""
+def rows_of_bars():
+    return build_frames(Scene(camera=look_at_camera(tuple(EYE), (0.0, 0.0, 0.0)), meshes=rows_of_bars_meshes()))
+
+
+def camera_bundle(width: int = 384, height: int = 64, rise=(-0.3, 0.2)):
+    """Pixel rays of a wide perspective camera at the eye looking at the bars (or at ``rise``, the
+    lowest and highest pixel rows, another height), row by row as in a tile."""
     forward = -EYE / np.linalg.norm(EYE)
     right = np.cross(forward, [0.0, 0.0, 1.0])
     right /= np.linalg.norm(right)
     up = np.cross(right, forward)
-    px, py = np.meshgrid(np.linspace(-0.8, 0.8, width), np.linspace(-0.3, 0.2, height))
+    px, py = np.meshgrid(np.linspace(-0.8, 0.8, width), np.linspace(*rise, height))
     d = forward + px.reshape(-1, 1) * right + py.reshape(-1, 1) * up
     return d / np.linalg.norm(d, axis=1)[:, None]
 
 
 def test_camera_rays_that_miss_a_body_box_are_not_traced_in_its_frame(monkeypatch):
-    """The runs of a camera bundle that pass no part of a frame's body box are dropped before the
-    cone test and before being mapped into the frame: fewer rays queried, the very same hits."""
+    """The runs of a camera bundle that pass no part of a frame's body box are dropped before
+    being mapped into the frame: fewer rays queried than with the sphere cones alone (a row's
+    sphere is far wider than its box), the very same hits as without culling."""
     frame_set = rows_of_bars()
     d = camera_bundle()
     n = len(d)
@@ -179,16 +228,61 @@ def test_camera_rays_that_miss_a_body_box_are_not_traced_in_its_frame(monkeypatc
     query = tracer._query
     monkeypatch.setattr(tracer, "_query", lambda frame, tau, origin, dk, *rest, **kw: queried.append(len(dk))
                         or query(frame, tau, origin, dk, *rest, **kw))
+    assert tracer._cones_pay(frame_set, frame_set.world, list(frame_set.geometry), None) == [False] * 3
     culled = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
     box_culled, queried[:] = sum(queried), []
-    monkeypatch.setattr(tracer, "_runs_near_body", lambda *args: None)  # every run to the cone test
+    cones_always(monkeypatch)
+    monkeypatch.setattr(tracer, "_runs_near_bodies", lambda frame_set, src, ks, cache, extent, shared, bounds, path:
+                        [np.arange(bounds[0].shape[1])] * len(ks))  # every run to the cone test
     cones_only = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
     assert sum(queried) > 1.5 * box_culled
-    assert np.array_equal(culled.frame, cones_only.frame)
+    unculled(monkeypatch)
+    everything = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
+    for traced in (culled, cones_only):
+        assert np.array_equal(traced.frame, everything.frame)
     hit = culled.frame >= 0
     assert len(np.unique(culled.frame[hit])) == 3 and hit.mean() > 0.02  # every row seen
     for f in fields(culled):
-        assert np.array_equal(getattr(culled, f.name)[hit], getattr(cones_only, f.name)[hit]), f.name
+        for traced in (culled, cones_only):
+            assert np.array_equal(getattr(traced, f.name)[hit], getattr(everything, f.name)[hit]), f.name
+
+
+def diagonal_rod():
+    """A thin rod of 16 small boxes along a space diagonal, moving, and a row of bars: the rod's
+    box is far larger than its culling clusters' spheres, the row's far smaller."""
+    parts = [box(tuple(np.full(3, -4.0 + 0.5 * j)), (0.5, 0.5, 0.5)) for j in range(16)]
+    v = np.concatenate([p[0] for p in parts])
+    t = np.concatenate([p[1] + 8 * j for j, p in enumerate(parts)])
+    meshes = [Mesh("rod", v, t, velocity=Velocity((0.4, 0.0, 0.1))), *rows_of_bars_meshes()[:1]]
+    return build_frames(Scene(camera=look_at_camera(tuple(EYE), (0.0, 0.0, 0.0)), meshes=meshes))
+
+
+def test_sphere_cones_cull_the_frames_they_hold_more_tightly_than_their_box(monkeypatch):
+    frame_set = diagonal_rod()
+    rod, row = frame_set.geometry
+    assert len(frame_set.frames[rod].geometry.clusters) == 4
+    assert tracer._cones_pay(frame_set, frame_set.world, [rod, row], None) == [True, False]
+    d = camera_bundle(128, 128, (-0.7, 0.7))
+    n = len(d)
+    tau0, x0 = np.broadcast_to(0.0, (n,)), np.broadcast_to(EYE, (n, 3))
+    culls = []
+    cull = tracer._cull_bundle
+    monkeypatch.setattr(tracer, "_cull_bundle", lambda *args: culls.append(cull(*args)) or culls[-1])
+    culled = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
+    monkeypatch.setattr(tracer, "_cones_pay", lambda frame_set, src, ks, cache: [False] * len(ks))
+    boxes_only = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
+    (kept, with_cones), (_, without) = culls
+    assert kept == [rod, row]
+    assert len(with_cones[0]) < 0.5 * len(without[0]) and np.array_equal(with_cones[1], without[1])
+    assert np.isin(with_cones[0], without[0]).all()
+    unculled(monkeypatch)
+    everything = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
+    hit = everything.frame >= 0
+    assert np.count_nonzero(everything.frame == rod) > 50
+    for traced in (culled, boxes_only):
+        assert np.array_equal(traced.frame, everything.frame)
+        for f in fields(traced):
+            assert np.array_equal(getattr(traced, f.name)[hit], getattr(everything, f.name)[hit]), f.name
 
 
 @pytest.mark.parametrize("ufunc", [np.minimum, np.maximum, np.add])

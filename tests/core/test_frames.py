@@ -241,6 +241,57 @@ def test_culling_clusters_hold_every_triangle_and_match_the_plain_computation(me
     assert inside.all(axis=1).any(axis=1).all()
 
 
+def test_body_boxes_hold_each_body_at_every_time_of_every_frame():
+    """Every vertex of every body, at many times of its own frame, mapped into each frame (bodies
+    moving along an axis, obliquely, near c, and a spinning one): inside its body box there,
+    which moves uniformly (plain numpy here: the box's centre at the vertex event's time)."""
+    meshes = [Mesh("oblique", *uv_sphere((1.0, 2.0, 0.5), 0.7, 8, 4), velocity=Velocity((0.5, -0.4, 0.3)), pivot=(1.0, 2.0, 0.5)),
+              Mesh("along", *uv_sphere((-3.0, 0.0, 0.0), 1.0, 8, 4), velocity=Velocity((0.9, 0.0, 0.0))),
+              Mesh("fast", *uv_sphere((0.0, 4.0, 1.0), 0.5, 8, 4), velocity=Velocity((0.0, 0.6, -0.79))),
+              Mesh("spinning", *uv_sphere((0.0, -3.0, 0.0), 0.8, 8, 4), pivot=(0.0, -3.0, 0.0),
+                   angular_velocity=(0.0, 0.0, 0.5)),
+              Mesh("still", *uv_sphere((4.0, 0.0, 0.0), 0.5, 8, 4))]
+    frame_set = build_frames(Scene(camera=grid_scene().camera, meshes=meshes))
+    times = np.linspace(-20.0, 20.0, 9)
+    for src in range(len(frame_set.frames)):
+        t_box, x_box, velocity, half = frame_set.body_boxes(src)
+        for slot, k in enumerate(frame_set.geometry):
+            frame = frame_set.frames[k]
+            used = frame.geometry.vertices[np.unique(frame.geometry.triangles)]
+            for tau in times:
+                local = used if frame.spin is None else used @ frame.pose(np.array([tau]))[0].T
+                t, x = frame_set.map(k, src).events(np.full(len(used), tau), local + frame.offset)
+                centre = x_box[slot] + np.outer(t - t_box[slot], velocity[slot])
+                assert np.all(np.abs(x - centre) <= half[slot] * (1 + 1e-12) + 1e-12), (src, k, tau)
+
+
+def test_the_clusters_of_small_meshes_worked_out_together_are_each_mesh_own(monkeypatch):
+    """Meshes of one size (whose groups are split at once, row by row), of other sizes (odd, too
+    few to split, exactly the smallest split) and with ties, in one pass: each mesh's clusters
+    are those of the plain computation; and build_frames gives each small frame its own."""
+    rng = np.random.default_rng(4)
+    meshes = []
+    for count in (132, 132, 132, 63, 64, 65, 200, 1001):
+        vertices = rng.normal(size=(count, 3)) * rng.uniform(0.2, 3.0, 3)
+        if count == 200:
+            vertices = np.round(vertices)
+        meshes.append((vertices, rng.integers(0, count, size=(count, 3))))
+    together = frames._clusters_of(meshes)
+    assert len(together) == len(meshes)
+    for (vertices, triangles), clusters in zip(meshes, together):
+        np.testing.assert_array_equal(clusters, plain_clusters(vertices, triangles))
+    passes = []
+    clusters_of = frames._clusters_of
+    monkeypatch.setattr(frames, "_clusters_of", lambda meshes, *args: passes.append(len(meshes)) or clusters_of(meshes, *args))
+    rows = [Mesh(f"row {i}", *uv_sphere((3.0 * i, 0.0, 0.0), 1.0, 12, 6), velocity=Velocity((0.1 * i, 0.0, 0.0)))
+            for i in range(5)]
+    frame_set = build_frames(Scene(camera=grid_scene().camera, meshes=rows))
+    assert passes == [5]
+    for k in frame_set.geometry:
+        geometry = frame_set.frames[k].geometry
+        np.testing.assert_array_equal(geometry.clusters, plain_clusters(geometry.vertices, geometry.triangles))
+
+
 def test_a_lone_mesh_gets_no_culling_clusters_and_several_frames_do():
     """The tracer culls by clusters only between frames: a scene of one geometry frame skips them."""
     lone = build_frames(grid_scene(shuffled_sphere(), velocity=Velocity((0.3, 0.0, 0.0))))
@@ -254,9 +305,11 @@ def test_a_lone_mesh_gets_no_culling_clusters_and_several_frames_do():
         assert not geometry.clusters.flags.writeable
 
 
-def test_culling_by_clusters_never_hides_a_hit(monkeypatch):
+@pytest.mark.parametrize("cones", ["where they pay", "always"])
+def test_culling_by_clusters_never_hides_a_hit(monkeypatch, cones):
     """Camera rays through several moving bodies (one in many pieces): the hits with the
-    culling cones are the hits without them, and the cones did skip rays."""
+    culling (body boxes, and the clusters' cones where they pay or for every frame) are the
+    hits without it, and the culling did skip rays."""
     monkeypatch.setattr(frames, "_PIECE_TRIANGLES", PIECE)
     meshes = [Mesh("big", *shuffled_sphere(), velocity=Velocity((0.5, 0.2, 0.0)))]
     for i, beta in enumerate((-0.3, 0.35, 0.1)):
@@ -266,24 +319,27 @@ def test_culling_by_clusters_never_hides_a_hit(monkeypatch):
     scene = Scene(camera=look_at_camera((0.0, -7.0, 0.5), (0.0, 0.0, 0.0)), meshes=meshes)
     frame_set = build_frames(scene)
     assert len(frame_set.geometry) == 4
-    rng = np.random.default_rng(8)
-    d = np.column_stack([rng.uniform(-0.6, 0.6, 20000), np.ones(20000), rng.uniform(-0.8, 0.8, 20000)])
+    px, pz = np.meshgrid(np.linspace(-0.6, 0.6, 200), np.linspace(-0.8, 0.8, 100))  # pixels, row by row
+    d = np.column_stack([px.ravel(), np.ones(px.size), pz.ravel()])
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     x0 = np.broadcast_to(np.array([0.0, -7.0, 0.5]), d.shape)  # one shared origin, as a camera's
     tau0 = np.broadcast_to(np.array(0.0), (len(d),))
+    if cones == "always":
+        monkeypatch.setattr(tracer, "_cones_pay", lambda frame_set, src, ks, cache: [True] * len(ks))
 
     skipped = []
 
-    def counted_toward(*args):
-        rays = toward(*args)
-        skipped.append(len(d) if rays is None else len(d) - len(rays))
-        return rays
+    def counted_cull(frame_set, src, ks, *args):
+        kept, culled = cull(frame_set, src, ks, *args)
+        skipped.append(len(d) * (len(ks) - len(kept)) + sum(0 if rays is None else len(d) - len(rays)
+                                                           for rays in culled))
+        return kept, culled
 
-    toward = tracer._toward
-    monkeypatch.setattr(tracer, "_toward", counted_toward)
+    cull = tracer._cull_bundle
+    monkeypatch.setattr(tracer, "_cull_bundle", counted_cull)
     culled = trace_nearest(frame_set, frame_set.camera, tau0, x0, d, 0.05, np.inf)
     assert sum(skipped) > len(d)  # rays were skipped
-    monkeypatch.setattr(tracer, "_toward", lambda *args: None)
+    monkeypatch.setattr(tracer, "_cull_bundle", lambda frame_set, src, ks, *args: (list(ks), [None] * len(ks)))
     full = trace_nearest(frame_set, frame_set.camera, tau0, x0, d, 0.05, np.inf)
     assert len(np.unique(full.frame)) == 5  # every body is hit, and the background
     for name in ("frame", "prim", "s", "u", "v"):
