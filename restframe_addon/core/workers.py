@@ -445,8 +445,9 @@ class _Pace:
     took 0.2-0.3 ms of the parent's CPU per 12-ms share).  So while shares take less than
     ``_BATCH`` a worker, the loop deals each worker work for twice ``_BATCH`` (so none runs dry
     meanwhile) and sleeps ``_BATCH`` at a time, then handles every share that came.  Towards the
-    end, with less than a few such lots left a worker, it deals two shares at a time and wakes
-    per share again, so no worker waits at the end while another works through its queue."""
+    end, with less than a few such lots left a worker, it deals two shares at a time, so no
+    worker waits at the end while another works through its queue, and sleeps at most half the
+    work a worker holds."""
 
     def __init__(self, shares, rects):
         self._pixels = []  # each share's pixels
@@ -470,14 +471,18 @@ class _Pace:
             return True
         return self._batching(todo, workers) and self.seconds(worker.dealt) < 2 * _BATCH
 
-    def sleeps(self, workers, todo) -> bool:
-        """Whether the loop may sleep ``_BATCH``: shares come faster than that and every worker
-        holds work for longer."""
-        return (self._batching(todo, len(workers))
-                and all(self.seconds(worker.dealt) >= 2 * _BATCH for worker in workers))
+    def pause(self, workers) -> float:
+        """Seconds the loop may sleep before it handles what came: 0 (wait for each message) unless
+        shares come faster than one a ``_BATCH``; then at most ``_BATCH`` and half the work a
+        worker holds, so that none runs dry and the last shares are handled soon after they end."""
+        if self._per_pixel is None or self._finished[2] / self._finished[0] >= len(workers) * _BATCH:
+            return 0.0
+        return min(_BATCH, min(self.seconds(worker.dealt) for worker in workers) / 2)
 
     def _batching(self, todo, workers: int) -> bool:
-        if self._per_pixel is None or not todo:
+        """Whether a worker may hold work for 2 ``_BATCH``: shares come faster than one a batch and
+        enough is left a worker that none waits at the end for another's queue."""
+        if self._per_pixel is None:
             return False
         share_seconds = self._finished[2] / self._finished[0]
         return (share_seconds < workers * _BATCH
@@ -590,10 +595,10 @@ class WorkerPool:
                     yield from tiles_in_threads(prepared, [rect for index, rect in enumerate(rects)
                                                            if index not in done], count, should_stop)
                     return
-                sleeps = pace.sleeps(workers, todo)
-                if sleeps:
-                    time.sleep(_BATCH)
-                messages = self._inbox.take(0.0 if sleeps else _POLL)
+                pause = pace.pause(workers)
+                if pause > 0:
+                    time.sleep(pause)
+                messages = self._inbox.take(0.0 if pause > 0 else _POLL)
                 if not messages:
                     self._stop_stuck(workers)
                     stats.polling_cpu += time.thread_time() - iteration
