@@ -621,6 +621,8 @@ class WorkerPool:
                     del pieces[tile_index]
                     finished.append((tile_index, tile))
                 for tile_index, tile in finished:
+                    if should_stop():  # Esc: not another tile, even one finished in the same round
+                        return
                     done.add(tile_index)
                     handed, cpu_handed = time.monotonic(), time.thread_time()
                     stats.loop_cpu += cpu_handed - cpu
