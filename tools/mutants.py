@@ -213,6 +213,15 @@ MUTANTS = (
     Mutant("coat-does-not-dim", "the lobes under a coat get all the light the coat also reflects",
            (Patch(CORE + "integrator.py", "under = (1.0 - albedo)[:, None]", "under = np.ones((n, 1))"),),
            ("tests/core/test_bsdf_glass.py::test_a_clear_coat_over_white_keeps_the_furnace_white",)),
+    Mutant("ggx-half-vector-length", "the GGX half vector's cosine with the normal from |v + l|^2 = 1 + v.l (its "
+                                     "factor 2 dropped)",
+           (Patch(CORE + "bsdf.py", "    c2 /= half\n    c2 *= 0.5\n", "    c2 /= half\n"),),
+           ("tests/core/test_bsdf.py::test_ggx_from_cosines_matches_the_half_vector_form",)),
+    Mutant("texels-wrap-last-row", "a texture's bilinear lookup above its last pixel row blends in the last row "
+                                   "again instead of wrapping to the first",
+           (Patch(CORE + "world.py", "padded[-1, :-1, :self.channels] = image[0]",
+                  "padded[-1, :-1, :self.channels] = image[-1]"),),
+           ("tests/core/test_world.py::test_texels_look_up_the_bits_of_a_plain_bilinear_repeat_lookup",)),
     Mutant("stereo-eye-on-camera-world-line", "a stereo eye of an accelerating camera observing from the "
                                               "camera's world line, not its own",
            (Patch("restframe_addon/export/camera.py",

@@ -662,8 +662,7 @@ class _Lobes(LayeredLobes):
 
     def _coat_specular(self, index, light):
         """The rough coat's f (without the cosine) at vertices ``index`` toward ``light``."""
-        single, above, cos_vh = ggx_single_scattering(self.ns[index], self.view[index], light,
-                                                      self.coat_alpha[index], self.cos_v[index])
+        single, above, cos_vh = ggx_single_scattering(self.ns[index], self.view[index], light, self.coat_alpha[index])
         fresnel = fresnel_dielectric(cos_vh, self.coat_eta[index])
         return np.where(above, self.coat[index] * self.coat_compensation[index] * fresnel * single, 0.0)
 

@@ -26,6 +26,37 @@ def take(a, index) -> np.ndarray:
     return np.take(a, index, axis=0)
 
 
+def put(a, index, new) -> None:
+    """``a[index] = new`` for rows of an (n, C) array at integer indices: numpy's fancy assignment
+    copies them one element at a time, np.put of whole rows (a C-contiguous array's rows viewed as
+    one item each) 3x faster."""
+    if not a.flags.c_contiguous:
+        a[index] = new
+        return
+    row = np.dtype((np.void, a.shape[1] * a.itemsize))
+    np.put(a.view(row)[:, 0], index, c_contiguous(new, a.dtype).view(row)[:, 0])
+
+
+def c_contiguous(a, dtype=None) -> np.ndarray:
+    """``np.ascontiguousarray(a, dtype)`` of (n, C) rows (see :func:`assign`)."""
+    a = np.asarray(a)
+    if a.flags.c_contiguous:
+        return a if dtype is None else np.ascontiguousarray(a, dtype=dtype)
+    out = np.empty(a.shape, dtype=a.dtype if dtype is None else dtype)
+    assign(out, a)
+    return out
+
+
+def assign(out, a) -> None:
+    """``out[...] = a`` for (n, C) rows, column by column between arrays of different layouts
+    (numpy copies a column-major (n, 3) array into rows three elements at a time, 6x slower)."""
+    if a.ndim != 2 or a.shape[1] > 4 or a.flags.c_contiguous == out.flags.c_contiguous:
+        out[...] = a
+        return
+    for axis in range(a.shape[1]):
+        out[:, axis] = a[:, axis]
+
+
 def dot(a, b) -> np.ndarray:
     """Row-wise dot products: (n, 3) with (n, 3), or (n, 3) with one (3,) vector."""
     a = np.asarray(a)
@@ -39,12 +70,14 @@ def norm(a) -> np.ndarray:
     return np.sqrt(dot(a, a))
 
 
-def scale(a, s) -> np.ndarray:
-    """Each row of a (n, C) times its own scalar s (n,): column by column for few columns."""
+def scale(a, s, columns: bool = False) -> np.ndarray:
+    """Each row of a (n, C) times its own scalar s (n,): column by column for few columns;
+    ``columns``: into an array whose columns are contiguous (for more work column by column)."""
     a = np.asarray(a)
     if a.shape[1] > 4:  # long rows (spectra): numpy's broadcast is fast there
         return a * s[:, None]
-    out = np.empty(a.shape, dtype=np.result_type(a, s))
+    dtype = np.result_type(a, s)
+    out = np.empty(a.shape[::-1], dtype=dtype).T if columns else np.empty(a.shape, dtype=dtype)
     for axis in range(a.shape[1]):
         np.multiply(a[:, axis], s, out=out[:, axis])
     return out

@@ -20,6 +20,7 @@ power of D for spectral densities).  Values are in the frame they are evaluated 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from types import MappingProxyType
 
 import numpy as np
@@ -33,7 +34,7 @@ from .lorentz import RowBoosts
 from .passes import facing_normals, hit_doppler, hit_times
 from .scene import RAY_CAMERA, RAY_GLOSSY, RAY_TRANSMISSION, Light, Material, Scene
 from .tracer import Hits, TraceCache, frames_hit, occluded, trace_nearest
-from .world import image_lookup
+from .world import Texels, image_lookup
 
 MIRROR_ROUGHNESS = 0.05  # smoother surfaces reflect by traced mirror rays, rougher ones by GGX highlights
 _MIN_ALPHA = 1e-3
@@ -78,13 +79,13 @@ class MaterialTable:
         self.coat_ior = np.maximum([m.coat_ior for m in materials], 1.0 + 1e-6)
         self.emission = np.array([m.emission for m in materials], dtype=np.float64).reshape(-1, 3)
         self.emits = np.any(self.emission != 0.0, axis=1)
-        # images kept contiguous: looked up from flat indices without a copy (world.image_lookup)
-        self.textures = [_contiguous(m.base_color_texture) for m in materials]
+        # images laid out for world.image_lookup once
+        self.textures = [_texels(m.base_color_texture, colour=True) for m in materials]
         self.closest = [m.base_color_interpolation == "Closest" for m in materials]
         self.principled_alpha = np.clip([m.alpha for m in materials], 0.0, 1.0)  # cut-outs (not the GGX alpha)
-        self.alpha_textures = [_contiguous(m.alpha_texture) for m in materials]
+        self.alpha_textures = [_texels(m.alpha_texture) for m in materials]
         self.cuts_out = bool(np.any(self.principled_alpha < 1.0)) or any(t is not None for t in self.alpha_textures)
-        self.normal_textures = [_contiguous(m.normal_texture) for m in materials]
+        self.normal_textures = [_texels(m.normal_texture) for m in materials]
         self.normal_strength = np.maximum([m.normal_strength for m in materials], 0.0)
         self.normal_mapped = any(t is not None for t in self.normal_textures)
         self.holdout = np.array([m.holdout for m in materials], dtype=bool)
@@ -118,7 +119,12 @@ class MaterialTable:
         return factor
 
     def clamp(self, index):
-        return np.clip(index, 0, len(self.materials) - 1)
+        """Material numbers as rows of the table (out of range: the nearest end; in range, as
+        they always are from the export, the array itself: two reductions cost a third of a clip)."""
+        last = len(self.materials) - 1
+        if len(index) and index.min() >= 0 and index.max() <= last:
+            return index
+        return np.clip(index, 0, last)
 
     def base_color(self, index, uv):
         """Base colour per hit, with image textures looked up (bilinear or closest, repeat) where present."""
@@ -173,6 +179,7 @@ class PreparedLight:
     position: np.ndarray  # in its frame
     axes: np.ndarray  # 3x3, columns = local X, Y, Z (emits along -Z)
     radiant: np.ndarray  # colour * power in Blender units
+    power: float  # the lamp's power as shaded: Blender's, a soft sun's scaled to its disc (:func:`prepare_lights`)
     clock_offset: float = 0.0  # the lamp's own clock = its frame's time + this (constant velocity)
     keyed: tuple | None = None  # keyed output: (lamp-clock times c*t (N,), colours (N, 3), powers (N,)); None: radiant
 
@@ -192,7 +199,12 @@ def prepare_lights(scene: Scene, frames: FrameSet) -> list[PreparedLight]:
         axes = np.asarray(light.matrix, dtype=np.float64)
         axes = axes / np.maximum(np.linalg.norm(axes, axis=0, keepdims=True), 1e-300)
         position = np.asarray(light.position, dtype=np.float64) + shift_into_frame(boost, light.pivot_or_position)
-        radiant = np.asarray(light.color, dtype=np.float64) * float(light.power)
+        power, keyed = float(light.power), _keyed_output(light, scene.light_speed) if light.is_keyed else None
+        if light.kind == "SUN" and light.sun_angle > 0.0:  # its disc's radiance, as Cycles': S / (pi sin^2 half),
+            disc = 2.0 / (1.0 + np.cos(0.5 * light.sun_angle))  # over the S / solid angle its samples carry
+            power *= disc
+            keyed = None if keyed is None else (keyed[0], keyed[1], keyed[2] * disc)
+        radiant = np.asarray(light.color, dtype=np.float64) * power
         if light.temperature > 0.0:
             radiant = radiant * spectral.blackbody_rgb(light.temperature)
         if light.kind not in ("POINT", "SPOT", "SUN", "AREA"):
@@ -200,9 +212,8 @@ def prepare_lights(scene: Scene, frames: FrameSet) -> list[PreparedLight]:
         if light.kind == "SUN" and light.trajectory is not None:
             raise ValueError(f"{light.name}: a sun lamp is infinitely far and has no world line: "
                              "give it a constant velocity (Motion = Constant Velocity)")
-        keyed = _keyed_output(light, scene.light_speed) if light.is_keyed else None
         if np.any(radiant > 0) if keyed is None else np.any(keyed[1] * keyed[2][:, None] > 0):
-            prepared.append(PreparedLight(light, frame, position, axes, radiant,
+            prepared.append(PreparedLight(light, frame, position, axes, radiant, power,
                                           clock_offset=-clock_shift(boost, light.pivot_or_position), keyed=keyed))
     return prepared
 
@@ -306,8 +317,7 @@ class LayeredLobes:
         glossy = np.flatnonzero(self.glossy if index is None else self.glossy[index])
         if len(glossy):
             r = glossy if index is None else index[glossy]
-            single, above, cos_vh = ggx_single_scattering(self.ns[r], self.view[r], light[glossy], self.alpha[r],
-                                                          self.cos_v[r])
+            single, above, cos_vh = ggx_single_scattering(self.ns[r], self.view[r], light[glossy], self.alpha[r])
             value[glossy] += rows.scale(self.fresnel(cos_vh, index=r), np.where(above, single, 0.0))
         return value
 
@@ -408,13 +418,13 @@ class Shader:
             tau_hit = hit_times(hits, sel)
             u, v = _take(hits.u, sel), _take(hits.v, sel)
             if fmap.is_identity and frame.spin is None:  # at rest with the viewer: D = 1
-                values[sel] = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, _take(pixel, sel),
-                                                  _take(sample, sel), _rows(lam, sel), cache)
+                _put(values, sel, self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, _take(pixel, sel),
+                                                      _take(sample, sel), _rows(lam, sel), cache))
                 continue
             doppler = hit_doppler(frame, prim, u, v, tau_hit, d_k, w)
             local = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, _take(pixel, sel), _take(sample, sel),
                                         self.colour.shift(_rows(lam, sel), doppler), cache)
-            values[sel] = rows.scale(local, self.searchlight_power(doppler, 4))
+            _put(values, sel, rows.scale(local, self.searchlight_power(doppler, 4)))
         return values, hits
 
     # ------------------------------------------------------------------ tracing
@@ -477,7 +487,7 @@ class Shader:
         index at hits of frame k (``cache``: the calling thread's)."""
         frame = self.frames.frames[k]
         position, ng, ns, back = facing_normals(frame, prim, u, v, d_k, tau_hit, cache)
-        material = self.materials.clamp(frame.geometry.tri_material[prim])
+        material = self.materials.clamp(np.take(frame.geometry.tri_material, prim))
         if self.materials.normal_mapped and frame.geometry.corner_uvs is not None:
             ns = self._normal_mapped(frame, prim, material, hit_uv(frame, prim, u, v), ng, ns, back, d_k,
                                      np.zeros(len(prim)) if tau_hit is None else tau_hit)
@@ -555,11 +565,12 @@ class Shader:
         return ns
 
     # ------------------------------------------------------------------ direct light
-    def brdf(self, ns, view, light, base, mat, lobes: LayeredLobes | None = None):
+    def brdf(self, ns, view, light, base, mat, lobes: LayeredLobes | None = None, cos_l=None):
         """The surfaces' non-delta BSDF f (n, C) (without the cosine), in their rest frame: the
         diffuse lobe and, on rough surfaces with a specular lobe, GGX highlights (``layered``: as
-        :class:`LayeredLobes`; ``lobes``: those of these very points, if already made).  Mirror
-        reflection and refraction are delta lobes, traced instead (DIRECT: ``_secondary``)."""
+        :class:`LayeredLobes`; ``lobes``: those of these very points, if already made; ``cos_l``:
+        ns . light where the caller has it).  Mirror reflection and refraction are delta lobes,
+        traced instead (DIRECT: ``_secondary``)."""
         mats = self.materials
         if self.layered:
             return (lobes if lobes is not None else LayeredLobes(mats, base, mat, ns, view)).value(light)
@@ -567,7 +578,7 @@ class Shader:
         # arrays, no gathers, no specular work unless it has a lobe
         one = _only_material(mat)
         pick = (lambda table: table[mat]) if one is None else (lambda table: table[one:one + 1])
-        value = rows.scale(base, pick(mats.diffuse_weight))
+        value = rows.scale(base, pick(mats.diffuse_weight), columns=True)
         r = np.flatnonzero(mats.glossy[mat]) if one is None else slice(None) if mats.glossy[one] else None
         if r is None or (one is None and not len(r)):
             return value
@@ -577,7 +588,8 @@ class Shader:
             f0 = rows.scale(base[r], mats.metallic[m]) + f0
         else:
             f0 = np.broadcast_to(f0, (len(value) if one is not None else len(r), 1))
-        specular = ggx_reflection(ns[r], view[r], light[r], mats.alpha[m], f0, mats.f90[m])
+        specular = ggx_reflection(ns[r], view[r], light[r], mats.alpha[m], f0, mats.f90[m],
+                                  None if cos_l is None else cos_l[r])
         if one is not None and value.shape[1] <= 4:  # column by column (see rows)
             for c in range(value.shape[1]):
                 value[:, c] += specular[:, min(c, specular.shape[1] - 1)]
@@ -623,7 +635,8 @@ class Shader:
             elif shadowed:  # a few: cheaper to shade them too, with no light
                 weight[blocked] = 0.0
             part = None if lobes is None else lobes.take(sel)
-            f = self.brdf(_take(ns, sel), _take(view, sel), e_sel, _take(base, sel), _take(mat, sel), part)
+            f = self.brdf(_take(ns, sel), _take(view, sel), e_sel, _take(base, sel), _take(mat, sel), part,
+                          _take(cos_n, sel))
             emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), _take(doppler, sel)), len(f),
                                         None if clock is None else _take(clock, sel))
             f = _weighted_product(f, emitted, weight)
@@ -633,7 +646,7 @@ class Shader:
                 total = f
             else:
                 total = np.zeros_like(base)
-                total[sel] = f
+                _put(total, sel, f)
         return np.zeros_like(base) if total is None else total
 
     def _incident(self, pl: PreparedLight, k, tau, position, xi1, xi2):
@@ -788,9 +801,10 @@ def hit_uv(frame, prim, u, v):
     cuv = np.take(corner_uvs, prim, axis=0)
     first = 1.0 - u  # the barycentric weight of the first corner
     first -= v
-    uv = np.empty((len(prim), 2), dtype=np.result_type(first, cuv))
+    # column by column (see rows), into contiguous columns, in place (temporaries cost page faults)
+    uv = np.empty((2, len(prim)), dtype=np.result_type(first, cuv)).T
     term = np.empty(len(prim), dtype=uv.dtype)
-    for c in range(2):  # column by column (see rows), in place (temporaries cost page faults)
+    for c in range(2):
         column = uv[:, c]
         np.multiply(first, cuv[:, 0, c], out=column)
         column += np.multiply(u, cuv[:, 1, c], out=term)
@@ -833,6 +847,15 @@ def _put_rows(values, mask, index, new):
         np.copyto(values[:, channel], new[0, channel], where=mask)
 
 
+def _put(a, sel, new):
+    """``a[sel] = new`` for rows ``sel`` (a slice or indices) of an array (see rows.put; ``new`` may
+    have contiguous columns)."""
+    if isinstance(sel, slice):
+        rows.assign(a[sel], new)
+    else:
+        rows.put(a, sel, new)
+
+
 def _take(a, sel):
     """Rows ``sel`` (a slice or indices) of an array: a view, or np.take (several times faster
     than fancy indexing of (n, 3) rows)."""
@@ -869,9 +892,17 @@ def _disc_sample(axis, radius, xi1, xi2):
     return _combine(r * cos_phi, t1, r * sin_phi, t2)
 
 
+@lru_cache(maxsize=64)
+def _axis_basis(axis: tuple) -> tuple:
+    """:func:`_orthonormal_basis` of one axis (a lamp's, the same for every batch of rays)."""
+    t1, t2 = (t[0] for t in _orthonormal_basis(np.array([axis], dtype=np.float64)))
+    t1.flags.writeable = t2.flags.writeable = False
+    return t1, t2
+
+
 def _cone_sample(axis, half_angle, xi1, xi2):
     """Directions uniform in the cone about one unit axis (3,): its basis is worked out once."""
-    t1, t2 = (t[0] for t in _orthonormal_basis(axis[None, :]))
+    t1, t2 = _axis_basis(tuple(axis))
     cos_t = xi1 * (1.0 - np.cos(half_angle))  # in place from here: temporaries cost page faults
     np.subtract(1.0, cos_t, out=cos_t)
     sin_t = cos_t * cos_t
@@ -899,17 +930,17 @@ def _combine(*weights_and_vectors):
     """Rows ``a t1 + b t2 (+ c t3)`` of (n,) weights and (n, 3) or (3,) vectors, summed in that order."""
     pairs = list(zip(weights_and_vectors[::2], weights_and_vectors[1::2]))
     out = np.empty((len(pairs[0][0]), 3))
-    term = np.empty(len(out))
+    column, term = np.empty(len(out)), np.empty(len(out))  # contiguous: twice as fast as out's columns
     for c in range(3):
-        column = out[:, c]
         np.multiply(pairs[0][0], pairs[0][1][..., c], out=column)
         for weight, vector in pairs[1:]:
             column += np.multiply(weight, vector[..., c], out=term)
+        out[:, c] = column
     return out
 
 
-def _contiguous(image):
-    return None if image is None else np.ascontiguousarray(image)
+def _texels(image, colour: bool = False):
+    return None if image is None else Texels(image, colour)
 
 
 def _only_material(mat):

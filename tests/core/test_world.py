@@ -96,6 +96,49 @@ def test_image_lookup_bilinear_between_pixel_centres_and_closest():
     assert np.allclose(closest, [image[2, 0], image[0, 3]])
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("channels", [1, 3, 4])
+def test_texels_look_up_the_bits_of_a_plain_bilinear_repeat_lookup(dtype, channels):
+    """world.Texels (a border row and column, RGB padded to 4 channels) looks up bit for bit what
+    the bilinear blend written out with modulo indexing gives, and the nearest pixel (Closest)."""
+    rng = np.random.default_rng(7)
+    h, w = 5, 8
+    image = rng.random((h, w, channels)).astype(dtype)
+    texels = world.Texels(image)
+    assert texels.pixels.shape == ((h + 1) * (w + 1), 4 if channels == 3 else channels)
+    u, v = rng.uniform(-2.0, 3.0, 1000), rng.uniform(-2.0, 3.0, 1000)
+    fx, fy = u * w - 0.5, v * h - 0.5
+    x0, y0 = np.floor(fx), np.floor(fy)
+    fx, fy = fx - x0, fy - y0
+    x0, y0 = x0.astype(int) % w, y0.astype(int) % h
+    x1, y1 = (x0 + 1) % w, (y0 + 1) % h
+    expected = ((1 - fx) * (1 - fy))[:, None] * image[y0, x0]
+    expected += ((1 - fy) * fx)[:, None] * image[y0, x1]
+    expected += ((1 - fx) * fy)[:, None] * image[y1, x0]
+    expected += (fx * fy)[:, None] * image[y1, x1]
+    for looked_up in (world.image_lookup(texels, u, v), world.image_lookup(image, u, v)):
+        assert looked_up.dtype == np.float64
+        np.testing.assert_array_equal(looked_up, expected)
+    nearest = image[np.floor(v * h).astype(int) % h, np.floor(u * w).astype(int) % w]
+    np.testing.assert_array_equal(world.image_lookup(texels, u, v, "Closest"), nearest)
+    np.testing.assert_array_equal(world.image_lookup(texels, u, v, channels=1), expected[:, :1])
+
+
+def test_colour_texels_blend_in_their_pixels_precision_to_a_few_float32_steps():
+    """Texels(colour=True) of a float32 image blend in float32: within 3 float32 steps of the
+    brightest pixel of the image of the float64 blend (Linear; Closest is a copy either way); a
+    float64 image blends in float64 whatever ``colour`` says (the same bits)."""
+    rng = np.random.default_rng(5)
+    image = (rng.random((16, 32, 3)) ** 4 * 50.0).astype(np.float32)  # dark and bright pixels side by side
+    u, v = rng.uniform(-3.0, 4.0, 20000), rng.uniform(-3.0, 4.0, 20000)
+    fast, exact = (world.image_lookup(world.Texels(image, colour), u, v) for colour in (True, False))
+    assert fast.dtype == exact.dtype == np.float64 and not np.array_equal(fast, exact)  # the trade is exercised
+    np.testing.assert_allclose(fast, exact, rtol=0.0, atol=3 * np.finfo(np.float32).eps * image.max())
+    for interpolation, dtype in (("Closest", np.float32), ("Linear", np.float64)):
+        np.testing.assert_array_equal(*(world.image_lookup(world.Texels(image.astype(dtype), colour), u, v,
+                                                           interpolation) for colour in (True, False)))
+
+
 def test_mapping_rotates_the_lookup_and_the_samples():
     image = test_image()
     rotation = world.mapping_rotation((0.3, -0.2, 1.2))
