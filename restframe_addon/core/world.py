@@ -181,22 +181,26 @@ def texel_image(image) -> np.ndarray:
 
 
 def texel_state(image):
-    """What pickles an image of a scene: the layout buffer of a :func:`texel_image` view (and its
-    channels), else the image itself; :func:`from_texel_state` undoes it."""
-    padded = None if image is None else _padded_of(np.asarray(image))
-    return image if padded is None else _TexelState(padded, image.shape[2])
+    """What pickles an image of a scene: the layout buffer of a :func:`texel_image` view (once,
+    however many fields hold it) and the image's shape, else the image itself;
+    :func:`from_texel_state` undoes it."""
+    if image is None or _padded_of(np.asarray(image)) is None:
+        return image
+    return _TexelState(image.base, image.shape)
 
 
 def from_texel_state(state):
     if not isinstance(state, _TexelState):
         return state
-    state.padded.flags.writeable = False
-    return state.padded[:-1, :-1, :state.channels]
+    state.buffer.flags.writeable = False
+    height, width, channels = state.shape
+    padded = state.buffer.reshape(height + 1, width + 1, 4 if channels == 3 else channels)
+    return padded[:-1, :-1, :channels]
 
 
 class _TexelState:
-    def __init__(self, padded, channels: int):
-        self.padded, self.channels = padded, channels
+    def __init__(self, buffer, shape):
+        self.buffer, self.shape = buffer, shape
 
 
 def _padded(image) -> np.ndarray:
@@ -212,13 +216,16 @@ def _padded(image) -> np.ndarray:
 def _padded_of(image: np.ndarray):
     """The layout buffer that ``image`` is the (H, W, C) corner of, with the border rows of
     :class:`Texels` in place (as :func:`texel_image` made it), or None."""
-    padded = image.base
-    if not isinstance(padded, np.ndarray) or image.ndim != 3 or padded.ndim != 3:
+    owner = image.base  # the padded layout, or the flat buffer it is a view of (as unpickled)
+    if not isinstance(owner, np.ndarray) or image.ndim != 3 or owner.flags.writeable \
+            or not owner.flags.c_contiguous:
         return None
     height, width, channels = image.shape
-    if (padded.shape != (height + 1, width + 1, 4 if channels == 3 else channels)
-            or padded.strides != image.strides or padded.ctypes.data != image.ctypes.data
-            or padded.flags.writeable or not padded.flags.c_contiguous):
+    shape = (height + 1, width + 1, 4 if channels == 3 else channels)
+    if owner.size != shape[0] * shape[1] * shape[2] or owner.dtype != image.dtype:
+        return None
+    padded = owner.reshape(shape)
+    if padded.strides != image.strides or padded.ctypes.data != image.ctypes.data:
         return None
     if not (np.array_equal(padded[-1, :-1], padded[0, :-1]) and np.array_equal(padded[:, -1], padded[:, 0])):
         return None

@@ -14,8 +14,8 @@ from restframe_addon.core.world import texel_image
 
 
 def big_buffers(root, at_least: int) -> dict[int, int]:
-    """The memory-owning (H, W, C) numpy buffers (images; not the 1-D and 2-D sampling tables) of at
-    least ``at_least`` bytes reachable from ``root``: {id: bytes}."""
+    """The memory-owning float32 numpy buffers (the images' precision; the sampling tables are
+    float64) of at least ``at_least`` bytes reachable from ``root``: {id: bytes}."""
     seen, found, stack = set(), {}, [root]
     while stack:
         item = stack.pop()
@@ -26,7 +26,7 @@ def big_buffers(root, at_least: int) -> dict[int, int]:
             owner = item
             while isinstance(owner.base, np.ndarray):
                 owner = owner.base
-            if owner.ndim == 3 and owner.nbytes >= at_least:
+            if owner.dtype == np.float32 and owner.nbytes >= at_least:
                 found[id(owner)] = owner.nbytes
             if owner.dtype != object:
                 continue
@@ -53,7 +53,7 @@ def test_the_prepared_scene_and_its_pickled_copy_hold_each_image_once(integrator
     prepared = prepare(scene, settings)
     smallest = min(layouts.values()) // 2
     assert big_buffers(prepared, smallest) == layouts
-    worker = pickle.loads(pickle.dumps(prepared))  # as a worker process unpickles it
+    worker = pickle.loads(pickle.dumps(prepared, protocol=pickle.HIGHEST_PROTOCOL))  # as core.workers pickles it
     held = big_buffers(worker, smallest)
     assert sorted(held.values()) == sorted(layouts.values())
 
