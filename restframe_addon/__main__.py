@@ -29,7 +29,10 @@ import sys
 import time
 
 from . import headless
+from .core.validation import MAX_SAMPLES
 from .headless import CommandError, Interrupted
+
+MAX_PERCENTAGE = 32767  # Blender's limit of the resolution percentage
 
 # Blender's frame limits (MINAFRAME, MAXFRAME): scene.frame_set clamps anything beyond them,
 # which would render frame 1048574 under another frame's name
@@ -158,8 +161,9 @@ def render_command(args) -> int:
     return 0
 
 
-def at_least(minimum: int):
-    """An argparse type: an integer no smaller than ``minimum``."""
+def at_least(minimum: int, at_most: int | None = None):
+    """An argparse type: an integer no smaller than ``minimum`` (and no larger than ``at_most``:
+    Blender would clamp a larger value without a word)."""
 
     def parse(text: str) -> int:
         try:
@@ -168,9 +172,11 @@ def at_least(minimum: int):
             raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
         if value < minimum:
             raise argparse.ArgumentTypeError(f"must be at least {minimum} (got {value})")
+        if at_most is not None and value > at_most:
+            raise argparse.ArgumentTypeError(f"must be at most {at_most} (got {value})")
         return value
 
-    parse.__name__ = f"integer >= {minimum}"
+    parse.__name__ = f"integer >= {minimum}" if at_most is None else f"integer {minimum}..{at_most}"
     return parse
 
 
@@ -187,8 +193,8 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--frame", type=int, help="the frame to render (default: the file's current frame)")
     render.add_argument("--frames", help="frames to render: A-B, A-B:STEP or a comma-separated list")
     render.add_argument("--scene", help="scene name (default: the file's active scene)")
-    render.add_argument("--samples", type=int, help="override the scene's RESTframe samples")
-    render.add_argument("--percentage", type=int, help="override the resolution percentage")
+    render.add_argument("--samples", type=at_least(1, MAX_SAMPLES), help="override the scene's RESTframe samples")
+    render.add_argument("--percentage", type=at_least(1, MAX_PERCENTAGE), help="override the resolution percentage")
     render.add_argument("--region", metavar="X0,Y0,X1,Y1",
                         help="render only this pixel rectangle (origin bottom left, X1/Y1 exclusive) as a "
                         "cropped image: Blender's render border")

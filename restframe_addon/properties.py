@@ -19,6 +19,7 @@ from bpy.props import (
 from bpy.types import PropertyGroup
 
 from . import motion_query
+from .core import validation
 from .core.lorentz import Boost
 
 # Explicit numbers keep saved files stable as modes are added.
@@ -202,7 +203,7 @@ class RestframeSceneSettings(PropertyGroup):
         default=4,
         min=1,
         soft_max=256,
-        max=1 << 16,
+        max=validation.MAX_SAMPLES,
     )
     integrator: EnumProperty(
         name="Integrator",

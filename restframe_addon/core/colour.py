@@ -91,7 +91,7 @@ class SpectralColour:
         self.light_keyed = []  # keyed lamps: (lamp-clock times, spectrum coefficients (N, 3), scales (N,))
         for pl in lights:
             coeffs, scale = q.fit_emission(pl.light.color)
-            self.lights.append((coeffs, scale * float(pl.light.power), float(pl.light.temperature)))
+            self.lights.append((coeffs, scale * pl.power, float(pl.light.temperature)))
             if pl.keyed is None:
                 self.light_keyed.append(None)
             else:

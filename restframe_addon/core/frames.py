@@ -405,6 +405,7 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
                     for light in scene.lights]
 
     inertial: dict[int, list] = {}
+    part_names: dict[int, list[str]] = {}  # the meshes of each frame's parts, for their warnings
     groups: list[SegmentGroup] = []
     special: dict[int, tuple] = {}  # id(trajectory) or mesh id -> (kind, meshes)
     for mesh in scene.meshes:
@@ -419,11 +420,14 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
             part = _mesh_part(mesh, frame.boost, warnings)
             if part is not None:
                 inertial.setdefault(frame.index, []).append(part)
+                part_names.setdefault(frame.index, []).append(mesh.name)
 
     for index, parts in inertial.items():
         if should_stop():
             break
         frames[index].geometry = build(parts)
+        if frames[index].geometry is not None:
+            warnings.extend(_precision_warnings(part_names[index], parts, frames[index].geometry))
     for kind, meshes in special.values():
         if should_stop():
             break
@@ -435,6 +439,40 @@ def build_frames(scene: Scene, should_stop=lambda: False, motion_settings: Motio
     if geometry_cache is not None and not should_stop():
         geometry_cache.finish_frame()
     return FrameSet(frames, world, camera, light_frames, warnings, groups)
+
+
+# how much of an object's size its float32 vertices may be rounded by, relative to its frame's
+# anchor, before the render warns (1e-3: a pixel of an object 1000 pixels across)
+_ROUNDING_WARNING = 1e-3
+
+
+_EMBREE_REACH = 2.0**41  # local coordinates embree still hits (raw embreex misses triangles at 2**42)
+
+
+def _precision_warnings(names: list[str], parts: list[dict], geometry: Geometry) -> list[str]:
+    """A warning naming the meshes of one frame that embree cannot trace as they are: beyond its
+    reach, or rounded badly by float32 coordinates about the frame's one anchor (small objects far
+    from the others with the same velocity: a 2-unit ball 1e5 units from another object has its
+    depth off by 1 %; 1e7 away it falls apart)."""
+    if geometry.extent / 2 >= _EMBREE_REACH:
+        return [f"{', '.join(names)}: {geometry.extent:.3g} scene units across, more than Embree can trace "
+                f"({2 * _EMBREE_REACH:.2g}): triangles will be missing; scale the scene down"]
+    if len(parts) < 2:
+        return []
+    anchor = geometry.anchor
+    rounded, worst = [], 0.0
+    for name, part in zip(names, parts):
+        x, y, z = (part["vertices"][:, axis] for axis in range(3))  # by column: numpy is slow along a length-3 axis
+        lo, hi = np.array([x.min(), y.min(), z.min()]), np.array([x.max(), y.max(), z.max()])
+        rounding = float(np.max(np.maximum(np.abs(lo - anchor), np.abs(hi - anchor)))) * 2.0**-24  # half an ulp
+        if rounding > _ROUNDING_WARNING * float(np.max(hi - lo)):
+            rounded.append(name)
+            worst = max(worst, rounding)
+    if not rounded:
+        return []
+    return [f"{', '.join(rounded)}: too far from the other objects with the same velocity for float32 geometry "
+            f"(rounded by up to {worst:.2g} scene units): move far objects nearer and scale them down "
+            "(they look the same from a camera at rest), or scale the scene down"]
 
 
 def _add_clusters(geometries: list[Geometry], should_stop) -> None:
@@ -751,8 +789,8 @@ def _add_segments(frames, meshes, scene: Scene, settings: MotionSettings, warnin
     if geometry.radius > trajectory.body_radius:  # built for a smaller body: round the corners for this one
         trajectory = replace(trajectory, body_radius=geometry.radius, warnings=[])
     warnings.extend(trajectory.warnings)
-    segments = motion.segment_world_line(trajectory, trajectory.tau[0], trajectory.tau[-1], settings.tolerance)
     name = meshes[0].name
+    segments = motion.segment_world_line(trajectory, trajectory.tau[0], trajectory.tau[-1], settings.tolerance, name)
     mids = np.array([seg.mid for seg in segments])
     proper = trajectory.proper_time(mids)
     first = len(frames)

@@ -35,9 +35,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .lorentz import RowBoosts
+from . import validation
 from .validation import check_finite_motion
 
 _MAX_DEPTH = 40
+SEGMENTS_PER_SAMPLE = 64  # at most, per animation sample (a gentle motion needs about one at 1e-3,
+MIN_SEGMENT_LIMIT = 20000  # a random 41-sample one of a large body 46; 1e-9 millions), and never fewer
 
 
 @dataclass
@@ -249,13 +252,20 @@ def segment_error(trajectory: Trajectory, start: float, end: float, radius: floa
     return x_mid, b_mid, pivot / max(1.0 - stiffness, 1e-3)
 
 
-def segment_world_line(trajectory: Trajectory, start: float, end: float, tolerance: float) -> list[Segment]:
-    """Inertial segments covering [start, end], each within ``tolerance`` of the true motion."""
+def segment_world_line(trajectory: Trajectory, start: float, end: float, tolerance: float,
+                       name: str = "an animated body") -> list[Segment]:
+    """Inertial segments covering [start, end], each within ``tolerance`` of the true motion.
+    Raises ValueError naming ``name`` once that needs more than SEGMENTS_PER_SAMPLE per sample of
+    the world line (a tolerance far below what the samples carry, such as the property's floor of
+    1e-9, would split a gentle motion into millions of segments, for hours)."""
     out: list[Segment] = []
+    limit = max(SEGMENTS_PER_SAMPLE * len(trajectory.tau), MIN_SEGMENT_LIMIT)
 
     def split(a, b, depth):
         x_mid, b_mid, error = segment_error(trajectory, a, b, trajectory.body_radius)
         if error <= tolerance or depth >= _MAX_DEPTH:
+            if len(out) == limit:
+                raise ValueError(validation.too_many_segments(name, tolerance, limit))
             out.append(Segment(a, b, 0.5 * (a + b), x_mid, b_mid, error))
             return
         m = 0.5 * (a + b)

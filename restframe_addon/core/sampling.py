@@ -88,7 +88,9 @@ def stratified_offsets(pixel: np.ndarray, sample: np.ndarray, count: int):
         half = np.full(len(pixel), 0.5)
         return half, half
     side = int(np.ceil(np.sqrt(count)))
-    return _jittered(_sample_keys(pixel, sample), strata(pixel, sample, side * side, 0), side)
+    stratum = strata(pixel, sample, side * side, 0)
+    return _jittered(_sample_keys(pixel, sample), (stratum % side).astype(np.float64),
+                     (stratum // side).astype(np.float64), side)
 
 
 def stratified_positions(xs: np.ndarray, ys: np.ndarray, pixel: np.ndarray, first: int, count: int,
@@ -102,21 +104,24 @@ def stratified_positions(xs: np.ndarray, ys: np.ndarray, pixel: np.ndarray, firs
     side = int(np.ceil(np.sqrt(samples)))
     cells = side * side
     steps = np.arange(first, first + count) * _coprime_step(cells) % cells
-    # :func:`strata` before its final ``mod cells`` (below 2 cells): _jittered's tables wrap it
-    stratum = np.add.outer(_strata_start(pixel, cells, 0), steps).ravel()
-    x, y = _jittered(_block_keys(pixel, first, count), stratum, side)
+    # :func:`strata` for each per-pixel start (cells x count): a pixel's strata are its start's row,
+    # gathered per pixel (count numbers at once) instead of worked out per sample
+    table = (np.arange(cells)[:, None] + steps) % cells
+    start = _strata_start(pixel, cells, 0)
+    column = (table % side).astype(np.float64).take(start, axis=0).ravel()
+    row = (table // side).astype(np.float64).take(start, axis=0).ravel()
+    x, y = _jittered(_block_keys(pixel, first, count), column, row, side)
     x.reshape(len(pixel), count)[...] += xs[:, None]
     y.reshape(len(pixel), count)[...] += ys[:, None]
     return x, y
 
 
-def _jittered(keys: np.ndarray, stratum: np.ndarray, side: int):
-    """Uniform positions (dimensions 1, 2 of ``keys``) in each sample's stratum of a side x side grid
-    (``stratum`` below 2 side^2: taken mod side^2; looked up, not divided, per sample)."""
-    row, column = np.divmod(np.arange(2 * side * side) % (side * side), side)
+def _jittered(keys: np.ndarray, column: np.ndarray, row: np.ndarray, side: int):
+    """Uniform positions (dimensions 1, 2 of ``keys``) in each sample's stratum (``column``, ``row``
+    of a side x side grid, as floats)."""
     x, y = _from_keys(keys, 1), _from_keys(keys, 2)
-    x += column.astype(np.float64).take(stratum)
-    y += row.astype(np.float64).take(stratum)
+    x += column
+    y += row
     x /= side
     y /= side
     return x, y

@@ -179,6 +179,7 @@ class PreparedLight:
     position: np.ndarray  # in its frame
     axes: np.ndarray  # 3x3, columns = local X, Y, Z (emits along -Z)
     radiant: np.ndarray  # colour * power in Blender units
+    power: float  # the lamp's power as shaded: Blender's, a soft sun's scaled to its disc (:func:`prepare_lights`)
     clock_offset: float = 0.0  # the lamp's own clock = its frame's time + this (constant velocity)
     keyed: tuple | None = None  # keyed output: (lamp-clock times c*t (N,), colours (N, 3), powers (N,)); None: radiant
 
@@ -198,7 +199,12 @@ def prepare_lights(scene: Scene, frames: FrameSet) -> list[PreparedLight]:
         axes = np.asarray(light.matrix, dtype=np.float64)
         axes = axes / np.maximum(np.linalg.norm(axes, axis=0, keepdims=True), 1e-300)
         position = np.asarray(light.position, dtype=np.float64) + shift_into_frame(boost, light.pivot_or_position)
-        radiant = np.asarray(light.color, dtype=np.float64) * float(light.power)
+        power, keyed = float(light.power), _keyed_output(light, scene.light_speed) if light.is_keyed else None
+        if light.kind == "SUN" and light.sun_angle > 0.0:  # its disc's radiance, as Cycles': S / (pi sin^2 half),
+            disc = 2.0 / (1.0 + np.cos(0.5 * light.sun_angle))  # over the S / solid angle its samples carry
+            power *= disc
+            keyed = None if keyed is None else (keyed[0], keyed[1], keyed[2] * disc)
+        radiant = np.asarray(light.color, dtype=np.float64) * power
         if light.temperature > 0.0:
             radiant = radiant * spectral.blackbody_rgb(light.temperature)
         if light.kind not in ("POINT", "SPOT", "SUN", "AREA"):
@@ -206,9 +212,8 @@ def prepare_lights(scene: Scene, frames: FrameSet) -> list[PreparedLight]:
         if light.kind == "SUN" and light.trajectory is not None:
             raise ValueError(f"{light.name}: a sun lamp is infinitely far and has no world line: "
                              "give it a constant velocity (Motion = Constant Velocity)")
-        keyed = _keyed_output(light, scene.light_speed) if light.is_keyed else None
         if np.any(radiant > 0) if keyed is None else np.any(keyed[1] * keyed[2][:, None] > 0):
-            prepared.append(PreparedLight(light, frame, position, axes, radiant,
+            prepared.append(PreparedLight(light, frame, position, axes, radiant, power,
                                           clock_offset=-clock_shift(boost, light.pivot_or_position), keyed=keyed))
     return prepared
 

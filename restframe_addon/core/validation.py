@@ -8,6 +8,7 @@ message that names the object and says what to change.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from fractions import Fraction
 
@@ -23,6 +24,7 @@ PARALLELISM = ("PROCESSES", "THREADS")  # RenderSettings.parallelism: where tile
 INTEGRATORS = ("PATH", "DIRECT")
 _BOUNCE_LIMITS = ("max_bounces", "diffuse_bounces", "glossy_bounces", "transmission_bounces")
 _CLAMPS = ("clamp_direct", "clamp_indirect")
+MAX_SAMPLES = 1 << 16  # camera samples per pixel: the Samples property's limit (and the CLI's)
 
 
 def one_minus_speed_squared(beta) -> float:
@@ -78,6 +80,12 @@ def check_light_speed(light_speed: float) -> None:
 def non_finite_motion(name: str) -> str:
     """The message for an animated world line with a sample that is not a finite number."""
     return f"{name}: the animated location is not a finite number"
+
+
+def too_many_segments(name: str, tolerance: float, limit: int) -> str:
+    """The message for an animated body whose world line the motion tolerance would split too finely."""
+    return (f"{name}: following its motion within the Motion Tolerance of {tolerance:g} scene units needs more "
+            f"than {limit} inertial segments: raise the tolerance (Render Properties > Relativity)")
 
 
 def check_finite_motion(values, name: str) -> None:
@@ -144,6 +152,43 @@ def check_doppler_levels(levels: int) -> None:
         raise RenderError(error)
 
 
+# what a non-finite field is called in the message (default: its name with spaces)
+_FIELD_WORDS = {"matrix": "world transform (location, rotation, or a scale of zero)", "frame": "view frame (lens, sensor)",
+                "power": "power (strength)", "power_curve": "keyed power", "color_curve": "keyed colour",
+                "emission_curve": "keyed emission strength"}
+# image pixels (a texture's NaN stays in its pixels, as in Cycles) and settings that are not numbers
+_NOT_CHECKED_FINITE = ("base_color_texture", "alpha_texture", "normal_texture", "velocity", "trajectory",
+                       "shutter_curve", "image")
+
+
+def _non_finite_fields(item):
+    """The (field, value) of a light, camera, material or world texture whose numbers are not all finite."""
+    for f in dataclasses.fields(item):
+        value = getattr(item, f.name)
+        if f.name in _NOT_CHECKED_FINITE or value is None or isinstance(value, (str, bool)):
+            continue
+        parts = value if isinstance(value, tuple) and value and isinstance(value[0], np.ndarray) else (value,)
+        if not all(np.all(np.isfinite(np.asarray(part, dtype=np.float64))) for part in parts):
+            yield f.name, value
+
+
+def check_finite_inputs(scene) -> None:
+    """Raises RenderError naming the object unless the camera, every light, material and the world
+    hold finite numbers: a NaN or infinite power, colour, location or lens (a driver dividing by zero,
+    a script) would otherwise render as black or NaN pixels without a word."""
+    named = [(scene.camera.name, scene.camera), *((light.name, light) for light in scene.lights),
+             *((f"material {m.name}", m) for m in scene.materials)]
+    if scene.world_texture is not None:
+        named.append((f"world {scene.world_texture.name}", scene.world_texture))
+    for name, item in named:
+        for field, value in _non_finite_fields(item):
+            shown = value if not isinstance(value, np.ndarray) else np.round(value, 6).tolist()
+            raise RenderError(f"{name}: its {_FIELD_WORDS.get(field, field.replace('_', ' '))} is not a finite "
+                              f"number ({shown})")
+    if not np.all(np.isfinite(scene.world_color)):
+        raise RenderError(f"the world colour {tuple(scene.world_color)} is not a finite number")
+
+
 def check_render(scene, settings, known_passes) -> None:
     """Raises RenderError for a scene and settings that cannot be rendered (``known_passes``:
     the pass names settings.passes may ask for)."""
@@ -174,6 +219,8 @@ def check_render(scene, settings, known_passes) -> None:
     for name in _BOUNCE_LIMITS:
         if int(getattr(settings, name)) < 0:
             raise RenderError(f"the light-path limit {name} must be 0 or more (got {getattr(settings, name)})")
+    if not (math.isfinite(settings.motion_tolerance) and settings.motion_tolerance > 0.0):
+        raise RenderError(f"the motion tolerance must be a positive number of scene units (got {settings.motion_tolerance:g})")
     for name in _CLAMPS:
         value = float(getattr(settings, name))
         if not (math.isfinite(value) and value >= 0.0):
@@ -182,3 +229,4 @@ def check_render(scene, settings, known_passes) -> None:
         check_camera_optics(scene.camera)
     except ValueError as error:
         raise RenderError(str(error)) from None
+    check_finite_inputs(scene)

@@ -12,6 +12,7 @@ from ..core.lorentz import Boost
 from ..core.scene import Camera, Velocity
 from ..motion_query import assembly_root, location_curves, motion_source
 from .errors import ExportError
+from .meshes import without_scale
 from .motion import object_velocity, point_trajectory, shutter_frames
 
 
@@ -97,6 +98,9 @@ def _world_line(camera_object, scene, position, warn):
     return point_trajectory(root, scene, position, position, camera_object.name, warn=warn)
 
 
+_OBJECT_KINDS = {"FONT": "text", "GPENCIL": "grease pencil", "GREASEPENCIL": "grease pencil"}  # as the UI says
+
+
 def export_camera(camera_object, scene, warn=print) -> Camera:
     """Blender's camera as the core sees it; ``view_frame`` gives the exact image plane.
 
@@ -107,10 +111,11 @@ def export_camera(camera_object, scene, warn=print) -> Camera:
     if camera_object is None:
         raise ExportError("the scene has no camera: add one and set it as the scene camera")
     if camera_object.type != 'CAMERA':
-        raise ExportError(f"{camera_object.name}: the scene camera is a {camera_object.type.lower()} object, not a camera")
+        kind = _OBJECT_KINDS.get(camera_object.type, camera_object.type.lower().replace("_", " "))
+        article = "an" if kind[0] in "aeiou" else "a"
+        raise ExportError(f"{camera_object.name}: the scene camera is {article} {kind} object, not a camera")
     cam = camera_object.data
-    matrix = np.array(camera_object.matrix_world, dtype=np.float64)
-    matrix[:3, :3] /= np.linalg.norm(matrix[:3, :3], axis=0)
+    matrix, _ = without_scale(camera_object.matrix_world)  # a zero scale: NaN, refused by the core's check
     render = scene.render
     aspect = (render.resolution_x * render.pixel_aspect_x) / (render.resolution_y * render.pixel_aspect_y)
     source = motion_source(camera_object)
@@ -171,8 +176,7 @@ def view_camera(camera: Camera, camera_object, scene, model_matrix, shift_x: flo
     stereo convention of Cycles).  Its position is its own observation event, a point of the
     camera's assembly placed as the camera is: on a world line of its own when the assembly is
     animated (an accelerating eye observes from its own place, in its own momentary rest frame)."""
-    matrix = np.array(model_matrix, dtype=np.float64)
-    matrix[:3, :3] /= np.linalg.norm(matrix[:3, :3], axis=0)
+    matrix, _ = without_scale(model_matrix)
     trajectory = None
     if camera.trajectory is None:
         matrix[:3, 3] = _assembly_place(matrix[:3, 3], camera_object, camera.velocity)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Callable
 
 import numpy as np
@@ -10,6 +11,7 @@ from ..core.scene import Light, Velocity, WorldTexture
 from ..motion_query import fcurves
 from .images import ImageMissing, image_texture
 from .materials import output_node, upstream
+from .meshes import without_scale
 from .motion import MAX_SAMPLES, SUBFRAMES
 
 
@@ -35,13 +37,36 @@ def node_emission(data, name: str, warn: Callable[[str], None]) -> tuple[np.ndar
     return np.asarray(color.default_value[:3], dtype=np.float64), float(strength.default_value)
 
 
+# a lamp's Ray Visibility (Cycles: which closures it lights) the renderer does not apply to its light
+_LIT_BY_VISIBILITY = (("visible_diffuse", "Diffuse"), ("visible_glossy", "Glossy"),
+                      ("visible_transmission", "Transmission"))
+
+
+def _lamp_settings_not_rendered(obj) -> list[str]:
+    """What of a lamp's settings the render leaves out (each said once per lamp), not silently."""
+    data, found = obj.data, []
+    if not getattr(data, "use_shadow", True):
+        found.append("Cast Shadow off is not supported yet: it casts shadows")
+    off = [label for name, label in _LIT_BY_VISIBILITY if not getattr(obj, name, True)]
+    if off:
+        found.append(f"Ray Visibility {', '.join(off)} off is not supported for its light yet: it lights those "
+                     "surfaces through its samples (only bounce rays miss it)")
+    if data.type == 'AREA' and float(getattr(data, "spread", math.pi)) < math.pi - 1e-6:
+        found.append("a Spread below 180 degrees is not supported yet: it shines over the whole half-space")
+    return found
+
+
 def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Callable[[str], None] = print,
                  scene=None, trajectory=None) -> Light:
     """The lamp as the core sees it; with ``scene``, its keyed strength and colour as curves on
     its own clock, and ``trajectory`` its world line (Motion = Animation)."""
     data = obj.data
-    rotation = matrix[:3, :3] / np.linalg.norm(matrix[:3, :3], axis=0)
+    unit, scale = without_scale(matrix)
+    rotation = unit[:3, :3]
     tint, strength = node_emission(data, obj.name, warn)
+    flattened = bool(np.all(np.isfinite(scale)) and np.any(scale == 0.0))
+    if flattened:  # as Cycles: a point lamp shines on (its axes do not matter), any other goes dark
+        rotation = np.eye(3)
     light = Light(
         name=obj.name,
         kind=data.type,
@@ -59,6 +84,14 @@ def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Calla
     )
     if scene is not None:
         light.power_curve, light.color_curve = keyed_output(data, scene, tint, strength)
+    for message in _lamp_settings_not_rendered(obj):
+        warn(f"Light '{obj.name}': {message}")
+    if flattened and data.type != 'POINT':
+        warn(f"Light '{obj.name}': scaled to zero along an axis, it gives no light")
+        light.power, light.power_curve = 0.0, None
+    elif data.type == 'AREA' and not (data.size > 0.0 and (data.shape not in {'RECTANGLE', 'ELLIPSE'} or data.size_y > 0.0)):
+        warn(f"Light '{obj.name}': an area lamp of size 0 gives no light (as in Cycles)")
+        light.power, light.power_curve = 0.0, None
     if data.type in {'POINT', 'SPOT'}:
         light.radius = float(data.shadow_soft_size)
     if data.type == 'SPOT':
@@ -66,7 +99,6 @@ def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Calla
     elif data.type == 'SUN':
         light.sun_angle = float(data.angle)
     elif data.type == 'AREA':
-        scale = np.linalg.norm(matrix[:3, :3], axis=0)
         light.area_shape = data.shape
         size_y = data.size_y if data.shape in {'RECTANGLE', 'ELLIPSE'} else data.size
         light.area_size = (float(data.size * scale[0]), float(size_y * scale[1]))

@@ -51,6 +51,21 @@ def output_node(id_data):
     return tree.get_output_node('CYCLES')
 
 
+# Principled BSDF inputs the renderer does not model (docs/physics.md), with the value that turns
+# each off: set otherwise, or linked, the material is rendered without it and the render says so
+# (a map on the Coat Normal is warned about with the other bump maps, export.features)
+_NOT_MODELLED = (("Subsurface Weight", 0.0), ("Sheen Weight", 0.0), ("Anisotropic", 0.0),
+                 ("Specular Tint", (1.0, 1.0, 1.0)), ("Thin Film Thickness", 0.0), ("Diffuse Roughness", 0.0))
+
+
+def _is_on(socket, off) -> bool:
+    """Whether a Principled input is linked or set away from the value that turns it off."""
+    if upstream(socket) is not None:
+        return True
+    value = socket.default_value
+    return any(float(v) != o for v, o in zip(value[:3], off)) if isinstance(off, tuple) else float(value) != off
+
+
 class MaterialExporter:
     """Principled BSDF (and a few simple shaders) -> core Materials, each read once."""
 
@@ -134,6 +149,9 @@ class MaterialExporter:
         if out.coat_weight > 0.0 and (upstream(inputs["Coat Tint"]) is not None
                                       or any(v != 1.0 for v in inputs["Coat Tint"].default_value[:3])):
             self.warn(f"Material '{mat.name}': Coat Tint is not supported, the coat is clear")
+        ignored = [name for name, off in _NOT_MODELLED if name in inputs and _is_on(inputs[name], off)]
+        if ignored:
+            self.warn(f"Material '{mat.name}': Principled {', '.join(ignored)} not supported yet, rendered without")
         out.emission = self._emission(mat, inputs["Emission Color"], inputs["Emission Strength"], out)
         out.alpha, out.alpha_texture = principled_alpha(mat, node, self.warn)
         out.normal_texture, out.normal_strength = principled_normal_map(

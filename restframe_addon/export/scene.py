@@ -50,12 +50,18 @@ def _instance_source(inst, moving_instancers: dict):
     its own assembly, moving with that velocity in S): an instanced object's own velocity, else
     that of the nearest instancer with one (a collection instance inside an instanced collection,
     from ``moving_instancers``), else the top-level instancer's (collection instance empty,
-    particle emitter, the curve/text object of its own evaluated geometry).  Velocities do not
-    add up through the levels: each is measured in S.
+    particle emitter).  An object's own evaluated geometry listed as its instances (geometry-nodes
+    instances of geometry, a curve's or text's mesh) is the object itself, in its assembly.
+    Velocities do not add up through the levels: each is measured in S.
     """
     obj = inst.object
     if not inst.is_instance:
         return obj, tuple(assembly_root(obj).matrix_world.translation)
+    parent = inst.parent
+    if parent is not None and obj.original == parent.original:
+        # the instancer's own evaluated geometry (geometry-nodes instances of geometry, a curve's or
+        # text's mesh): Blender lists it as a copy of the instancer, which moves as the instancer's assembly
+        return parent, tuple(assembly_root(parent).matrix_world.translation)
     if _moves(obj):
         return obj, tuple(inst.matrix_world.translation)
     pid = tuple(inst.persistent_id)
@@ -65,7 +71,6 @@ def _instance_source(inst, moving_instancers: dict):
         found = moving_instancers.get(_instancer_key(inst, level))
         if found is not None:
             return found
-    parent = inst.parent
     if parent is not None and _moves(parent):
         return parent, tuple(assembly_root(parent).matrix_world.translation)
     return obj, tuple(inst.matrix_world.translation)

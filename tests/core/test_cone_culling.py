@@ -58,7 +58,7 @@ def test_run_by_run_cull_keeps_every_ray_the_per_ray_test_keeps():
     frame_set = frames()
     d = rays_on_cone_rims(frame_set, 3)
     shared = (0.0, EYE)
-    bundle = (*tracer._bundle_cone(d), tracer._sub_bundle_cones(d))
+    bundle = (*tracer._bundle_cone(d), tracer._sub_bundle_cones(tracer._run_bounds(d)))
     dropped = 0
     for cones in tracer._cones(frame_set, frame_set.world, list(frame_set.geometry), shared):
         axes, spread = cones
@@ -285,12 +285,60 @@ def test_sphere_cones_cull_the_frames_they_hold_more_tightly_than_their_box(monk
             assert np.array_equal(getattr(traced, f.name)[hit], getattr(everything, f.name)[hit]), f.name
 
 
-@pytest.mark.parametrize("ufunc", [np.minimum, np.maximum, np.add])
+@pytest.mark.parametrize("ufunc", [np.minimum, np.maximum])
 def test_per_run_reductions_are_those_of_each_run(ufunc):
-    values = np.random.default_rng(2).normal(size=(37 * tracer._RUN, 3))[:, 1]  # a strided column, as a ray's
-    expected = ufunc.reduce(values.reshape(-1, tracer._RUN), axis=1)
-    folded = tracer._per_run(ufunc, values)
-    if ufunc is np.add:  # (another order of the same sums)
-        np.testing.assert_allclose(folded, expected, rtol=1e-13, atol=1e-13)
-    else:
-        np.testing.assert_array_equal(folded, expected)
+    values = np.random.default_rng(2).normal(size=(37 * tracer._RUN, 3))  # runs along the first axis
+    expected = ufunc.reduce(values.reshape(-1, tracer._RUN, 3), axis=1)
+    np.testing.assert_array_equal(tracer._per_run(ufunc, values), expected)
+
+
+def test_run_bounds_are_those_of_each_run():
+    d = np.random.default_rng(2).normal(size=(37 * tracer._RUN + 5, 3))  # and some rays past the last whole run
+    low, high = tracer._run_bounds(d)
+    runs = d[:37 * tracer._RUN].reshape(37, tracer._RUN, 3)
+    np.testing.assert_array_equal(low, runs.min(axis=1).T)
+    np.testing.assert_array_equal(high, runs.max(axis=1).T)
+
+
+def test_each_run_lies_in_its_cone():
+    """The cone of a run is drawn about its box: every direction of the run is within it, the
+    cone is hardly wider than the run's own spread about the axis, and runs of opposite
+    directions have a cone that holds every direction."""
+    frame_set = frames()
+    d = rays_on_cone_rims(frame_set, 6)
+    count = len(d) // tracer._RUN
+    axes, run_cos, run_sin = tracer._sub_bundle_cones(tracer._run_bounds(d))
+    np.testing.assert_allclose(np.linalg.norm(axes[run_cos > -1.0], axis=1), 1.0, rtol=1e-15)
+    np.testing.assert_allclose(run_sin, np.sqrt(1.0 - run_cos ** 2))
+    runs = d[:count * tracer._RUN].reshape(count, tracer._RUN, 3)
+    cosines = np.einsum("brj,bj->br", runs, axes)
+    assert (cosines.min(axis=1) >= run_cos).all()
+    narrow = cosines.min(axis=1) > 0.99  # runs within about 8 degrees
+    assert narrow.sum() > count // 2
+    spread, bound = np.arccos(cosines.min(axis=1)[narrow]), np.arccos(run_cos[narrow])
+    assert (bound <= 2.0 * spread + 1e-5).all()
+    half = np.random.default_rng(7).normal(size=(5, tracer._RUN // 2, 3))
+    opposite = np.concatenate([half, -half], axis=1).reshape(-1, 3)  # each run: directions and their opposites
+    opposite /= np.linalg.norm(opposite, axis=1)[:, None]
+    assert (tracer._sub_bundle_cones(tracer._run_bounds(opposite))[1] == -1.0).all()
+
+
+def test_a_trace_writes_nothing_into_the_rays_arrays():
+    """The first frame's hits share the rays' own arrays (directions, start times) until a later
+    frame's nearer hits are written: those go into the tracer's own copies, never the caller's."""
+    wall = Mesh("wall", *box((0.0, 8.0, 0.0), (10.0, 0.5, 6.0)))  # at rest in the rays' frame, behind the bar
+    v, t = box((0.0, 2.0, 0.5), (1.0, 1.0, 2.0))
+    frame_set = build_frames(Scene(camera=look_at_camera(tuple(EYE), (0.0, 0.0, 0.0)),
+                                   meshes=[wall, Mesh("bar", v, t, velocity=Velocity((0.6, 0.0, 0.0)),
+                                                      pivot=(0.0, 2.0, 0.5))]))
+    d = camera_bundle(96, 32)
+    n = len(d)
+    tau0, x0 = np.zeros(n), np.tile(EYE, (n, 1))  # the rays' own arrays (not one shared event)
+    given = tau0.copy(), x0.copy(), d.copy()
+    hits = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
+    assert all(np.array_equal(a, b) for a, b in zip((tau0, x0, d), given))
+    ks, counts = np.unique(hits.frame[hits.frame >= 0], return_counts=True)
+    assert frame_set.world in ks and len(ks) == 2 and counts.min() > 20  # the wall and, in front of it, the bar
+    on_wall = hits.frame == frame_set.world
+    np.testing.assert_array_equal(hits.d_frame[on_wall], d[on_wall])
+    assert not np.allclose(hits.d_frame[(hits.frame >= 0) & ~on_wall], d[(hits.frame >= 0) & ~on_wall])
