@@ -145,6 +145,22 @@ class CameraRays:
         return (np.broadcast_to(self.position, (n, 3)), directions, camera.clip_start * per_depth,
                 camera.clip_end * per_depth, np.ones(n, dtype=bool))
 
+    def cone(self, rect):
+        """(axis, half-angle) of a cone holding the direction of every pinhole ray through the
+        pixels ``rect`` = (x0, y0, x1, y1) (their whole area) of a perspective camera, None for
+        other cameras or a cone of a right angle or more.  The rays through a rectangle of the
+        image plane are positive sums of its corners' rays, which a cone under a right angle
+        (a convex set) holding those holds too; widened for the rays' own rounding."""
+        if self.camera.kind != "PERSP":
+            return None
+        x0, y0, x1, y1 = rect
+        corners = self._perspective(np.array([x0, x1, x1, x0], dtype=np.float64) / self.width,
+                                    np.array([y0, y0, y1, y1], dtype=np.float64) / self.height, False)[1]
+        axis = corners.sum(axis=0)
+        axis /= np.linalg.norm(axis)
+        angle = float(np.arccos(np.clip(corners @ axis, -1.0, 1.0).min())) * (1.0 + 1e-6) + 1e-9
+        return (axis, angle) if angle < 0.5 * np.pi else None
+
     def _through_lens(self, origins, directions, s_lo, s_hi, valid, pixel, sample, count):
         """The pinhole rays moved to their aperture points and aimed at the points where they
         meet the plane of focus (panoramas: the sphere of focus), as Cycles' thin lens.

@@ -58,8 +58,9 @@ def attach(scene, device, vertices, triangles: np.ndarray) -> bool:
 
 
 def shared_vertices(device, vertices: np.ndarray) -> SharedVertices | None:
-    """float32 vertices (n, 3) in one embree buffer for the geometries :func:`attach` makes
-    from them; None where the direct route is not available."""
+    """float32 vertices (n, 3), or (n, 4) as :func:`padded_vertices` lays them out, in one embree
+    buffer for the geometries :func:`attach` makes from them; None where the direct route is not
+    available."""
     return SharedVertices(_library, device, vertices) if ready(device) else None
 
 
@@ -91,8 +92,20 @@ def _field(obj, offset: int) -> int:
     return ctypes.c_void_p.from_address(id(obj) + offset).value or 0
 
 
+def padded_vertices(vertices: np.ndarray, anchor) -> np.ndarray:
+    """float64 vertices (n, 3) relative to ``anchor``, rounded to float32 once, in embree's
+    layout (:func:`_padded`) from the start (no float32 (n, 3) copy in between)."""
+    padded = np.empty((len(vertices), 4), dtype=np.float32)
+    np.subtract(vertices, anchor, out=padded[:, :3], casting="same_kind")
+    padded[:, 3] = 0.0
+    return padded
+
+
 def _padded(vertices) -> np.ndarray:
-    """Vertices in embree's layout: x, y, z and an unused fourth float each."""
+    """Vertices in embree's layout: x, y, z and an unused fourth float each (as they are if
+    they have it already)."""
+    if vertices.shape[1] == 4 and vertices.dtype == np.float32 and vertices.flags.c_contiguous:
+        return vertices
     padded = np.zeros((len(vertices), 4), dtype=np.float32)
     padded[:, :3] = vertices
     return padded

@@ -509,7 +509,8 @@ def _mesh_part(mesh, boost: Boost, warnings: list[str], relative_to=None):
     triangles = np.asarray(mesh.triangles, dtype=np.int64).reshape(-1, 3)
     if len(triangles) == 0:
         return None
-    if triangles.min() >= 0 and triangles.max() < len(vertices) and np.isfinite(vertices).all():
+    # (read as unsigned, a negative index is larger than any vertex count: one reduction for both ends)
+    if int(triangles.view(np.uint64).max()) < len(vertices) and np.isfinite(vertices).all():
         keep, count = slice(None), len(triangles)  # the common case, checked without a pass per triangle
     else:
         valid = np.all((triangles >= 0) & (triangles < len(vertices)), axis=1)
@@ -568,8 +569,8 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     (checked between pieces of ``_PIECE_TRIANGLES``; embree's BVH build, last, cannot be
     interrupted)."""
     offsets = np.cumsum([0] + [len(p["vertices"]) for p in parts[:-1]])
-    vertices = np.concatenate([p["vertices"] for p in parts])
-    triangles = np.concatenate([p["triangles"] + o for p, o in zip(parts, offsets)])
+    vertices = _joined([p["vertices"] for p in parts])
+    triangles = _joined([p["triangles"] + o if o else p["triangles"] for p, o in zip(parts, offsets)])
     normals = uvs = None
     if any(p["normals"] is not None for p in parts):
         normals = np.concatenate([p["normals"] if p["normals"] is not None else _flat_normals(p) for p in parts])
@@ -588,9 +589,10 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     radius = float(np.sqrt(np.max(x * x + y * y + z * z)))
     anchor = 0.5 * (lo + hi)
     scene = rtcore_scene.EmbreeScene(_embree_device())
-    local_vertices = (vertices - anchor).astype(np.float32)
+    padded = embree_direct.padded_vertices(vertices, anchor)  # float32, rounded once
+    local_vertices = padded[:, :3]
     piece_start = np.arange(0, len(triangles), _PIECE_TRIANGLES, dtype=np.int32)
-    shared = embree_direct.shared_vertices(_embree_device(), local_vertices)
+    shared = embree_direct.shared_vertices(_embree_device(), padded)
     claimed_by = np.empty(len(vertices), dtype=np.intp)  # scratch for _attach_piece
     try:
         for start in piece_start:
@@ -604,12 +606,18 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     return Geometry(
         radius=radius,
         vertices=vertices, triangles=triangles,
-        tri_material=np.concatenate([p["material"] for p in parts]),
-        tri_object_index=np.concatenate([p["object_index"] for p in parts]),
-        tri_clock=np.concatenate([p["clock"] for p in parts]),
+        tri_material=_joined([p["material"] for p in parts]),
+        tri_object_index=_joined([p["object_index"] for p in parts]),
+        tri_clock=_joined([p["clock"] for p in parts]),
         corner_normals=normals, corner_uvs=uvs, lo=lo, hi=hi, anchor=anchor, embree=scene,
         piece_start=piece_start, tri_visibility=visibility, tri_holdout=holdout,
     )
+
+
+def _joined(arrays: list[np.ndarray]) -> np.ndarray:
+    """The arrays one after the other: a copy of the one array of a lone part (its arrays may be
+    views of the scene's), not two."""
+    return np.array(arrays[0]) if len(arrays) == 1 else np.concatenate(arrays)
 
 
 def _commit(scene) -> None:

@@ -70,6 +70,8 @@ def surface_doppler(frame: RestFrame, prim, u, v, tau_hit, d_k) -> np.ndarray:
 def hit_doppler(frame: RestFrame, prim, u, v, tau_hit, d_k, w) -> np.ndarray:
     """Doppler factor D of the light of hits of one frame as seen by the rays' source: the
     surface's own factor over the path-length ratio w = s_frame / s (1/D between the frames)."""
+    if frame.spin is None:  # (the surface's own factor is 1: the same bits as ones / w)
+        return 1.0 / w
     return surface_doppler(frame, prim, u, v, tau_hit, d_k) / w
 
 
@@ -104,6 +106,28 @@ def ray_doppler(frames: FrameSet, hits: Hits) -> np.ndarray:
     return doppler
 
 
+def _emission_times(frames: FrameSet, light_speed: float, rays, hits: Hits, hit) -> np.ndarray:
+    """The Emission Time pass (float32, 0 on a miss): the world time of each hit event, back
+    along the ray in the camera frame, then into S."""
+    tau, x, d = rays[:3]
+    n = len(d)
+    shared = n > 0 and x.strides[0] == 0 and tau.strides[0] == 0  # one event (broadcast views): no gathers
+    to_world = frames.map(frames.camera, frames.world)
+    emission = np.zeros(n, dtype=np.float32)
+    if shared and to_world.is_identity:  # a camera at rest in S: no hit positions, no gathers
+        world_tau = np.subtract(tau[0], hits.s)  # (every ray's; the misses' are not written)
+        world_tau /= light_speed
+        np.copyto(emission, world_tau, where=hit, casting="same_kind")
+        return emission
+    s_hit = hits.s[hit]
+    world_tau = (tau[0] if shared else tau[hit]) - s_hit
+    if not to_world.is_identity:
+        world_tau, _ = to_world.events(world_tau, rows.add_scaled(x[0] if shared else rows.take(x, hit), s_hit,
+                                                                  rows.take(d, hit)))
+    emission[hit] = world_tau / light_speed
+    return emission
+
+
 def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
                  shading_normals=None) -> dict[str, np.ndarray]:
     """The passes ``wanted`` (names besides Combined) of camera rays ``rays`` = (tau, x, d, ...)
@@ -111,25 +135,18 @@ def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
     in float64 and rounded once, as it is written).  ``shading_normals(k,
     prim, u, v, d_k, tau_hit)``: the Normal pass's normals at hits of frame k (normal maps applied,
     as Cycles shows them; None: :func:`facing_normals`')."""
-    tau, x, d = rays[:3]
     wanted = set(wanted)
-    n = len(d)
+    n = len(rays[2])
     hit = hits.frame >= 0
     passes = {}
+    any_hit = bool(hit.any())  # (a tile that sees nothing: the misses' values alone)
     if "Depth" in wanted:
         passes["Depth"] = np.full(n, _MISS_DEPTH, dtype=np.float32)
-        np.copyto(passes["Depth"], hits.s, where=hit, casting="same_kind")
+        if any_hit:
+            np.copyto(passes["Depth"], hits.s, where=hit, casting="same_kind")
     if "Emission Time" in wanted:
-        # world time of the hit event: back along the ray in the camera frame, then into S
-        s_hit = hits.s[hit]
-        shared = n > 0 and x.strides[0] == 0 and tau.strides[0] == 0  # one event (broadcast views): no gathers
-        to_world = frames.map(frames.camera, frames.world)
-        world_tau = (tau[0] if shared else tau[hit]) - s_hit
-        if not to_world.is_identity:  # (a camera at rest in S needs no hit positions)
-            world_tau, _ = to_world.events(world_tau, rows.add_scaled(x[0] if shared else rows.take(x, hit), s_hit,
-                                                                      rows.take(d, hit)))
-        passes["Emission Time"] = np.zeros(n, dtype=np.float32)
-        passes["Emission Time"][hit] = world_tau / light_speed
+        passes["Emission Time"] = (_emission_times(frames, light_speed, rays, hits, hit) if any_hit
+                                   else np.zeros(n, dtype=np.float32))
     per_frame = wanted & {"Doppler", "Normal", "IndexOB", "Object Time"}
     for name in per_frame:
         passes[name] = np.zeros((n, len(BY_NAME[name].channels)), dtype=np.float32)
@@ -137,6 +154,8 @@ def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
         return passes
     for k in frames_hit(hits):
         sel = np.flatnonzero(hits.frame == k)
+        if len(sel) == n:  # every ray hit this frame: views, no gathers
+            sel = slice(None)
         frame = frames.frames[int(k)]
         tau_hit = hit_times(hits, sel)
         prim, u, v = hits.prim[sel], hits.u[sel], hits.v[sel]

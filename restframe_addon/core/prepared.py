@@ -29,7 +29,7 @@ from .passes import DEFAULT_PASSES, EXTRA_PASSES, ray_doppler
 from .persistent import GeometryCache
 from .scene import RAY_CAMERA, Camera, RenderSettings, Scene, render_workers
 from .shading import MaterialTable, PreparedLight, Shader, prepare_lights
-from .tracer import TraceCache
+from .tracer import TraceCache, misses_everything
 from .validation import RenderError, check_render
 
 _SMALLEST_SPLIT_TILE = 8  # pixels: tiles are not split below this (the Tile Size setting's own minimum)
@@ -109,7 +109,13 @@ class PreparedScene:
         x0, y0, x1, y1 = rect
         xs = np.tile(np.arange(x0, x1, dtype=np.int64), y1 - y0)
         ys = np.repeat(np.arange(y0, y1, dtype=np.int64), x1 - x0)
-        return xs, ys, ys * self.settings.resolution[0] + xs
+        return xs, ys, self.pixel_ids(rect)
+
+    def pixel_ids(self, rect):
+        """Flat image indices of a rectangle of pixels, in row-major order (row starts plus columns: one pass)."""
+        x0, y0, x1, y1 = rect
+        return np.add.outer(np.arange(y0, y1, dtype=np.int64) * self.settings.resolution[0],
+                            np.arange(x0, x1, dtype=np.int64)).ravel()
 
     # ------------------------------------------------------------------ rays
     @property
@@ -144,6 +150,28 @@ class PreparedScene:
         else:
             tau = np.broadcast_to(self.camera_tau, (len(d),))  # read-only views: every ray starts at this time
         return (tau, origins, d, s_lo, s_hi if valid.all() else np.where(valid, s_hi, -np.inf)), doppler
+
+    def misses_everything(self, rect, cache: TraceCache | None = None) -> bool:
+        """Whether every camera ray through the pixels ``rect`` provably misses every surface
+        while a missing ray's colour and passes do not depend on its direction (a pinhole camera
+        at rest with the world, Direct Light), so that a tile need not make or trace its rays
+        (:meth:`missing_rays` stand in for them)."""
+        frames = self.frames
+        if self.samples_vary or self.path_tracer is not None or not frames.map(frames.camera, frames.world).is_identity:
+            return False
+        cone = self.camera_rays.cone(rect)
+        return cone is not None and misses_everything(frames, frames.camera, (float(self.camera_tau),
+                                                                              self.camera_rays.position), cone, cache)
+
+    def missing_rays(self, n: int):
+        """``n`` camera rays that :meth:`misses_everything` found to miss: their shared
+        observation event, the view axis for a direction (what is drawn for a miss, and its
+        passes, do not depend on it) and the clip range of that axis (read-only views)."""
+        camera = self.scene.camera
+        axis = -self.camera_rays.rotation[:, 2]
+        return (np.broadcast_to(self.camera_tau, (n,)), np.broadcast_to(self.camera_rays.position, (n, 3)),
+                np.broadcast_to(axis / np.linalg.norm(axis), (n, 3)), np.broadcast_to(camera.clip_start, (n,)),
+                np.broadcast_to(camera.clip_end, (n,)))
 
     def centre_rays(self, rect):
         """The pixel-centre camera rays of a rectangle of pixels, in row-major order."""

@@ -27,7 +27,7 @@ from .passes import (ALL_PASSES, DENOISING_PASSES, EXTRA_PASSES, PASSES, pixel_p
                      ray_doppler)
 from .prepared import PreparedScene, prepare
 from .scene import RAY_CAMERA, RenderSettings, Scene, render_workers
-from .tracer import TraceCache
+from .tracer import TraceCache, no_hits
 from .validation import DOPPLER_MODES, RenderError  # noqa: F401 (public names of this module)
 
 _MAX_VALUES = 3 << 16  # ray colour values per batch: bounds memory whatever the tile size, samples and wavelengths
@@ -64,40 +64,55 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
         y0, y1 = rows
         rect = x0, y0, x1, y1
     h, w = y1 - y0, x1 - x0
-    xs, ys, pixel = prepared.pixel_grid(rect)
+    pixel = prepared.pixel_ids(rect)
     n = len(pixel)
+    xs = ys = None  # the pixels' coordinates, for jittered samples
     shader = prepared.shader
-    centre = prepared.centre_rays(rect)
-    centre_hits = shader.trace(frames.camera, *centre, RAY_CAMERA, pixel, np.zeros_like(pixel), 0, cache,
-                               for_passes=True)
+    empty = prepared.misses_everything(rect, cache)  # then no ray of the tile is made or traced
+    if empty:
+        centre, centre_hits = prepared.missing_rays(n), no_hits(n, read_only=True)
+    else:
+        centre = prepared.centre_rays(rect)
+        centre_hits = shader.trace(frames.camera, *centre, RAY_CAMERA, pixel, np.broadcast_to(np.int64(0), (n,)), 0,
+                                   cache, for_passes=True)
     passes = pixel_passes(frames, prepared.scene.light_speed, prepared.passes, centre, centre_hits,
                           shader.shading_normals if prepared.materials.normal_mapped else None)
     samples = max(int(settings.samples), 1)
-    rgb = np.zeros((n, 3))
+    batches = list(_batches(tile_pixels, samples, prepared.colour.channels, share))
+    # one batch of every pixel and sample: its colours are the sums (added to 0.0 below, as to the sums' zeros)
+    rgb = None if len(batches) == 1 and batches[0][0] == slice(0, n) else np.zeros((n, 3))
+    summed = rgb is not None
     # the share of samples that hit a surface (holdouts included): a transparent film's alpha
     coverage = np.zeros(n) if settings.film_transparent else None
     held = np.zeros(n) if shader.has_holdouts else None  # the share of samples that hit a holdout
     denoising = {name: np.zeros((n, 3)) for name in DENOISING_PASSES if name in prepared.passes}
     complete = True
-    for index, (part, first, count) in enumerate(_batches(tile_pixels, samples, prepared.colour.channels, share)):
+    for index, (part, first, count) in enumerate(batches):
         if index and should_stop():  # Esc between sample batches of a long tile
             complete = False
             break
         m = part.stop - part.start
         pix = pixel[part] if count == 1 else np.repeat(pixel[part], count)  # (a view: nothing writes into it)
-        smp = np.tile(np.arange(first, first + count), m)
+        smp = np.broadcast_to(np.int64(first), (m,)) if count == 1 else np.tile(np.arange(first, first + count), m)
         observed = None  # the Doppler factor of the camera frame seen by each sample's observer (None: 1)
         if samples == 1 and not prepared.samples_vary:  # the one sample is the pixel-centre ray
             rays = tuple(a[part] for a in centre)
             # already traced, unless cut-outs pass it by chance (the passes' trace used a threshold)
             hits = (shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache)
-                    if prepared.materials.cuts_out else centre_hits.take(part))
+                    if prepared.materials.cuts_out and not empty else centre_hits.take(part))
+        elif empty:
+            rays, hits = prepared.missing_rays(len(pix)), no_hits(len(pix), read_only=True)
         else:
+            if xs is None:
+                xs, ys, _ = prepared.pixel_grid(rect)
             px, py = sampling.stratified_positions(xs[part], ys[part], pixel[part], first, count, samples)
             rays, observed = prepared.sample_rays(px, py, keys=(pix, smp, samples))
             hits = shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache)
         color, hit, hole = _sample(prepared, rays, hits, pix, smp, cache, observed)
-        rgb[part] += _per_pixel(color, m, count)
+        if summed:
+            rgb[part] += _per_pixel(color, m, count)
+        else:
+            rgb = _per_pixel(color, m, count)
         if denoising:
             for name, values in prepared.shader.denoising_data(hits).items():
                 if name in denoising:
@@ -112,7 +127,8 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
         alpha = alpha - held / samples
     combined = np.empty((n, 4), dtype=np.float32)  # rounded to float32 once, as every pass
     for axis in range(3):  # by column: a cast into a 2-d slice is 3x slower
-        np.multiply(rgb[:, axis], prepared.exposure / samples, out=combined[:, axis])
+        column = rgb[:, axis] if summed else np.add(rgb[:, axis], 0.0)  # (0.0 + x: a sum's bits, -0.0 too)
+        np.multiply(column, prepared.exposure / samples, out=combined[:, axis])
     combined[:, 3] = alpha
     passes["Combined"] = combined
     for name, total in denoising.items():

@@ -15,11 +15,14 @@ _ONES = np.ones(3)
 
 
 def take(a, index) -> np.ndarray:
-    """The rows of ``a`` at ``index`` (integer indices or a boolean mask over the rows).
+    """The rows of ``a`` at ``index`` (integer indices or a boolean mask over the rows; a slice:
+    a view of them).
 
     numpy's fancy indexing of an (n, 3) array copies three elements at a time: ``take`` and
     ``compress`` along the first axis do the same 3-4x faster (1-D arrays alike for masks).
     """
+    if isinstance(index, slice):
+        return a[index]
     index = np.asarray(index)
     if index.dtype == bool:
         return np.compress(index, a, axis=0)

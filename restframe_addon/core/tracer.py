@@ -375,8 +375,9 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
     hits = None
     candidates = frames.candidates(src, tau0, x0)
     shared = _shared_origin(tau0, x0)
-    # culling pays off only when several frames share the rays
-    if shared is not None and len(candidates) > 1 and n:
+    # rays from one event are culled by the frames' body boxes and bounding cones, a lone frame's
+    # too: a ray embree sends past the bounds still costs ~26 ns, more than the culling
+    if shared is not None and n:
         candidates, culled = _cull_bundle(frames, src, candidates, shared, d, s_lo, best, cache)
     else:
         culled = [None] * len(candidates)
@@ -411,7 +412,7 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
                 best = np.minimum(best, s)
             continue
         if hits is None:
-            hits, borrowed = _no_hits(n), False
+            hits, borrowed = no_hits(n), False
             best = best.copy()
         if borrowed and (rays is None or nearer.any()):
             hits, borrowed = _owned(hits), False
@@ -421,7 +422,7 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
             keep = np.flatnonzero(nearer)
             _update(hits, best, rays[keep], k, s[keep], t[keep], None if w is None else w[keep],
                     prim[keep], u[keep], v[keep], rows.take(dk, keep), tau_k[keep])
-    return _no_hits(n) if hits is None else hits
+    return no_hits(n) if hits is None else hits
 
 
 def _owned(hits: Hits) -> Hits:
@@ -449,10 +450,17 @@ def frames_hit(hits: Hits) -> np.ndarray:
     return np.flatnonzero(np.bincount(frame + 1)[1:])
 
 
-def _no_hits(n: int) -> Hits:
+def no_hits(n: int, read_only: bool = False) -> Hits:
+    """The hits of ``n`` rays that hit nothing (``read_only``: broadcast views, for callers that only read them)."""
+    if read_only:
+        return Hits(*(np.broadcast_to(getattr(_NO_HIT, f.name), (n, *getattr(_NO_HIT, f.name).shape[1:]))
+                      for f in fields(Hits)))
     return Hits(frame=np.full(n, -1, dtype=np.int32), s=np.full(n, np.inf), s_frame=np.full(n, np.inf),
                 w=np.ones(n), prim=np.full(n, -1, dtype=np.int32), u=np.zeros(n, dtype=np.float32),
                 v=np.zeros(n, dtype=np.float32), d_frame=np.zeros((n, 3)), tau_frame=np.zeros(n))
+
+
+_NO_HIT = no_hits(1)  # one ray's, for read-only views
 
 
 def _update(hits: Hits, best, where, k, s, t, w, prim, u, v, d_frame, tau_frame):
@@ -501,6 +509,8 @@ def _cull_bundle(frames: FrameSet, src: int, ks, shared, d, s_lo, s_hi, cache: T
     (:func:`_toward`).  A frame left with no ray is left out: nothing is mapped or queried for it.
     """
     n = len(d)
+    if len(ks) == 1 and frames.frames[ks[0]].geometry.clusters is None:
+        return _cull_for_lone_frame(frames, src, ks[0], shared, d, cache)
     extent = (float(np.max(np.abs(shared[1]))), abs(shared[0]))  # (for the rounding margin of the body boxes)
     path_range = float(np.min(s_lo)), float(np.max(s_hi))  # every ray's, for the body boxes
     run_bounds = _run_bounds(d)
@@ -519,8 +529,31 @@ def _cull_bundle(frames: FrameSet, src: int, ks, shared, d, s_lo, s_hi, cache: T
             rays = _rays_of_runs(runs, n)
         if len(rays):
             kept.append(k)
-            culled.append(None if len(rays) == n else rays)
+            culled.append(_gathered(rays, n))
     return kept, culled
+
+
+def _cull_for_lone_frame(frames: FrameSet, src: int, k: int, shared, d, cache: TraceCache | None):
+    """:func:`_cull_bundle` for the one frame of a scene (no culling clusters: one sphere holds
+    it, :func:`_lone_sphere`): the whole bundle's cone against the sphere's first (no pass over
+    the rays where it settles them), then each ray against it (body boxes and sub-bundles cost
+    more than they save with one sphere)."""
+    cones = _frame_cones(frames, src, [k], shared, cache)[0]
+    if cones is None:  # the event is inside the sphere
+        return [k], [None]
+    meeting = _cones_meeting(cones, *_bundle_cone(d))
+    if meeting is None:  # the bundle lies in the sphere's cone
+        return [k], [None]
+    (axis,), (spread,) = cones
+    rays = np.flatnonzero(d @ axis >= np.cos(spread)) if len(meeting) else np.zeros(0, dtype=np.intp)
+    return ([k], [_gathered(rays, len(d))]) if len(rays) else ([], [])
+
+
+def _gathered(rays, n: int):
+    """The rays of a bundle of ``n`` to gather for a frame, or None (all of them) when they are
+    more than ``_GATHER_SHARE`` of it: gathering the kept rays and scattering their hits then
+    costs more than tracing the others, which miss (the same hits)."""
+    return None if len(rays) > _GATHER_SHARE * n else rays
 
 
 def _rays_of_runs(runs, n: int) -> np.ndarray:
@@ -569,10 +602,9 @@ def _toward(cones, d, bundle, runs):
         return None
     axes, spread = cones
     bundle_axis, bundle_angle, (run_axes, run_cos, run_sin) = bundle
-    apart = np.arccos(np.clip(axes @ bundle_axis, -1.0, 1.0))
-    if np.any(apart + bundle_angle <= spread):
+    meeting = _cones_meeting(cones, bundle_axis, bundle_angle)
+    if meeting is None:
         return None
-    meeting = np.flatnonzero(apart <= spread + bundle_angle)
     axes, spread = axes[meeting], spread[meeting]
     inside = np.zeros(len(d), dtype=bool)
     tested = np.arange(_RUN * len(run_axes), len(d))  # the rays past the last whole run: one by one
@@ -595,6 +627,17 @@ def _toward(cones, d, bundle, runs):
     return np.flatnonzero(inside)
 
 
+def _cones_meeting(cones, bundle_axis, bundle_angle: float):
+    """Indices of the sphere ``cones`` (axes, half-angles) that a bundle's cone meets, or None
+    when one of them holds it whole."""
+    axes, spread = cones
+    apart = np.arccos(np.clip(axes @ bundle_axis, -1.0, 1.0))
+    if np.any(apart + bundle_angle <= spread):
+        return None
+    return np.flatnonzero(apart <= spread + bundle_angle)
+
+
+_GATHER_SHARE = 0.5  # the share of a bundle's rays above which the culled ones are traced too (see _gathered)
 _RUN = 16  # rays per sub-bundle (consecutive rays: a run of pixels in a row of the tile)
 _RUN_MARGIN = 1e-6  # radians: a run is dropped whole only this far clear of every cone (rounding)
 
@@ -710,6 +753,23 @@ def _bundle_cone(d):
     return axis, float(np.arccos(np.clip((d @ axis).min(), -1.0, 1.0)))
 
 
+def misses_everything(frames: FrameSet, src: int, origin_event, cone, cache: TraceCache | None = None) -> bool:
+    """Whether every backward ray from one event (tau, x) of frame src whose direction lies in
+    ``cone`` (axis, half-angle) misses every surface: the cone meets none of the frames' sphere
+    cones, so the tracer's own cull would drop each such ray (in a scene without animated
+    segments, whose candidate frames depend on the rays' events)."""
+    if frames.groups:
+        return False
+    ks = list(frames.geometry)
+    for cones in _frame_cones(frames, src, ks, origin_event, cache):
+        if cones is None:
+            return False
+        meeting = _cones_meeting(cones, *cone)
+        if meeting is None or len(meeting):
+            return False
+    return True
+
+
 def _frame_cones(frames: FrameSet, src: int, ks, origin_event, cache: TraceCache | None) -> list:
     """The cones of the frames ``ks`` seen from one event (:func:`_cones`), from the thread's
     cache where it has them: they depend on the event alone, so every tile of a perspective
@@ -719,6 +779,17 @@ def _frame_cones(frames: FrameSet, src: int, ks, origin_event, cache: TraceCache
     event = (origin_event[0], *origin_event[1].tolist())
     return cache.cones([(src, k, *event) for k in ks],
                        lambda missing: _cones(frames, src, [ks[i] for i in missing], origin_event))
+
+
+def _lone_sphere(geometry, offset) -> list[float]:
+    """(centre, radius) in frame coordinates of a sphere holding a geometry without culling
+    clusters: the smaller of the one about its local origin (a body's pivot) and the one
+    around its bounds."""
+    half = 0.5 * (geometry.hi - geometry.lo)
+    around_bounds = float(np.linalg.norm(half))
+    if geometry.radius <= around_bounds:
+        return [*offset, geometry.radius]
+    return [*(offset + geometry.lo + half), around_bounds]
 
 
 def _cones(frames: FrameSet, src: int, ks, origin_event) -> list:
@@ -737,6 +808,8 @@ def _cones(frames: FrameSet, src: int, ks, origin_event) -> list:
         _, x_k = frames.map(src, k).events(np.array(origin_event[0]), origin_event[1])
         if frame.spin is not None:  # any pose: the sphere about the pivot
             frame_spheres = np.array([[*frame.offset, geometry.radius]])
+        elif geometry.clusters is None:  # a lone frame (no clusters built): one sphere holding it
+            frame_spheres = np.array([_lone_sphere(geometry, frame.offset)])
         else:
             frame_spheres = geometry.clusters + np.append(frame.offset, 0.0)
         spheres.append(frame_spheres)

@@ -38,6 +38,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
+if __name__ == "__main__" and "--checkout" in sys.argv:  # the renderer of another checkout (a git worktree)
+    ROOT = Path(sys.argv[sys.argv.index("--checkout") + 1]).resolve()
 sys.path.insert(0, str(ROOT))
 
 SCENES = {  # name: (.blend, resolution or None for the file's, samples or None, tile size or None)
@@ -137,6 +139,16 @@ def amdahl(serial: float, work: float, cores: int) -> float:
     return (serial + work) / (serial + work / cores)
 
 
+def tiles_and_shares(prepared, workers_count: int) -> tuple[int, int]:
+    """The tiles and shares a render of ``prepared`` has with ``workers_count`` workers: the
+    tiles are halved while fewer than the workers, and the shares cut them in bands."""
+    from restframe_addon.core import workers
+
+    rects = dataclasses.replace(prepared, settings=dataclasses.replace(prepared.settings,
+                                                                       threads=workers_count)).tiles()
+    return len(rects), len(workers.share_out(rects, workers_count))
+
+
 def engine_streaming(blend, resolution, samples, tile_size) -> tuple[float, int]:
     """One F12 through Blender's render engine in worker processes: seconds the engine spent
     streaming tiles into Blender's result (RenderStats.caller_cpu: CPU seconds, which the
@@ -159,6 +171,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="small images (a check that the script runs)")
+    parser.add_argument("--checkout", help="render with the restframe_addon of this checkout (a git worktree), "
+                                           "to compare it with this one's by the same measurements")
     args = parser.parse_args()
 
     import restframe_addon
@@ -350,6 +364,28 @@ def main():
             parallel = cpu_one + per_tile * (tiles - 1)
             print(f"| {label} | {serial * 1e3:.1f} | {serial / (serial + parallel):.2%} "
                   f"| {amdahl(serial, parallel, 8):.1f}x | {amdahl(serial, parallel, 16):.1f}x |")
+        # strict, for N cores: the parent's work per share (dealing, the workers' messages) and per
+        # tile (streaming) as measured here, times the shares and tiles a render on N workers has
+        # (the tiles are halved while fewer than the workers, the shares cut them in bands)
+        per_share = (one.loop_cpu + one.receiving_cpu) / one.shares
+        counts = {cores: tiles_and_shares(prepared, cores) for cores in (8, 16)}
+        for label, rebuilt in (("F12 cold, strict, with the tiles and shares of 8 / 16 workers", waits["cold"]),
+                               ("F12 warm, strict, with the tiles and shares of 8 / 16 workers", waits["warm"])):
+            fixed = one.pickling + one.sending + rebuilt
+            serial = {cores: fixed + per_share * shares + streaming_per_tile * count
+                      for cores, (count, shares) in counts.items()}
+            print(f"| {label} ({' / '.join(f'{t} tiles, {n} shares' for t, n in counts.values())}) "
+                  f"| {serial[8] * 1e3:.1f} / {serial[16] * 1e3:.1f} | {serial[16] / (serial[16] + cpu_one):.2%} "
+                  f"| {amdahl(serial[8], cpu_one, 8):.1f}x | {amdahl(serial[16], cpu_one, 16):.1f}x |")
+        two_parent = two.parent_seconds - two.caller_cpu + streaming_per_tile * tiles
+        print(f"| F12, strict, measured with two workers (this process's own work in processes x2, "
+              f"{two.shares} shares) | {(two_parent + waits['warm']) * 1e3:.1f} "
+              f"| {(two_parent + waits['warm']) / (two_parent + waits['warm'] + cpu_one):.2%} "
+              f"| {amdahl(two_parent + waits['warm'], cpu_one, 8):.1f}x "
+              f"| {amdahl(two_parent + waits['warm'], cpu_one, 16):.1f}x |")
+        print(f"\n- this process per share {per_share * 1e3:.3f} ms (the loop and the workers' messages), "
+              f"per tile {streaming_per_tile * 1e3:.3f} ms (the engine's streaming); with two workers: "
+              f"loop {two.loop_cpu * 1e3:.1f} ms, messages {two.receiving_cpu * 1e3:.1f} ms for {two.shares} shares")
         print(f"\nShares dealt: {two.shares} for 2 workers, {len(workers.share_out(prepared.tiles(), 8))} for 8, "
               f"{len(workers.share_out(prepared.tiles(), 16))} for 16 ({tiles} tiles).\n")
         print(f"- peak RSS of the tuned workers so far: "

@@ -10,7 +10,7 @@ from dataclasses import fields
 
 import numpy as np
 import pytest
-from shapes import box, look_at_camera
+from shapes import box, look_at_camera, uv_sphere
 
 from restframe_addon.core import tracer
 from restframe_addon.core.frames import build_frames
@@ -216,18 +216,28 @@ def camera_bundle(width: int = 384, height: int = 64, rise=(-0.3, 0.2)):
     return d / np.linalg.norm(d, axis=1)[:, None]
 
 
+def from_the_eye(d):
+    """(tau0, x0) of rays d from the eye at time 0, as a perspective camera's (broadcast views)."""
+    return np.broadcast_to(0.0, (len(d),)), np.broadcast_to(EYE, (len(d), 3))
+
+
+def queried_rays(monkeypatch) -> list:
+    """The number of rays of each frame query from now on (``tracer._query`` counted)."""
+    queried = []
+    query = tracer._query
+    monkeypatch.setattr(tracer, "_query", lambda frame, tau, origin, dk, *rest, **kw: queried.append(len(dk))
+                        or query(frame, tau, origin, dk, *rest, **kw))
+    return queried
+
+
 def test_camera_rays_that_miss_a_body_box_are_not_traced_in_its_frame(monkeypatch):
     """The runs of a camera bundle that pass no part of a frame's body box are dropped before
     being mapped into the frame: fewer rays queried than with the sphere cones alone (a row's
     sphere is far wider than its box), the very same hits as without culling."""
     frame_set = rows_of_bars()
     d = camera_bundle()
-    n = len(d)
-    tau0, x0 = np.broadcast_to(0.0, (n,)), np.broadcast_to(EYE, (n, 3))
-    queried = []
-    query = tracer._query
-    monkeypatch.setattr(tracer, "_query", lambda frame, tau, origin, dk, *rest, **kw: queried.append(len(dk))
-                        or query(frame, tau, origin, dk, *rest, **kw))
+    tau0, x0 = from_the_eye(d)
+    queried = queried_rays(monkeypatch)
     assert tracer._cones_pay(frame_set, frame_set.world, list(frame_set.geometry), None) == [False] * 3
     culled = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
     box_culled, queried[:] = sum(queried), []
@@ -283,6 +293,31 @@ def test_sphere_cones_cull_the_frames_they_hold_more_tightly_than_their_box(monk
         assert np.array_equal(traced.frame, everything.frame)
         for f in fields(traced):
             assert np.array_equal(getattr(traced, f.name)[hit], getattr(everything, f.name)[hit]), f.name
+
+
+def test_a_lone_frame_is_culled_too(monkeypatch):
+    """A lone moving body (no culling clusters: one sphere around it) still has the rays of a
+    camera bundle that miss its sphere's cone dropped before they are mapped into its frame and
+    queried, and a bundle whose cone misses it whole queries nothing; the very same hits."""
+    v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, 24, 12)
+    frame_set = build_frames(Scene(camera=look_at_camera(tuple(EYE), (0.0, 0.0, 0.0)),
+                                   meshes=[Mesh("ball", v, t, velocity=Velocity((0.5, 0.2, 0.0)))]))
+    assert len(frame_set.geometry) == 1 and frame_set.frames[frame_set.geometry[0]].geometry.clusters is None
+    d = camera_bundle()
+    n = len(d)
+    tau0, x0 = from_the_eye(d)
+    queried = queried_rays(monkeypatch)
+    culled = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
+    culled_rays, queried[:] = sum(queried), []
+    away = tracer.trace_nearest(frame_set, frame_set.world, tau0[:64], x0[:64], -d[:64], 1e-6, np.inf)
+    assert queried == [] and (away.frame < 0).all()
+    unculled(monkeypatch)
+    everything = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
+    assert queried == [n] and culled_rays < 0.5 * n
+    hit = culled.frame >= 0
+    assert np.array_equal(hit, everything.frame >= 0) and 0.02 < hit.mean() < 0.5
+    for f in fields(culled):
+        assert np.array_equal(getattr(culled, f.name)[hit], getattr(everything, f.name)[hit]), f.name
 
 
 @pytest.mark.parametrize("ufunc", [np.minimum, np.maximum])

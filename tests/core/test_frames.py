@@ -399,3 +399,13 @@ def test_hit_geometry_from_a_threads_triangle_rows_is_bit_for_bit_the_per_hit_ge
                 np.testing.assert_array_equal(a, b)
             kept[1][:] = 0.0  # the caller's own arrays: the kept rows are not touched
         assert len(cache._hit_tables) == 1
+
+
+def test_padded_vertices_are_the_float64_offsets_rounded_once_in_embrees_layout():
+    vertices = np.random.default_rng(3).normal(size=(1001, 3)) * 1e3
+    anchor = np.array([0.1, -2.5, 7.0])
+    padded = embree_direct.padded_vertices(vertices, anchor)
+    assert padded.dtype == np.float32 and padded.shape == (1001, 4) and padded.flags.c_contiguous
+    np.testing.assert_array_equal(padded[:, :3], (vertices - anchor).astype(np.float32))
+    assert not padded[:, 3].any()
+    assert embree_direct._padded(padded) is padded  # laid out already: not copied again

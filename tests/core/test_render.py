@@ -489,3 +489,36 @@ def test_passes_are_the_float64_values_of_the_centre_rays_rounded_once():
         assert tile.passes[name].dtype == np.float32
         np.testing.assert_array_equal(tile.passes[name][..., 0], values.astype(np.float32).reshape(res[1], res[0]),
                                       err_msg=name)
+
+
+def lone_ball_off_centre():
+    """A small moving ball in one corner of a wide view, a coloured world: most tiles see nothing."""
+    v, t = uv_sphere((0.0, 0.0, 0.0), 0.6, 24, 12)
+    ghost = Material("ghost", base_color=(0.8, 0.2, 0.1), emission=(0.5, 0.5, 0.0), alpha=0.5)
+    return Scene(camera=look_at_camera((-2.0, -6.0, 1.0), (-2.0, 0.0, 1.0)), world_color=(0.1, 0.2, 0.3),
+                 meshes=[Mesh("ball", v, t, velocity=Velocity((0.5, 0.2, 0.0)))], materials=[ghost])
+
+
+@pytest.mark.parametrize("options", [
+    dict(samples=1, passes=("Depth", "Doppler", "Emission Time", "Object Time", "Normal", "IndexOB")),
+    dict(samples=3, doppler_mode="FACTOR", film_transparent=True, passes=("Depth", "Denoising Albedo")),
+    dict(samples=2, doppler_mode="SPECTRAL", spectral_samples=8, normalize_exposure=True),
+])
+def test_tiles_that_see_nothing_are_not_traced_and_render_the_same(monkeypatch, options):
+    """A tile whose rays' cone misses every frame's bounding cones is neither made nor traced
+    (no tracer call), and renders the very pixels and passes of the full path."""
+    from restframe_addon.core import prepared as prepared_module
+    from restframe_addon.core import shading
+
+    scene = lone_ball_off_centre()
+    traced = []
+    trace = shading.trace_nearest
+    monkeypatch.setattr(shading, "trace_nearest", lambda *args, **kw: traced.append(len(args[4])) or trace(*args, **kw))
+    quick = render_image(scene, settings((48, 40), tile_size=8, **options))
+    quick_rays, traced[:] = sum(traced), []
+    monkeypatch.setattr(prepared_module.PreparedScene, "misses_everything", lambda self, rect, cache=None: False)
+    full = render_image(scene, settings((48, 40), tile_size=8, **options))
+    assert quick_rays < 0.75 * sum(traced)  # (the exposure measurement traces a preview either way)
+    assert 0.02 < (full["Depth"] < 1e9).mean() < 0.5
+    for name in full:
+        np.testing.assert_array_equal(quick[name], full[name], err_msg=name)

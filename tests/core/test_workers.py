@@ -428,3 +428,102 @@ def test_two_tiles_go_to_two_workers(pool):
     prepared = prepare(busy_scene(), settings(resolution=(24, 12), tile_size=12))
     assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
     assert sorted(len(shares) for shares in pool.last_stats.rendered.values()) == [1, 1]
+
+
+@pytest.mark.parametrize("reader_threads", [False, True], ids=["selector", "reader threads"])
+def test_the_workers_messages_come_whole_and_in_order_however_the_pipe_cuts_them(reader_threads):
+    """A message split across reads, and several in one write, come out whole and in order, then
+    the writer's end as ("dead",): in this process's loop (selectors) and through reader threads
+    (Windows, where pipes cannot be selected)."""
+    child = textwrap.dedent("""
+        import pickle, struct, sys, time
+        out = sys.stdout.buffer
+        frames = [pickle.dumps(("tile", k, "x" * 70000 * k)) for k in range(3)]
+        frames = [struct.pack("<Q", len(f)) + f for f in frames]
+        out.write(frames[0][:5]); out.flush(); time.sleep(0.05)  # a cut inside the length
+        out.write(frames[0][5:] + frames[1][:100]); out.flush(); time.sleep(0.05)
+        out.write(frames[1][100:] + frames[2]); out.flush()
+    """)
+
+    class Writer:
+        def __init__(self):
+            self.process = subprocess.Popen([sys.executable, "-c", child], stdout=subprocess.PIPE)
+            self.pid, self.receiving_cpu = self.process.pid, 0.0
+
+    inbox, writer = workers._Inbox(reader_threads=reader_threads), Writer()
+    inbox.add(writer)
+    messages, deadline = [], time.monotonic() + 30
+    while (not messages or messages[-1][0] != "dead") and time.monotonic() < deadline:
+        messages += [message for source, message in inbox.take(0.05) if source is writer]
+    writer.process.wait()
+    assert messages == [("tile", k, "x" * 70000 * k) for k in range(3)] + [("dead",)]
+
+
+def test_processes_render_the_same_bits_through_reader_threads():
+    """Windows' way of reading the workers (a reader thread per worker) on this platform."""
+    pool = workers.WorkerPool()
+    pool._inbox = workers._Inbox(reader_threads=True)
+    try:
+        prepared = prepare(busy_scene(Velocity((0.0, 0.4, 0.0))), settings(tile_size=6))
+        assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
+        assert pool.last_stats.receiving_cpu > 0 and not pool._inbox.in_this_thread
+    finally:
+        pool.close()
+
+
+class _Dealt:
+    """What _Pace reads of a worker: the shares it holds."""
+
+    def __init__(self, *shares):
+        self.dealt = dict.fromkeys(shares)
+
+
+def test_short_shares_are_dealt_for_a_batch_and_the_loop_sleeps_half_of_it():
+    """Shares shorter than _BATCH: each worker is dealt work for 2 _BATCH and the loop sleeps a
+    batch, or half the work a worker holds, between rounds; with little left a worker, two shares
+    each.  Long shares: two each, and the loop waits for each."""
+    rects = [(0, y, 100, y + 10) for y in range(0, 1000, 10)]  # 100 tiles of 1000 pixels
+    shares = [(tile, None) for tile in range(len(rects))]
+    pace = workers._Pace(shares, rects)
+    todo = list(enumerate(shares))[4:]
+    worker = _Dealt(0, 1)
+    assert pace.wants(_Dealt(0), todo, 2) and not pace.wants(worker, todo, 2)  # no share finished yet: two
+    assert pace.pause([worker]) == 0
+    pace.finished(1000, 0.25 * workers._BATCH)  # a share takes a quarter of a batch
+    assert pace.wants(_Dealt(0, 1, 2, 3, 4, 5, 6), todo, 2)  # 7 shares: 1.75 batches of work
+    assert not pace.wants(_Dealt(*range(8)), todo, 2)  # 8: 2 batches
+    assert pace.pause([_Dealt(*range(8)), _Dealt(*range(8, 16))]) == workers._BATCH
+    assert pace.pause([_Dealt(*range(8)), _Dealt(8, 9)]) == pytest.approx(0.25 * workers._BATCH)  # half of 2 shares
+    assert pace.pause([_Dealt(*range(8)), _Dealt()]) == 0  # a worker with nothing: wait for the first message
+    end = todo[-8:]  # 2 batches of work left: 1 a worker, so no more than two shares each
+    assert not pace.wants(_Dealt(0, 1), end, 2)
+    assert pace.wants(_Dealt(0, 1), end, 1)  # one worker: nobody to wait for at the end
+    slow = workers._Pace(shares, rects)
+    slow.finished(1000, 3 * workers._BATCH)  # a share takes 1.5 batches a worker
+    assert not slow.wants(_Dealt(0, 1), todo, 2) and slow.pause([_Dealt(0, 1), _Dealt(2, 3)]) == 0
+
+
+def test_short_shares_render_the_same_bits_in_batches_with_fewer_wake_ups(pool, monkeypatch):
+    """With shares far shorter than a batch, the loop wakes fewer times than shares come, the
+    worker holding more than two, and the pixels are those of threads."""
+    prepared = prepare(busy_scene(), settings(tile_size=4))
+    list(pool.render(prepared, lambda: False, 1))  # a warm worker: its first share is no slower than the rest
+    monkeypatch.setattr(workers, "_BATCH", 0.5)
+    takes, held = [], []
+    take, deal = workers._Inbox.take, workers.WorkerPool._deal
+
+    def counted_take(self, timeout):
+        messages = take(self, timeout)
+        takes.append(len(messages))
+        return messages
+
+    def counted_deal(self, workers_, *args):
+        deal(self, workers_, *args)
+        held.append(max(len(worker.dealt) for worker in workers_))
+
+    monkeypatch.setattr(workers._Inbox, "take", counted_take)
+    monkeypatch.setattr(workers.WorkerPool, "_deal", counted_deal)
+    assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 1)), in_threads(prepared))
+    shares = pool.last_stats.shares
+    assert shares == len(prepared.tiles()) == 30
+    assert len([count for count in takes if count]) < shares and max(held) > workers._TILES_IN_FLIGHT, (takes, held)
