@@ -219,8 +219,8 @@ MUTANTS = (
            ("tests/core/test_bsdf.py::test_ggx_from_cosines_matches_the_half_vector_form",)),
     Mutant("texels-wrap-last-row", "a texture's bilinear lookup above its last pixel row blends in the last row "
                                    "again instead of wrapping to the first",
-           (Patch(CORE + "world.py", "padded[-1, :-1, :self.channels] = image[0]",
-                  "padded[-1, :-1, :self.channels] = image[-1]"),),
+           (Patch(CORE + "world.py", "padded[-1, :-1, :channels] = image[0]",
+                  "padded[-1, :-1, :channels] = image[-1]"),),
            ("tests/core/test_world.py::test_texels_look_up_the_bits_of_a_plain_bilinear_repeat_lookup",)),
     Mutant("stereo-eye-on-camera-world-line", "a stereo eye of an accelerating camera observing from the "
                                               "camera's world line, not its own",

@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .world import from_texel_state, texel_state
+
 if TYPE_CHECKING:
     from .motion import Trajectory
 
@@ -80,6 +82,12 @@ class Material:
     normal_texture: np.ndarray | None = None
     normal_strength: float = 1.0
     holdout: bool = False  # a Holdout shader: a hole in the image, as a holdout object
+
+    def __getstate__(self):
+        return _texel_states(self)
+
+    def __setstate__(self, state):
+        _from_texel_states(self, state)
 
 
 @dataclass
@@ -218,6 +226,12 @@ class WorldTexture:
     interpolation: str = "Linear"
     name: str = "World"
 
+    def __getstate__(self):
+        return _texel_states(self)
+
+    def __setstate__(self, state):
+        _from_texel_states(self, state)
+
 
 @dataclass
 class Scene:
@@ -270,3 +284,14 @@ class RenderSettings:
 def render_workers(threads: int) -> int:
     """The render threads (or worker processes) a ``RenderSettings.threads`` asks for: 0 = one per core."""
     return threads if threads > 0 else (os.cpu_count() or 1)
+
+
+def _texel_states(holder) -> dict:
+    """A Material's or WorldTexture's fields to pickle: images held as a world.texel_image pickle
+    as their lookup layout, so that a worker process gets one copy of each, not a second."""
+    return {name: texel_state(value) if isinstance(value, np.ndarray) else value
+            for name, value in holder.__dict__.items()}
+
+
+def _from_texel_states(holder, state: dict) -> None:
+    holder.__dict__.update({name: from_texel_state(value) for name, value in state.items()})

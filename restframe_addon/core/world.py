@@ -99,6 +99,8 @@ def image_lookup(image, u, v, interpolation: str = "Linear", channels: int | Non
         found = np.take(pixels, index, axis=0, mode="clip")
         for c in range(channels):
             out[:, c] = found[:, c]
+            if texels.scale != 1.0:
+                out[:, c] *= texels.scale
         return out
     fx, fy = u * w, v * h
     fx -= 0.5
@@ -124,13 +126,17 @@ def image_lookup(image, u, v, interpolation: str = "Linear", channels: int | Non
     # contiguous row per channel (twice as fast as the output's strided columns)
     blend = np.empty((channels, len(u)), np.result_type(fx, pixels))
     term = np.empty(len(u), dtype=blend.dtype)
+    scaled = np.empty(len(u)) if texels.scale != 1.0 else None
     for i, (view, weight) in enumerate(zip(views, weights)):
         np.take(view, corner, axis=0, out=found, mode="clip")  # in range: clip only skips the check
         for c in range(channels):
+            pixel = found[:, c]
+            if texels.scale != 1.0:  # the scaled pixel in float64, as in a scaled image
+                pixel = np.multiply(pixel, texels.scale, out=scaled, dtype=np.float64)
             if i == 0:
-                np.multiply(weight, found[:, c], out=blend[c])
+                np.multiply(weight, pixel, out=blend[c])
             else:
-                np.multiply(weight, found[:, c], out=term)
+                np.multiply(weight, pixel, out=term)
                 blend[c] += term
     for c in range(channels):
         out[:, c] = blend[c]
@@ -149,15 +155,81 @@ class Texels:
     brightest of the four pixels (tests/core/test_world.py); images that steer rays (normal maps,
     cut-out alpha) and float64 ones blend in float64."""
 
-    def __init__(self, image, colour: bool = False):
+    def __init__(self, image, colour: bool = False, scale: float = 1.0):
+        """``scale``: multiplies every looked-up pixel (in float64, as a scaled image would), so
+        that an environment's strength needs no scaled copy of its image."""
         image = np.asarray(image)
         self.colour = colour
+        self.scale = float(scale)
         self.height, self.width, self.channels = image.shape
-        padded = np.zeros((self.height + 1, self.width + 1, 4 if self.channels == 3 else self.channels), image.dtype)
-        padded[:-1, :-1, :self.channels] = image
-        padded[-1, :-1, :self.channels] = image[0]
-        padded[:, -1] = padded[:, 0]
+        padded = _padded_of(image)
+        if padded is None:
+            padded = _padded(image)
         self.pixels = padded.reshape(-1, padded.shape[2])
+
+
+def texel_image(image) -> np.ndarray:
+    """The (H, W, C) image as a view into its :class:`Texels` layout (read-only): a Texels of it
+    copies nothing, and a scene that holds the view holds each image once (pickled by
+    :func:`texel_state`, so that a worker process gets the layout, not a second copy)."""
+    image = np.asarray(image)
+    padded = _padded_of(image)
+    if padded is None:
+        padded = _padded(image)
+    padded.flags.writeable = False
+    return padded[:-1, :-1, :image.shape[2]]
+
+
+def texel_state(image):
+    """What pickles an image of a scene: the layout buffer of a :func:`texel_image` view (once,
+    however many fields hold it) and the image's shape, else the image itself;
+    :func:`from_texel_state` undoes it."""
+    if image is None or _padded_of(np.asarray(image)) is None:
+        return image
+    return _TexelState(image.base, image.shape)
+
+
+def from_texel_state(state):
+    if not isinstance(state, _TexelState):
+        return state
+    state.buffer.flags.writeable = False
+    height, width, channels = state.shape
+    padded = state.buffer.reshape(height + 1, width + 1, 4 if channels == 3 else channels)
+    return padded[:-1, :-1, :channels]
+
+
+class _TexelState:
+    def __init__(self, buffer, shape):
+        self.buffer, self.shape = buffer, shape
+
+
+def _padded(image) -> np.ndarray:
+    """The (H + 1, W + 1, C or 4) layout of :class:`Texels`, made anew."""
+    height, width, channels = image.shape
+    padded = np.zeros((height + 1, width + 1, 4 if channels == 3 else channels), image.dtype)
+    padded[:-1, :-1, :channels] = image
+    padded[-1, :-1, :channels] = image[0]
+    padded[:, -1] = padded[:, 0]
+    return padded
+
+
+def _padded_of(image: np.ndarray):
+    """The layout buffer that ``image`` is the (H, W, C) corner of, with the border rows of
+    :class:`Texels` in place (as :func:`texel_image` made it), or None."""
+    owner = image.base  # the padded layout, or the flat buffer it is a view of (as unpickled)
+    if not isinstance(owner, np.ndarray) or image.ndim != 3 or owner.flags.writeable \
+            or not owner.flags.c_contiguous:
+        return None
+    height, width, channels = image.shape
+    shape = (height + 1, width + 1, 4 if channels == 3 else channels)
+    if owner.size != shape[0] * shape[1] * shape[2] or owner.dtype != image.dtype:
+        return None
+    padded = owner.reshape(shape)
+    if padded.strides != image.strides or padded.ctypes.data != image.ctypes.data:
+        return None
+    if not (np.array_equal(padded[-1, :-1], padded[0, :-1]) and np.array_equal(padded[:, -1], padded[:, 0])):
+        return None
+    return padded
 
 
 def _wrap(index, size: int):
@@ -168,6 +240,9 @@ def _wrap(index, size: int):
 
 
 # ---------------------------------------------------------------------------- worlds
+_LUMINANCE_ROWS = 64  # image rows per band of the sampling map's luminance
+
+
 class UniformWorld:
     """The same radiance ``color * strength`` (RGB) from every direction of S."""
 
@@ -205,10 +280,13 @@ class EnvironmentWorld:
 
     def __init__(self, image, strength: float = 1.0, mapping=None, interpolation: str = "Linear",
                  name: str = "World"):
-        image = np.asarray(image, dtype=np.float64)
+        image = np.asarray(image)
+        if not np.issubdtype(image.dtype, np.floating):
+            image = image.astype(np.float64)
         if image.ndim != 3 or image.shape[2] < 3 or image.shape[0] < 1 or image.shape[1] < 1:
             raise ValueError(f"{name}: the environment image must be (height, width, 3 or 4), got {image.shape}")
-        if not np.all(np.isfinite(image[..., :3])):
+        rgb = image[..., :3]
+        if not np.all(np.isfinite(rgb)):
             raise ValueError(f"{name}: the environment image has NaN or infinite pixels")
         if interpolation not in INTERPOLATIONS:
             raise ValueError(f"{name}: environment interpolation {interpolation!r} is not supported "
@@ -217,13 +295,18 @@ class EnvironmentWorld:
         if mapping.shape != (3, 3) or not np.allclose(mapping @ mapping.T, np.eye(3), atol=1e-9) \
                 or np.linalg.det(mapping) < 0.0:
             raise ValueError(f"{name}: the environment mapping must be a rotation (no scale, shear or mirror)")
-        self.image = np.maximum(image[..., :3], 0.0) * float(strength)
-        self._texels = Texels(self.image)
+        # the radiance max(pixel, 0) x strength: the image's own layout (a texel_image: no copy) scaled
+        # per lookup, a clamped copy only where a pixel is negative
+        strength = float(strength)
+        self._texels = Texels(np.maximum(rgb, 0.0) if np.any(np.signbit(rgb)) else rgb, scale=strength)
         self.mapping = mapping
         self._unmapping = mapping if mapping is _IDENTITY else mapping.T  # texture -> world directions
         self.interpolation = interpolation
-        h, w = self.image.shape[:2]
-        luminance = self.image @ LUMINANCE_RGB
+        h, w = rgb.shape[:2]
+        luminance = np.empty((h, w))
+        for start in range(0, h, _LUMINANCE_ROWS):  # in bands: no float64 copy of the whole image
+            band = slice(start, start + _LUMINANCE_ROWS)
+            luminance[band] = (np.maximum(rgb[band].astype(np.float64), 0.0) * strength) @ LUMINANCE_RGB
         if interpolation == "Linear":
             # cell rows between pixel-centre rows, the two caps wrapping as Cycles' lookup does, each
             # split into ``split`` x ``split`` sub-cells: the bilinear radiance inside a cell lies

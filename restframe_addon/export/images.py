@@ -26,6 +26,8 @@ from dataclasses import dataclass
 import bpy
 import numpy as np
 
+from ..core.world import texel_image
+
 CACHE_BYTES = 2 << 30
 _BAND_ROWS = 512
 _cache: OrderedDict = OrderedDict()
@@ -178,7 +180,9 @@ def image_texture(image, user, scene_frame: int, warn) -> Texture:
         if width == 0 or height == 0 or not image.has_data:
             raise ImageMissing(bpy.path.abspath(image.filepath, library=image.library))
         texture = Texture(_rgb(image, image.colorspace_settings.name, warn))
-    texture.pixels.flags.writeable = False  # shared by every frame that uses it
+    # laid out once for the lookups (read-only, shared by every frame that uses it): the scene and
+    # its prepared lookups hold one copy
+    texture = Texture(texel_image(texture.pixels), texture.tiles)
     if key is not None:
         _cache[key] = texture
         while len(_cache) > 1 and sum(t.pixels.nbytes for t in _cache.values()) > CACHE_BYTES:
