@@ -162,9 +162,7 @@ class Texels:
         self.colour = colour
         self.scale = float(scale)
         self.height, self.width, self.channels = image.shape
-        padded = _padded_of(image)
-        if padded is None:
-            padded = _padded(image)
+        padded = _layout(image)
         self.pixels = padded.reshape(-1, padded.shape[2])
 
 
@@ -173,9 +171,7 @@ def texel_image(image) -> np.ndarray:
     copies nothing, and a scene that holds the view holds each image once (pickled by
     :func:`texel_state`, so that a worker process gets the layout, not a second copy)."""
     image = np.asarray(image)
-    padded = _padded_of(image)
-    if padded is None:
-        padded = _padded(image)
+    padded = _layout(image)
     padded.flags.writeable = False
     return padded[:-1, :-1, :image.shape[2]]
 
@@ -201,6 +197,12 @@ def from_texel_state(state):
 class _TexelState:
     def __init__(self, buffer, shape):
         self.buffer, self.shape = buffer, shape
+
+
+def _layout(image: np.ndarray) -> np.ndarray:
+    """The :class:`Texels` layout of ``image``: the one it is a view into (no copy), else made anew."""
+    padded = _padded_of(image)
+    return _padded(image) if padded is None else padded
 
 
 def _padded(image) -> np.ndarray:
