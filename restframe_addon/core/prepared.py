@@ -296,7 +296,7 @@ def _measure_doppler_range(prepared: PreparedScene, should_stop) -> tuple[float,
         if should_stop():
             break
         rays = prepared.centre_rays(rect)
-        _, _, pixel = prepared.pixel_grid(rect)
+        pixel = prepared.pixel_ids(rect)
         hits = prepared.shader.trace(frames.camera, *rays, RAY_CAMERA, pixel, np.zeros_like(pixel), 0, cache,
                                      for_passes=True)
         doppler = ray_doppler(frames, hits)[hits.frame >= 0]
