@@ -59,7 +59,7 @@ def fresnel_dielectric(cos_i, eta):
 
 def fresnel_schlick(cos_i, f0, f90):
     """Schlick's reflectance from ``f0`` (n, C) at normal incidence to ``f90`` (n,) at grazing."""
-    s = 1.0 - _clipped(cos_i, 0.0, 1.0)
+    s = 1.0 - rows.clipped(cos_i, 0.0, 1.0)
     schlick = s * s
     schlick *= schlick
     schlick *= s  # (s^5 by multiplications: pow costs as much as ten of them)
@@ -123,7 +123,7 @@ def ggx_visibility(cos_v, cos_l, alpha):
     S = sqrt(alpha^2 + (1 - alpha^2) cos^2), the cosines clipped to [_MIN_COS, 1] (in place: a
     third of the passes of the Lambdas)."""
     a2 = alpha * alpha
-    cos_v, cos_l = _clipped(cos_v, _MIN_COS, 1.0), _clipped(cos_l, _MIN_COS, 1.0)
+    cos_v, cos_l = rows.clipped(cos_v, _MIN_COS, 1.0), rows.clipped(cos_l, _MIN_COS, 1.0)
     s_v, s_l = cos_v * cos_v, cos_l * cos_l
     for s, other in ((s_v, cos_l), (s_l, cos_v)):
         s *= 1.0 - a2
@@ -171,13 +171,6 @@ def ggx_reflection(n, view, light, alpha, f0, f90, cos_l=None):
     if not above.all():
         np.copyto(single, 0.0, where=~above)
     return rows.scale(fresnel_schlick(cos_vh, f0, f90), single)
-
-
-def _clipped(a, lo, hi):
-    """``np.clip(a, lo, hi)``, or ``a`` itself when it lies in [lo, hi] (two reductions cost a
-    third of the clip)."""
-    a = np.asarray(a)
-    return a if a.size and a.min() >= lo and a.max() <= hi else np.clip(a, lo, hi)
 
 
 # ---------------------------------------------------------------------------- local frames

@@ -60,6 +60,13 @@ def assign(out, a) -> None:
         out[:, axis] = a[:, axis]
 
 
+def clipped(a, lo, hi) -> np.ndarray:
+    """``np.clip(a, lo, hi)``, or ``a`` itself when it lies in [lo, hi] (two reductions cost a
+    third of the clip)."""
+    a = np.asarray(a)
+    return a if a.size and a.min() >= lo and a.max() <= hi else np.clip(a, lo, hi)
+
+
 def dot(a, b) -> np.ndarray:
     """Row-wise dot products: (n, 3) with (n, 3), or (n, 3) with one (3,) vector."""
     a = np.asarray(a)

@@ -120,11 +120,8 @@ class MaterialTable:
 
     def clamp(self, index):
         """Material numbers as rows of the table (out of range: the nearest end; in range, as
-        they always are from the export, the array itself: two reductions cost a third of a clip)."""
-        last = len(self.materials) - 1
-        if len(index) and index.min() >= 0 and index.max() <= last:
-            return index
-        return np.clip(index, 0, last)
+        they always are from the export, the array itself: see rows.clipped)."""
+        return rows.clipped(index, 0, len(self.materials) - 1)
 
     def base_color(self, index, uv):
         """Base colour per hit, with image textures looked up (bilinear or closest, repeat) where present."""
