@@ -53,8 +53,20 @@ RAY_SHADOW = 16  # shadow rays toward lights
 RAY_ALL = RAY_CAMERA | RAY_DIFFUSE | RAY_GLOSSY | RAY_TRANSMISSION | RAY_SHADOW
 
 
+class _PicklesTexels:
+    """A Material's or WorldTexture's pickling: images held as a world.texel_image pickle as their
+    lookup layout, so that a worker process gets one copy of each, not a second."""
+
+    def __getstate__(self):
+        return {name: texel_state(value) if isinstance(value, np.ndarray) else value
+                for name, value in self.__dict__.items()}
+
+    def __setstate__(self, state):
+        self.__dict__.update({name: from_texel_state(value) for name, value in state.items()})
+
+
 @dataclass
-class Material:
+class Material(_PicklesTexels):
     """A Principled-BSDF-like surface, evaluated in the surface's rest frame."""
 
     name: str = "Default"
@@ -82,12 +94,6 @@ class Material:
     normal_texture: np.ndarray | None = None
     normal_strength: float = 1.0
     holdout: bool = False  # a Holdout shader: a hole in the image, as a holdout object
-
-    def __getstate__(self):
-        return _texel_states(self)
-
-    def __setstate__(self, state):
-        _from_texel_states(self, state)
 
 
 @dataclass
@@ -210,7 +216,7 @@ class Camera:
 
 
 @dataclass
-class WorldTexture:
+class WorldTexture(_PicklesTexels):
     """An Environment Texture on the world's Background (equirectangular), at rest in the world frame.
 
     ``image`` (H, W, 3 or 4) scene-linear radiance, row 0 = bottom (Blender order); ``rotation``:
@@ -225,12 +231,6 @@ class WorldTexture:
     vector_type: str = "POINT"
     interpolation: str = "Linear"
     name: str = "World"
-
-    def __getstate__(self):
-        return _texel_states(self)
-
-    def __setstate__(self, state):
-        _from_texel_states(self, state)
 
 
 @dataclass
@@ -284,14 +284,3 @@ class RenderSettings:
 def render_workers(threads: int) -> int:
     """The render threads (or worker processes) a ``RenderSettings.threads`` asks for: 0 = one per core."""
     return threads if threads > 0 else (os.cpu_count() or 1)
-
-
-def _texel_states(holder) -> dict:
-    """A Material's or WorldTexture's fields to pickle: images held as a world.texel_image pickle
-    as their lookup layout, so that a worker process gets one copy of each, not a second."""
-    return {name: texel_state(value) if isinstance(value, np.ndarray) else value
-            for name, value in holder.__dict__.items()}
-
-
-def _from_texel_states(holder, state: dict) -> None:
-    holder.__dict__.update({name: from_texel_state(value) for name, value in state.items()})
