@@ -153,9 +153,7 @@ def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
     if not per_frame:
         return passes
     for k in frames_hit(hits):
-        sel = np.flatnonzero(hits.frame == k)
-        if len(sel) == n:  # every ray hit this frame: views, no gathers
-            sel = slice(None)
+        sel = rows.selection(hits.frame == k)  # (views, no gathers, where every ray hit this frame)
         frame = frames.frames[int(k)]
         tau_hit = hit_times(hits, sel)
         prim, u, v = hits.prim[sel], hits.u[sel], hits.v[sel]

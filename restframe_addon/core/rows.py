@@ -67,6 +67,19 @@ def clipped(a, lo, hi) -> np.ndarray:
     return a if a.size and a.min() >= lo and a.max() <= hi else np.clip(a, lo, hi)
 
 
+def selection(mask, within=slice(None)):
+    """The rows of ``within`` (a slice of all, or indices) where ``mask`` holds: the slice itself
+    while that is all of them (views instead of gathers), None when none."""
+    if not len(mask):
+        return None
+    if mask.all():
+        return within
+    index = np.flatnonzero(mask)
+    if not len(index):
+        return None
+    return index if isinstance(within, slice) else within[index]
+
+
 def dot(a, b) -> np.ndarray:
     """Row-wise dot products: (n, 3) with (n, 3), or (n, 3) with one (3,) vector."""
     a = np.asarray(a)

@@ -399,7 +399,7 @@ class Shader:
         if held is not None:
             values[held] = 0.0
         for k in frames_hit(hits):
-            sel = _selection(hits.frame == k if held is None else (hits.frame == k) & ~held)
+            sel = rows.selection(hits.frame == k if held is None else (hits.frame == k) & ~held)
             if sel is None:
                 continue
             frame = self.frames.frames[k]
@@ -611,7 +611,7 @@ class Shader:
                 lit &= rows.dot(ng, e_k) > 0.0
             if strength.strides != (0,) or not (strength[:1] > 0.0).all():  # (one broadcast number: tested once)
                 lit &= strength > 0.0
-            sel = _selection(lit)
+            sel = rows.selection(lit)
             if sel is None:
                 continue
             e_sel = _take(e_k, sel)
@@ -952,19 +952,6 @@ def _only_material(mat):
     if len(mat) and mat[0] == mat[-1] and bool((mat == mat[0]).all()):
         return int(mat[0])
     return None
-
-
-def _selection(mask, within=slice(None)):
-    """The hits of ``within`` (a slice of all, or indices) where ``mask`` holds: the slice itself
-    while that is all of them (views instead of gathers), None when none."""
-    if not len(mask):
-        return None
-    if mask.all():
-        return within
-    index = np.flatnonzero(mask)
-    if not len(index):
-        return None
-    return index if isinstance(within, slice) else within[index]
 
 
 def _weighted_product(a, b, s):
