@@ -570,11 +570,9 @@ def _cones_pay(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> list
     2 (ab + bc + ca) for a box of half-extents a, b, c).  Else they drop few of the rays the box
     keeps, for a per-frame cost of many rays' maps and queries (a row of the 11x11 bars: spheres
     4x the box)."""
-    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
     pays = []
-    for k in ks:
+    for k, (a, b, c) in zip(ks, _boxes_of(frames, src, ks, cache)[3].tolist()):
         frame = frames.frames[k]
-        a, b, c = boxes[3][frames.geometry_slot[k]].tolist()
         if frame.spin is not None:
             squares = frame.geometry.radius ** 2
         elif frame.geometry.clusters is not None:
@@ -956,13 +954,19 @@ def _body_boxes(frames: FrameSet, src: int, ks, cache, extent):
     """(t, x, velocity, widened half-extents) of the body boxes (``FrameSet.body_boxes``) of the
     frames ``ks``, (len(ks),) and (len(ks), 3), for rays whose (largest |coordinate| of x0,
     largest |tau0|) is ``extent``."""
-    slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
-    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
-    t_box, x_box, velocity, half = (a[slots] for a in boxes)
+    t_box, x_box, velocity, half = _boxes_of(frames, src, ks, cache)
     # the rays meet the box where |s (d + v)| is about |x0 - X(tau0)|: coordinates up to this
     x_max, tau_max = extent
     scale = 1.0 + x_max + np.max(np.abs(x_box), axis=1) + np.max(np.abs(velocity), axis=1) * (tau_max + np.abs(t_box))
     return t_box, x_box, velocity, _widened(half, scale[:, None])
+
+
+def _boxes_of(frames: FrameSet, src: int, ks, cache: TraceCache | None):
+    """(t, x, velocity, half-extents) of the body boxes (``FrameSet.body_boxes``) of the frames
+    ``ks``, (len(ks),) and (len(ks), 3), from the thread's cache where it has them."""
+    slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
+    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
+    return tuple(a[slots] for a in boxes)
 
 
 def _widened(half, scale) -> np.ndarray:
@@ -1017,9 +1021,7 @@ def _may_meet(frames: FrameSet, src: int, ks, reach: Reach, cache: TraceCache | 
     along -w meets the box of relative starts widened by the body's half-extents.
     All frames at once: a slab test per frame, vectorised.
     """
-    slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
-    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
-    t_a, x_a, velocity, half = (a[slots] for a in boxes)
+    t_a, x_a, velocity, half = _boxes_of(frames, src, ks, cache)
     scale = 1.0 + float(np.max(np.abs(reach.hi))) + float(np.max(np.abs(reach.lo)))
     widen = _widened(half, scale)
     if reach.direction is None:
