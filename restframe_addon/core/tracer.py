@@ -559,8 +559,14 @@ def _gathered(rays, n: int):
 def _rays_of_runs(runs, n: int) -> np.ndarray:
     """Indices of the rays of ``runs`` (indices of runs of ``_RUN`` consecutive rays, in
     increasing order) and of the rays past the last whole run, of ``n`` rays."""
-    whole = (runs[:, None] * _RUN + np.arange(_RUN)).ravel()
+    whole = _members(runs)
     return np.append(whole, np.arange(_RUN * (n // _RUN), n)) if n % _RUN else whole
+
+
+def _members(runs) -> np.ndarray:
+    """Indices of the members of ``runs`` (indices of runs of ``_RUN`` consecutive items: rays, or
+    runs in blocks of runs), in the order of the runs."""
+    return (runs[:, None] * _RUN + np.arange(_RUN)).ravel()
 
 
 def _cones_pay(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> list[bool]:
@@ -618,7 +624,7 @@ def _toward(cones, d, bundle, runs):
         meets = ~missable | (apart >= np.cos(clear)[:, None] * run_cos - np.sin(clear)[:, None] * run_sin - 1e-12)
         partial = runs[~whole & meets.any(axis=0)]
         inside[:_RUN * (len(d) // _RUN)].reshape(-1, _RUN)[runs[whole]] = True
-        tested = np.append((partial[:, None] * _RUN + np.arange(_RUN)).ravel(), tested)
+        tested = np.append(_members(partial), tested)
     if len(tested):
         # those rays against every cone at once: one (m, 3) x (3, r) product, reduced over the cones
         inside[tested] = (axes @ rows.take(d, tested).T >= np.cos(spread)[:, None]).any(axis=0)
@@ -716,7 +722,7 @@ def _runs_near_bodies(frames: FrameSet, src: int, ks, cache, extent, shared, run
     frame, block = np.nonzero(_slabs_pass(before[:, :, None], after[:, :, None], velocity[:, :, None], block_low,
                                           block_high, path_range))
     pair_frame = np.repeat(frame, _RUN)
-    pair_run = (block[:, None] * _RUN + np.arange(_RUN)).ravel()
+    pair_run = _members(block)  # the runs of those blocks
     if pad:
         real = pair_run < count
         pair_frame, pair_run = pair_frame[real], pair_run[real]
