@@ -593,8 +593,8 @@ def _cones_pay(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> list
 def _toward(cones, d, bundle, runs):
     """Indices of the rays of ``runs`` (indices of runs of ``_RUN`` consecutive rays, see below)
     and of the rays past the last whole run that point into one of a frame's sphere ``cones``
-    (see :func:`_cones`; or a superset of those rays), from one event; or None when every ray may
-    (the event is inside a sphere, or the bundle's own cone lies inside one).
+    (see :func:`_cones`, not None: the event is outside the spheres; or a superset of those rays),
+    from one event; or None when every ray may (the bundle's own cone lies inside one).
 
     ``bundle`` = (axis, half-angle, sub-bundles) of a cone holding every ray and of cones holding
     the runs (:func:`_sub_bundle_cones`): sphere cones that miss the bundle's are skipped and,
@@ -602,8 +602,6 @@ def _toward(cones, d, bundle, runs):
     taken whole and one that misses them all is dropped whole, before the rays of the other runs
     are tested one by one.
     """
-    if cones is None:
-        return None
     axes, spread = cones
     bundle_axis, bundle_angle, (run_axes, run_cos, run_sin) = bundle
     meeting = _cones_meeting(cones, bundle_axis, bundle_angle)
