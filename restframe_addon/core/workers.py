@@ -576,8 +576,7 @@ class WorkerPool:
         self._send_scene(workers, scene_id, stats, prepared.measurements)
         cpu = time.thread_time()
         _remove_all(self._unremoved)
-        results = _ResultsImage.create(rects, {"Combined": ALL_PASSES["Combined"],
-                                               **{name: ALL_PASSES[name] for name in prepared.passes}})
+        results = _ResultsImage.create(rects, {name: ALL_PASSES[name] for name in ("Combined", *prepared.passes)})
         shares = share_out(rects, len(workers))
         stats.workers, stats.shares = len(workers), len(shares)
         todo = collections.deque(enumerate(shares))  # (share id, (tile index, rows))
