@@ -29,7 +29,7 @@ import sys
 import time
 
 from . import headless
-from .core.validation import MAX_SAMPLES
+from .core.validation import MAX_CAMERA_SAMPLES
 from .headless import CommandError, Interrupted
 
 MAX_PERCENTAGE = 32767  # Blender's limit of the resolution percentage
@@ -193,7 +193,8 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--frame", type=int, help="the frame to render (default: the file's current frame)")
     render.add_argument("--frames", help="frames to render: A-B, A-B:STEP or a comma-separated list")
     render.add_argument("--scene", help="scene name (default: the file's active scene)")
-    render.add_argument("--samples", type=at_least(1, MAX_SAMPLES), help="override the scene's RESTframe samples")
+    render.add_argument("--samples", type=at_least(1, MAX_CAMERA_SAMPLES),
+                        help="override the scene's RESTframe samples")
     render.add_argument("--percentage", type=at_least(1, MAX_PERCENTAGE), help="override the resolution percentage")
     render.add_argument("--region", metavar="X0,Y0,X1,Y1",
                         help="render only this pixel rectangle (origin bottom left, X1/Y1 exclusive) as a "

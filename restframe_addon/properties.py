@@ -203,7 +203,7 @@ class RestframeSceneSettings(PropertyGroup):
         default=4,
         min=1,
         soft_max=256,
-        max=validation.MAX_SAMPLES,
+        max=validation.MAX_CAMERA_SAMPLES,
     )
     integrator: EnumProperty(
         name="Integrator",

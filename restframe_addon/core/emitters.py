@@ -102,7 +102,8 @@ class LampShape:
     * an area lamp is a one-sided rectangle or ellipse of radiance ``P / (pi A)`` emitting along its
       -Z, drawn uniformly by area;
     * a sun with an angle is a disc of directions of radiance ``S / Omega`` (``Omega`` its solid
-      angle), drawn uniformly in it.
+      angle) of the power :func:`~.shading.prepare_lights` gives it, ``S / (pi sin^2 h)`` of
+      Blender's strength ``S`` (Cycles'), drawn uniformly in it.
 
     All per unit of the lamp's colour x power, in the lamp's frame, where the lamp is static;
     ``centre`` (n, 3) is its position there as seen from each point ``x`` (a keyed lamp's

@@ -35,12 +35,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .lorentz import RowBoosts
-from . import validation
-from .validation import check_finite_motion
+from .validation import check_finite_motion, too_many_segments
 
 _MAX_DEPTH = 40
-SEGMENTS_PER_SAMPLE = 64  # at most, per animation sample (a gentle motion needs about one at 1e-3,
-MIN_SEGMENT_LIMIT = 20000  # a random 41-sample one of a large body 46; 1e-9 millions), and never fewer
+# Inertial segments of a world line: at most SEGMENTS_PER_SAMPLE per animation sample, and never a
+# limit below MIN_SEGMENT_LIMIT (a gentle motion needs about one per sample at tolerance 1e-3, a
+# random 41-sample motion of a large body 46, and tolerance 1e-9 millions).
+SEGMENTS_PER_SAMPLE = 64
+MIN_SEGMENT_LIMIT = 20000
 
 
 @dataclass
@@ -265,7 +267,7 @@ def segment_world_line(trajectory: Trajectory, start: float, end: float, toleran
         x_mid, b_mid, error = segment_error(trajectory, a, b, trajectory.body_radius)
         if error <= tolerance or depth >= _MAX_DEPTH:
             if len(out) == limit:
-                raise ValueError(validation.too_many_segments(name, tolerance, limit))
+                raise ValueError(too_many_segments(name, tolerance, limit))
             out.append(Segment(a, b, 0.5 * (a + b), x_mid, b_mid, error))
             return
         m = 0.5 * (a + b)

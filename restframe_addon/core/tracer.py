@@ -559,8 +559,14 @@ def _gathered(rays, n: int):
 def _rays_of_runs(runs, n: int) -> np.ndarray:
     """Indices of the rays of ``runs`` (indices of runs of ``_RUN`` consecutive rays, in
     increasing order) and of the rays past the last whole run, of ``n`` rays."""
-    whole = (runs[:, None] * _RUN + np.arange(_RUN)).ravel()
+    whole = _members(runs)
     return np.append(whole, np.arange(_RUN * (n // _RUN), n)) if n % _RUN else whole
+
+
+def _members(runs) -> np.ndarray:
+    """Indices of the members of ``runs`` (indices of runs of ``_RUN`` consecutive items: rays, or
+    runs in blocks of runs), in the order of the runs."""
+    return (runs[:, None] * _RUN + np.arange(_RUN)).ravel()
 
 
 def _cones_pay(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> list[bool]:
@@ -570,11 +576,9 @@ def _cones_pay(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> list
     2 (ab + bc + ca) for a box of half-extents a, b, c).  Else they drop few of the rays the box
     keeps, for a per-frame cost of many rays' maps and queries (a row of the 11x11 bars: spheres
     4x the box)."""
-    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
     pays = []
-    for k in ks:
+    for k, (a, b, c) in zip(ks, _boxes_of(frames, src, ks, cache)[3].tolist()):
         frame = frames.frames[k]
-        a, b, c = boxes[3][frames.geometry_slot[k]].tolist()
         if frame.spin is not None:
             squares = frame.geometry.radius ** 2
         elif frame.geometry.clusters is not None:
@@ -589,8 +593,8 @@ def _cones_pay(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> list
 def _toward(cones, d, bundle, runs):
     """Indices of the rays of ``runs`` (indices of runs of ``_RUN`` consecutive rays, see below)
     and of the rays past the last whole run that point into one of a frame's sphere ``cones``
-    (see :func:`_cones`; or a superset of those rays), from one event; or None when every ray may
-    (the event is inside a sphere, or the bundle's own cone lies inside one).
+    (see :func:`_cones`, not None: the event is outside the spheres; or a superset of those rays),
+    from one event; or None when every ray may (the bundle's own cone lies inside one).
 
     ``bundle`` = (axis, half-angle, sub-bundles) of a cone holding every ray and of cones holding
     the runs (:func:`_sub_bundle_cones`): sphere cones that miss the bundle's are skipped and,
@@ -598,8 +602,6 @@ def _toward(cones, d, bundle, runs):
     taken whole and one that misses them all is dropped whole, before the rays of the other runs
     are tested one by one.
     """
-    if cones is None:
-        return None
     axes, spread = cones
     bundle_axis, bundle_angle, (run_axes, run_cos, run_sin) = bundle
     meeting = _cones_meeting(cones, bundle_axis, bundle_angle)
@@ -620,7 +622,7 @@ def _toward(cones, d, bundle, runs):
         meets = ~missable | (apart >= np.cos(clear)[:, None] * run_cos - np.sin(clear)[:, None] * run_sin - 1e-12)
         partial = runs[~whole & meets.any(axis=0)]
         inside[:_RUN * (len(d) // _RUN)].reshape(-1, _RUN)[runs[whole]] = True
-        tested = np.append((partial[:, None] * _RUN + np.arange(_RUN)).ravel(), tested)
+        tested = np.append(_members(partial), tested)
     if len(tested):
         # those rays against every cone at once: one (m, 3) x (3, r) product, reduced over the cones
         inside[tested] = (axes @ rows.take(d, tested).T >= np.cos(spread)[:, None]).any(axis=0)
@@ -718,7 +720,7 @@ def _runs_near_bodies(frames: FrameSet, src: int, ks, cache, extent, shared, run
     frame, block = np.nonzero(_slabs_pass(before[:, :, None], after[:, :, None], velocity[:, :, None], block_low,
                                           block_high, path_range))
     pair_frame = np.repeat(frame, _RUN)
-    pair_run = (block[:, None] * _RUN + np.arange(_RUN)).ravel()
+    pair_run = _members(block)  # the runs of those blocks
     if pad:
         real = pair_run < count
         pair_frame, pair_run = pair_frame[real], pair_run[real]
@@ -956,13 +958,19 @@ def _body_boxes(frames: FrameSet, src: int, ks, cache, extent):
     """(t, x, velocity, widened half-extents) of the body boxes (``FrameSet.body_boxes``) of the
     frames ``ks``, (len(ks),) and (len(ks), 3), for rays whose (largest |coordinate| of x0,
     largest |tau0|) is ``extent``."""
-    slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
-    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
-    t_box, x_box, velocity, half = (a[slots] for a in boxes)
+    t_box, x_box, velocity, half = _boxes_of(frames, src, ks, cache)
     # the rays meet the box where |s (d + v)| is about |x0 - X(tau0)|: coordinates up to this
     x_max, tau_max = extent
     scale = 1.0 + x_max + np.max(np.abs(x_box), axis=1) + np.max(np.abs(velocity), axis=1) * (tau_max + np.abs(t_box))
     return t_box, x_box, velocity, _widened(half, scale[:, None])
+
+
+def _boxes_of(frames: FrameSet, src: int, ks, cache: TraceCache | None):
+    """(t, x, velocity, half-extents) of the body boxes (``FrameSet.body_boxes``) of the frames
+    ``ks``, (len(ks),) and (len(ks), 3), from the thread's cache where it has them."""
+    slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
+    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
+    return tuple(a[slots] for a in boxes)
 
 
 def _widened(half, scale) -> np.ndarray:
@@ -1017,9 +1025,7 @@ def _may_meet(frames: FrameSet, src: int, ks, reach: Reach, cache: TraceCache | 
     along -w meets the box of relative starts widened by the body's half-extents.
     All frames at once: a slab test per frame, vectorised.
     """
-    slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
-    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
-    t_a, x_a, velocity, half = (a[slots] for a in boxes)
+    t_a, x_a, velocity, half = _boxes_of(frames, src, ks, cache)
     scale = 1.0 + float(np.max(np.abs(reach.hi))) + float(np.max(np.abs(reach.lo)))
     widen = _widened(half, scale)
     if reach.direction is None:

@@ -24,7 +24,7 @@ PARALLELISM = ("PROCESSES", "THREADS")  # RenderSettings.parallelism: where tile
 INTEGRATORS = ("PATH", "DIRECT")
 _BOUNCE_LIMITS = ("max_bounces", "diffuse_bounces", "glossy_bounces", "transmission_bounces")
 _CLAMPS = ("clamp_direct", "clamp_indirect")
-MAX_SAMPLES = 1 << 16  # camera samples per pixel: the Samples property's limit (and the CLI's)
+MAX_CAMERA_SAMPLES = 1 << 16  # camera samples per pixel: the Samples property's limit (and the CLI's)
 
 
 def one_minus_speed_squared(beta) -> float:

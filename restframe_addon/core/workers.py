@@ -454,16 +454,21 @@ class _Pace:
         for tile, rows in shares:
             x0, y0, x1, y1 = rects[tile]
             self._pixels.append((x1 - x0) * ((y1 - y0) if rows is None else rows[1] - rows[0]))
-        self._finished = [0, 0, 0.0]  # shares finished so far, their pixels and wall seconds
-        self._per_pixel = None  # wall seconds a pixel of them took
+        self._shares_finished, self._pixels_finished, self._seconds_finished = 0, 0, 0.0  # wall seconds
 
     def finished(self, pixels: int, seconds: float):
-        self._finished = [self._finished[0] + 1, self._finished[1] + pixels, self._finished[2] + seconds]
-        self._per_pixel = self._finished[2] / max(self._finished[1], 1)
+        self._shares_finished += 1
+        self._pixels_finished += pixels
+        self._seconds_finished += seconds
+
+    def _share_seconds(self) -> float | None:
+        """Wall seconds a finished share took on average (None: none finished yet)."""
+        return self._seconds_finished / self._shares_finished if self._shares_finished else None
 
     def seconds(self, shares) -> float:
         """The estimated work of ``shares`` (share ids), in seconds."""
-        return self._per_pixel * sum(self._pixels[share] for share in shares)
+        per_pixel = self._seconds_finished / max(self._pixels_finished, 1)
+        return per_pixel * sum(self._pixels[share] for share in shares)
 
     def wants(self, worker: _Worker, todo, workers: int) -> bool:
         """Whether ``worker`` is to be dealt another share."""
@@ -475,17 +480,16 @@ class _Pace:
         """Seconds the loop may sleep before it handles what came: 0 (wait for each message) unless
         shares come faster than one a ``_BATCH``; then at most ``_BATCH`` and half the work a
         worker holds, so that none runs dry and the last shares are handled soon after they end."""
-        if self._per_pixel is None or self._finished[2] / self._finished[0] >= len(workers) * _BATCH:
+        share_seconds = self._share_seconds()
+        if share_seconds is None or share_seconds >= len(workers) * _BATCH:
             return 0.0
         return min(_BATCH, min(self.seconds(worker.dealt) for worker in workers) / 2)
 
     def _batching(self, todo, workers: int) -> bool:
         """Whether a worker may hold work for 2 ``_BATCH``: shares come faster than one a batch and
         enough is left a worker that none waits at the end for another's queue."""
-        if self._per_pixel is None:
-            return False
-        share_seconds = self._finished[2] / self._finished[0]
-        return (share_seconds < workers * _BATCH
+        share_seconds = self._share_seconds()
+        return (share_seconds is not None and share_seconds < workers * _BATCH
                 and (workers == 1 or self.seconds(share for share, _ in todo) > 4 * _BATCH * workers))
 
 
@@ -572,8 +576,7 @@ class WorkerPool:
         self._send_scene(workers, scene_id, stats, prepared.measurements)
         cpu = time.thread_time()
         _remove_all(self._unremoved)
-        results = _ResultsImage.create(rects, {"Combined": ALL_PASSES["Combined"],
-                                               **{name: ALL_PASSES[name] for name in prepared.passes}})
+        results = _ResultsImage.create(rects, {name: ALL_PASSES[name] for name in ("Combined", *prepared.passes)})
         shares = share_out(rects, len(workers))
         stats.workers, stats.shares = len(workers), len(shares)
         todo = collections.deque(enumerate(shares))  # (share id, (tile index, rows))

@@ -56,6 +56,11 @@ def _lamp_settings_not_rendered(obj) -> list[str]:
     return found
 
 
+def _area_size_y(data) -> float:
+    """An area lamp's second side: Size Y of a rectangle or ellipse, else its one Size."""
+    return data.size_y if data.shape in {'RECTANGLE', 'ELLIPSE'} else data.size
+
+
 def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Callable[[str], None] = print,
                  scene=None, trajectory=None) -> Light:
     """The lamp as the core sees it; with ``scene``, its keyed strength and colour as curves on
@@ -89,7 +94,7 @@ def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Calla
     if flattened and data.type != 'POINT':
         warn(f"Light '{obj.name}': scaled to zero along an axis, it gives no light")
         light.power, light.power_curve = 0.0, None
-    elif data.type == 'AREA' and not (data.size > 0.0 and (data.shape not in {'RECTANGLE', 'ELLIPSE'} or data.size_y > 0.0)):
+    elif data.type == 'AREA' and not (data.size > 0.0 and _area_size_y(data) > 0.0):
         warn(f"Light '{obj.name}': an area lamp of size 0 gives no light (as in Cycles)")
         light.power, light.power_curve = 0.0, None
     if data.type in {'POINT', 'SPOT'}:
@@ -100,8 +105,7 @@ def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Calla
         light.sun_angle = float(data.angle)
     elif data.type == 'AREA':
         light.area_shape = data.shape
-        size_y = data.size_y if data.shape in {'RECTANGLE', 'ELLIPSE'} else data.size
-        light.area_size = (float(data.size * scale[0]), float(size_y * scale[1]))
+        light.area_size = (float(data.size * scale[0]), float(_area_size_y(data) * scale[1]))
     return light
 
 def _emission_strength(data):

@@ -146,8 +146,7 @@ class MaterialExporter:
         out.coat_weight = self._value(mat, inputs["Coat Weight"])
         out.coat_roughness = self._value(mat, inputs["Coat Roughness"])
         out.coat_ior = self._value(mat, inputs["Coat IOR"])
-        if out.coat_weight > 0.0 and (upstream(inputs["Coat Tint"]) is not None
-                                      or any(v != 1.0 for v in inputs["Coat Tint"].default_value[:3])):
+        if out.coat_weight > 0.0 and _is_on(inputs["Coat Tint"], (1.0, 1.0, 1.0)):
             self.warn(f"Material '{mat.name}': Coat Tint is not supported, the coat is clear")
         ignored = [name for name, off in _NOT_MODELLED if name in inputs and _is_on(inputs[name], off)]
         if ignored:

@@ -130,6 +130,15 @@ def test_a_linked_input_not_modelled_is_warned_about_and_the_defaults_are_not(sc
     assert warnings == ["Material 'Linked': Principled Sheen Weight not supported yet, rendered without"]
 
 
+def _add_lamp(scene, name, kind, location=(0.0, 0.0, 0.0), **data):
+    """A lamp object ``name`` of ``kind`` at ``location``, its light's settings from ``data``."""
+    lamp = bpy.data.objects.new(name, bpy.data.lights.new(name, kind))
+    for setting, value in data.items():
+        setattr(lamp.data, setting, value)
+    lamp.location = location
+    scene.collection.objects.link(lamp)
+    return lamp
+
 
 @pytest.mark.parametrize("kind", ['POINT', 'SPOT', 'AREA', 'SUN'])
 def test_a_lamp_scaled_to_zero_renders_as_in_cycles(scene, tmp_path, kind):
@@ -138,10 +147,7 @@ def test_a_lamp_scaled_to_zero_renders_as_in_cycles(scene, tmp_path, kind):
     and say so, instead of a NaN direction."""
     add_camera(scene)
     add_plane(scene)
-    lamp = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", kind))
-    lamp.data.energy = 3.0 if kind == 'SUN' else 100.0
-    lamp.location = (0.0, 0.0, 3.0)
-    scene.collection.objects.link(lamp)
+    lamp = _add_lamp(scene, "Lamp", kind, location=(0.0, 0.0, 3.0), energy=3.0 if kind == 'SUN' else 100.0)
     lit = render_exr(scene, tmp_path / "lit.exr")["Combined"]
     lamp.scale = (1.0, 1.0, 0.0)
     _, _, warnings = export_now(scene)
@@ -166,8 +172,7 @@ def test_lamp_settings_the_render_leaves_out_are_warned_about(scene, kind, spoil
     the renderer does not yet, and says so."""
     add_camera(scene)
     add_plane(scene)
-    lamp = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", kind))
-    scene.collection.objects.link(lamp)
+    lamp = _add_lamp(scene, "Lamp", kind)
     assert export_now(scene)[2] == []
     spoil(lamp)
     warnings = export_now(scene)[2]
@@ -192,10 +197,8 @@ def test_an_area_lamp_of_size_zero_gives_no_light_as_in_cycles(scene, tmp_path, 
     size 1 gives 0.23); it lit the plane as a point lamp here, without a word."""
     add_camera(scene)
     add_plane(scene)
-    lamp = bpy.data.objects.new("Panel", bpy.data.lights.new("Panel", 'AREA'))
-    lamp.data.energy, lamp.data.shape, lamp.data.size, lamp.data.size_y = 100.0, shape, size, size_y
-    lamp.location = (0.0, 0.0, 3.0)
-    scene.collection.objects.link(lamp)
+    lamp = _add_lamp(scene, "Panel", 'AREA', location=(0.0, 0.0, 3.0), energy=100.0, shape=shape, size=size,
+                     size_y=size_y)
     assert export_now(scene)[2] == ["Light 'Panel': an area lamp of size 0 gives no light (as in Cycles)"]
     assert render_exr(scene, tmp_path / "dark.exr")["Combined"][..., :3].max() == 0.0
     lamp.data.size = lamp.data.size_y = 1.0

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from restframe_addon.core.render import render_image
-from restframe_addon.core.scene import Material, Mesh, RenderSettings, Scene, Velocity
+from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity
 from shapes import look_at_camera, quad
 
 mpmath.mp.dps = 40
@@ -61,7 +61,6 @@ def test_a_soft_sun_gives_a_facing_surface_its_strength(integrator, colour, degr
     irradiance S cos(tilt), whatever its angle, so the floor's radiance is albedo S cos(tilt) / pi.
     Taking the radiance as S over the disc's solid angle, as before, gave S cos(tilt) (1 + cos h) / 2:
     3 % too dark at 30 degrees, 25 % at 120."""
-    from restframe_addon.core.scene import Light
     tilt, albedo, strength = math.radians(20.0), 0.5, 3.0
     floor = Mesh("Floor", *quad((0, 0, 0), (100.0, 100.0)))
     camera = look_at_camera((0, 0, 10), (0, 0, 0), up=(0, 1, 0), fov_half_tan=0.05)
