@@ -104,7 +104,7 @@ MUTANTS = (
                   "            tau_hit = hit_times(hits, sel)\n"
                   "            self.shadow_tau = hits.tau_frame[sel]  # the ray's start: the observation event\n"),
             Patch(SHADING, "blocked = occluded(self.frames, k, tau_sel, origin,",
-                  "blocked = occluded(self.frames, k, _take(self.shadow_tau, sel), origin,")),
+                  "blocked = occluded(self.frames, k, rows.take(self.shadow_tau, sel), origin,")),
            (T_LIGHTS,)),
     Mutant("point-light-d2", "point-light irradiance scaled by D^2 instead of D^4",
            (Patch(SHADING, "intensity * self.searchlight_power(doppler, 4) / np.maximum(r, 1e-300) ** 2",

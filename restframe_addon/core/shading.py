@@ -403,24 +403,24 @@ class Shader:
             if sel is None:
                 continue
             frame = self.frames.frames[k]
-            prim = _take(hits.prim, sel)
+            prim = rows.take(hits.prim, sel)
             emission_only = self._emission_only(depth)
             if emission_only and self._dark(frame, prim):  # black whatever its Doppler factor (it is finite)
                 values[sel] = 0.0
                 continue
             fmap = self.frames.map(src, int(k))
             # the directions only where they matter: shading beyond emission, a spinning surface's Doppler factor
-            d_k = None if emission_only and frame.spin is None else _take(hits.d_frame, sel)
-            w = _take(hits.w, sel)
+            d_k = None if emission_only and frame.spin is None else rows.take(hits.d_frame, sel)
+            w = rows.take(hits.w, sel)
             tau_hit = hit_times(hits, sel)
-            u, v = _take(hits.u, sel), _take(hits.v, sel)
+            u, v = rows.take(hits.u, sel), rows.take(hits.v, sel)
             if fmap.is_identity and frame.spin is None:  # at rest with the viewer: D = 1
-                _put(values, sel, self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, _take(pixel, sel),
-                                                      _take(sample, sel), _rows(lam, sel), cache))
+                _put(values, sel, self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, rows.take(pixel, sel),
+                                                      rows.take(sample, sel), _rows(lam, sel), cache))
                 continue
             doppler = hit_doppler(frame, prim, u, v, tau_hit, d_k, w)
-            local = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, _take(pixel, sel), _take(sample, sel),
-                                        self.colour.shift(_rows(lam, sel), doppler), cache)
+            local = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, rows.take(pixel, sel),
+                                        rows.take(sample, sel), self.colour.shift(_rows(lam, sel), doppler), cache)
             _put(values, sel, rows.scale(local, self.searchlight_power(doppler, 4)))
         return values, hits
 
@@ -614,14 +614,14 @@ class Shader:
             sel = rows.selection(lit)
             if sel is None:
                 continue
-            e_sel = _take(e_k, sel)
-            tau_sel, pixel_sel, sample_sel = _take(tau, sel), _take(pixel, sel), _take(sample, sel)
-            origin = np.multiply(_take(ng, sel), eps)
-            origin += _take(position, sel)
-            reach = _take(s_max, sel) - 2.0 * eps if np.ndim(s_max) else s_max  # sunlight: unbounded
+            e_sel = rows.take(e_k, sel)
+            tau_sel, pixel_sel, sample_sel = rows.take(tau, sel), rows.take(pixel, sel), rows.take(sample, sel)
+            origin = np.multiply(rows.take(ng, sel), eps)
+            origin += rows.take(position, sel)
+            reach = rows.take(s_max, sel) - 2.0 * eps if np.ndim(s_max) else s_max  # sunlight: unbounded
             blocked = occluded(self.frames, k, tau_sel, origin, e_sel, eps, reach, cache,
                                see_through=self.cutouts(pixel_sel, sample_sel, _cutout_dimension(depth, 8 + index)))
-            weight = _take(strength, sel) * _take(cos_n, sel)
+            weight = rows.take(strength, sel) * rows.take(cos_n, sel)
             shadowed = np.count_nonzero(blocked)
             if shadowed == len(blocked):
                 continue
@@ -632,10 +632,10 @@ class Shader:
             elif shadowed:  # a few: cheaper to shade them too, with no light
                 weight[blocked] = 0.0
             part = None if lobes is None else lobes.take(sel)
-            f = self.brdf(_take(ns, sel), _take(view, sel), e_sel, _take(base, sel), _take(mat, sel), part,
-                          _take(cos_n, sel))
-            emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), _take(doppler, sel)), len(f),
-                                        None if clock is None else _take(clock, sel))
+            f = self.brdf(rows.take(ns, sel), rows.take(view, sel), e_sel, rows.take(base, sel), rows.take(mat, sel),
+                          part, rows.take(cos_n, sel))
+            emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), rows.take(doppler, sel)), len(f),
+                                        None if clock is None else rows.take(clock, sel))
             f = _weighted_product(f, emitted, weight)
             if total is not None:
                 total[sel] += f
@@ -838,7 +838,7 @@ def uv_tangents(frame, prim, tau=None):
 
 def _rows(lam, index):
     """The wavelengths of some rays (None in RGB mode)."""
-    return None if lam is None else _take(lam, index)
+    return None if lam is None else rows.take(lam, index)
 
 
 def _put_rows(values, mask, index, new):
@@ -858,12 +858,6 @@ def _put(a, sel, new):
         rows.assign(a[sel], new)
     else:
         rows.put(a, sel, new)
-
-
-def _take(a, sel):
-    """Rows ``sel`` (a slice or indices) of an array: a view, or np.take (several times faster
-    than fancy indexing of (n, 3) rows)."""
-    return a[sel] if isinstance(sel, slice) else np.take(a, sel, axis=0)
 
 
 def _spot_falloff(cos_angle, spot_size, blend):
