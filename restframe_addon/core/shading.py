@@ -398,31 +398,50 @@ class Shader:
         held = self.held_out(hits) if self.has_holdouts else None
         if held is not None:
             values[held] = 0.0
+        order, segments = self._hits_by_frame(hits, held, depth, values)
+        if not segments:
+            return values, hits
+        # every frame's hits shaded together, in the frames' order (``segments``: each frame's rows)
+        emission_only = self._emission_only(depth)
+        prim = rows.take(hits.prim, order)
+        # the directions only where they matter: shading beyond emission, a spinning surface's Doppler factor
+        spins = any(self.frames.frames[k].spin is not None for k, _ in segments)
+        d_k = None if emission_only and not spins else rows.take(hits.d_frame, order)
+        tau_hit = hit_times(hits, order)
+        u, v = rows.take(hits.u, order), rows.take(hits.v, order)
+        pixel, sample, lam = rows.take(pixel, order), rows.take(sample, order), _rows(lam, order)
+        if not spins and all(self.frames.map(src, k).is_identity for k, _ in segments):  # at rest: D = 1
+            _put(values, order, self._shade_surfaces(segments, tau_hit, d_k, prim, u, v, depth, pixel, sample, lam,
+                                                     cache))
+            return values, hits
+        w = rows.take(hits.w, order)
+        # (a frame at rest with the viewer has w = 1: D = 1, and its hits are scaled by 1)
+        doppler = _joined([hit_doppler(self.frames.frames[k], prim[s], u[s], v[s], tau_hit[s],
+                                       None if d_k is None else d_k[s], w[s]) for k, s in segments])
+        local = self._shade_surfaces(segments, tau_hit, d_k, prim, u, v, depth, pixel, sample,
+                                     self.colour.shift(lam, doppler), cache)
+        _put(values, order, rows.scale(local, self.searchlight_power(doppler, 4)))
+        return values, hits
+
+    def _hits_by_frame(self, hits: Hits, held, depth: int, values):
+        """The rows of the hits to shade, grouped by frame in increasing order (a slice while that
+        is every ray), and each frame's (k, rows of that order).  Holdouts (``held``) are left out;
+        with emission alone, so are the frames whose surfaces are dark (their values set to 0)."""
+        parts, segments, start = [], [], 0
         for k in frames_hit(hits):
             sel = rows.selection(hits.frame == k if held is None else (hits.frame == k) & ~held)
             if sel is None:
                 continue
-            frame = self.frames.frames[k]
-            prim = rows.take(hits.prim, sel)
-            emission_only = self._emission_only(depth)
-            if emission_only and self._dark(frame, prim):  # black whatever its Doppler factor (it is finite)
-                values[sel] = 0.0
+            if self._emission_only(depth) and self._dark(self.frames.frames[k], rows.take(hits.prim, sel)):
+                values[sel] = 0.0  # black whatever its Doppler factor (it is finite)
                 continue
-            fmap = self.frames.map(src, int(k))
-            # the directions only where they matter: shading beyond emission, a spinning surface's Doppler factor
-            d_k = None if emission_only and frame.spin is None else rows.take(hits.d_frame, sel)
-            w = rows.take(hits.w, sel)
-            tau_hit = hit_times(hits, sel)
-            u, v = rows.take(hits.u, sel), rows.take(hits.v, sel)
-            if fmap.is_identity and frame.spin is None:  # at rest with the viewer: D = 1
-                _put(values, sel, self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, rows.take(pixel, sel),
-                                                      rows.take(sample, sel), _rows(lam, sel), cache))
-                continue
-            doppler = hit_doppler(frame, prim, u, v, tau_hit, d_k, w)
-            local = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, rows.take(pixel, sel),
-                                        rows.take(sample, sel), self.colour.shift(_rows(lam, sel), doppler), cache)
-            _put(values, sel, rows.scale(local, self.searchlight_power(doppler, 4)))
-        return values, hits
+            count = len(hits.frame) if isinstance(sel, slice) else len(sel)
+            parts.append(sel)
+            segments.append((int(k), slice(start, start + count)))
+            start += count
+        if len(parts) == 1:
+            return parts[0], segments
+        return (np.concatenate(parts) if parts else None), segments
 
     # ------------------------------------------------------------------ tracing
     def trace(self, src: int, tau0, x0, d, s_lo, s_hi, ray: int, pixel, sample, depth: int,
@@ -490,23 +509,35 @@ class Shader:
                                      np.zeros(len(prim)) if tau_hit is None else tau_hit)
         return position, ng, ns, material, back
 
-    def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample, lam, cache):
-        frame = self.frames.frames[k]
+    def _shade_surfaces(self, segments, tau, d_k, prim, u, v, depth, pixel, sample, lam, cache):
+        """The values leaving hits toward their rays, in each hit's frame: the hits of several
+        frames in one array, ``segments`` = (frame k, its rows) in order; what depends on the frame
+        (the geometry, the lamps' light) worked out frame by frame, the rest once for all."""
+        mats = self.materials
         if self._emission_only(depth):  # no normals, texture or base colour needed
-            return self._emission(frame, tau, prim, self.materials.clamp(frame.geometry.tri_material[prim]), lam)
-        position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau, cache)
-        uv = hit_uv(frame, prim, u, v)
-        base = self.colour.base_color(mat, uv, lam)
+            mat = _joined([mats.clamp(self.frames.frames[k].geometry.tri_material[prim[s]]) for k, s in segments])
+            return self._emission(segments, tau, prim, mat, lam)
+        info = [self.surface_info(k, prim[s], u[s], v[s], d_k[s], tau[s], cache) for k, s in segments]
+        position, ng, ns, mat, back = (_joined([part[i] for part in info]) for i in range(5))
+        if all(part[2] is part[1] for part in info):  # flat shading: the two normals are one array
+            ns = ng
+        uvs = [hit_uv(self.frames.frames[k], prim[s], u[s], v[s]) for k, s in segments]
+        if all(uv is None for uv in uvs) or all(uv is not None for uv in uvs):
+            base = self.colour.base_color(mat, None if uvs[0] is None else _joined(uvs), lam)
+        else:  # frames with and without UVs
+            base = _joined([self.colour.base_color(mat[s], uv, _rows(lam, s)) for (_, s), uv in zip(segments, uvs)])
         one = _only_material(mat)
-        if self.lights and one is not None and not self.materials.emits[one]:  # the direct light alone
-            values = self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
+        if self.lights and one is not None and not mats.emits[one]:  # the direct light alone
+            values = self._direct(segments, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
         else:
-            values = self._emission(frame, tau, prim, mat, lam)
+            values = self._emission(segments, tau, prim, mat, lam)
             if self.lights:
-                values += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
+                values += self._direct(segments, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam,
+                                       cache)
         if self._bounces(depth):
-            values += self._secondary(k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam,
-                                      cache)
+            for k, s in segments:
+                values[s] += self._secondary(k, tau[s], position[s], ng[s], ns[s], d_k[s], base[s], mat[s], back[s],
+                                             depth, pixel[s], sample[s], _rows(lam, s), cache)
         return values
 
     def _emission_only(self, depth: int) -> bool:
@@ -525,11 +556,12 @@ class Shader:
         one = _only_material(mat)
         return not (self.materials.emits[one] if one is not None else self.materials.emits[mat].any())
 
-    def _emission(self, frame, tau, prim, mat, lam):
-        """The surfaces' own emission at hits of one frame (a new array)."""
+    def _emission(self, segments, tau, prim, mat, lam):
+        """The surfaces' own emission at hits of several frames (``segments``: (k, rows)), a new array."""
         values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
         if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
-            values *= self.materials.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
+            clock = _joined([self.frames.frames[k].object_clock(tau[s], prim[s]) for k, s in segments])
+            values *= self.materials.emission_factor(mat, clock)[:, None]
         return values
 
     def shading_normals(self, k: int, prim, u, v, d_k, tau_hit=None):
@@ -594,17 +626,20 @@ class Shader:
             value[r] += specular
         return value
 
-    def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache, lobes=None):
-        """The lamps' light reflected toward ``view`` (n, C): one shadow ray per lamp and hit.
-        A selection of hits is a slice while it is all of them (views, not gathers)."""
-        eps = self.epsilon[k]
+    def _direct(self, segments, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache,
+                lobes=None):
+        """The lamps' light reflected toward ``view`` (n, C): one shadow ray per lamp and hit, of
+        the hits of several frames (``segments``: (frame k, its rows), in order).  A selection of
+        hits is a slice while it is all of them (views, not gathers)."""
         total = None
         for index, light in enumerate(self.lights):
             dim = 1000 + 100 * depth + 4 * index
             xi1 = xi2 = None  # a point light or sharp sun needs no random numbers
             if light.sampled:
                 xi1, xi2 = sampling.uniforms(pixel, sample, (dim, dim + 1))
-            e_k, strength, doppler, s_max, clock = self._incident(light, k, tau, position, xi1, xi2)
+            incident = [self._incident(light, k, tau[s], position[s], None if xi1 is None else xi1[s],
+                                       None if xi2 is None else xi2[s]) for k, s in segments]
+            e_k, strength, doppler, s_max, clock = (_joined([part[i] for part in incident]) for i in range(5))
             cos_n = rows.dot(ns, e_k)
             lit = cos_n > 0.0
             if ns is not ng:  # (flat shading: one array, the same test)
@@ -615,12 +650,8 @@ class Shader:
             if sel is None:
                 continue
             e_sel = rows.take(e_k, sel)
-            tau_sel, pixel_sel, sample_sel = rows.take(tau, sel), rows.take(pixel, sel), rows.take(sample, sel)
-            origin = np.multiply(rows.take(ng, sel), eps)
-            origin += rows.take(position, sel)
-            reach = rows.take(s_max, sel) - 2.0 * eps if np.ndim(s_max) else s_max  # sunlight: unbounded
-            blocked = occluded(self.frames, k, tau_sel, origin, e_sel, eps, reach, cache,
-                               see_through=self.cutouts(pixel_sel, sample_sel, _cutout_dimension(depth, 8 + index)))
+            blocked = self._occluded(segments, sel, tau, position, ng, e_sel, s_max, pixel, sample,
+                                     _cutout_dimension(depth, 8 + index), cache)
             weight = rows.take(strength, sel) * rows.take(cos_n, sel)
             shadowed = np.count_nonzero(blocked)
             if shadowed == len(blocked):
@@ -645,6 +676,26 @@ class Shader:
                 total = np.zeros_like(base)
                 _put(total, sel, f)
         return np.zeros_like(base) if total is None else total
+
+    def _occluded(self, segments, sel, tau, position, ng, e_sel, s_max, pixel, sample, dimension: int, cache):
+        """Whether the shadow rays of the hits ``sel`` (toward ``e_sel``, at most ``s_max`` long) are
+        blocked: asked of the tracer frame by frame (``segments``: (frame k, its rows)), each from
+        its frame's surface offset; ``dimension``: the sampler dimension of their cut-out decisions."""
+        starts = [s.start for _, s in segments] + [segments[-1][1].stop]
+        bounds = starts if isinstance(sel, slice) else np.searchsorted(sel, starts)  # each frame's part of sel
+        parts = []
+        for (k, _), start, stop in zip(segments, bounds[:-1], bounds[1:]):
+            if stop == start:
+                continue
+            rays = slice(start, stop) if isinstance(sel, slice) else sel[start:stop]
+            eps = self.epsilon[k]
+            origin = np.multiply(rows.take(ng, rays), eps)
+            origin += rows.take(position, rays)
+            reach = rows.take(s_max, rays) - 2.0 * eps if np.ndim(s_max) else s_max  # sunlight: unbounded
+            pixel_sel, sample_sel = rows.take(pixel, rays), rows.take(sample, rays)
+            parts.append(occluded(self.frames, k, rows.take(tau, rays), origin, e_sel[start:stop], eps, reach, cache,
+                                  see_through=self.cutouts(pixel_sel, sample_sel, dimension)))
+        return _joined(parts)
 
     def _incident(self, pl: PreparedLight, k, tau, position, xi1, xi2):
         """Light arriving at hit events of frame k from one light.
@@ -834,6 +885,14 @@ def uv_tangents(frame, prim, tau=None):
     if frame.spin is not None:
         _, tangent = frame.to_frame(corners[:, 0], tangent, tau)
     return tangent, sign
+
+
+def _joined(parts):
+    """The frames' parts of one quantity as one array, in order (one part as it is: a broadcast
+    view stays one; a number, the same for every frame, stays a number)."""
+    if len(parts) == 1 or np.ndim(parts[0]) == 0:
+        return parts[0]
+    return np.concatenate(parts)
 
 
 def _rows(lam, index):
