@@ -100,11 +100,11 @@ MUTANTS = (
                   "        e_k = rows.normalized(rows.scale(e_k, r) + rows.scale(u, r / u0))  # where it is now\n"),),
            (T_LIGHTS,)),
     Mutant("shadow-ray-observation-time", "shadow rays start at the observation time instead of the hit event's",
-           (Patch(SHADING, "            tau_hit = hit_times(hits, sel)\n",
-                  "            tau_hit = hit_times(hits, sel)\n"
-                  "            self.shadow_tau = hits.tau_frame[sel]  # the ray's start: the observation event\n"),
-            Patch(SHADING, "blocked = occluded(self.frames, k, tau_sel, origin,",
-                  "blocked = occluded(self.frames, k, rows.take(self.shadow_tau, sel), origin,")),
+           (Patch(SHADING, "        tau_hit = hit_times(hits, order)\n",
+                  "        tau_hit = hit_times(hits, order)\n"
+                  "        self.shadow_tau = rows.take(hits.tau_frame, order)  # the ray's start: the observation event\n"),
+            Patch(SHADING, "occluded(self.frames, k, rows.take(tau, rays), origin,",
+                  "occluded(self.frames, k, rows.take(self.shadow_tau, rays), origin,")),
            (T_LIGHTS,)),
     Mutant("point-light-d2", "point-light irradiance scaled by D^2 instead of D^4",
            (Patch(SHADING, "intensity * self.searchlight_power(doppler, 4) / np.maximum(r, 1e-300) ** 2",
@@ -130,16 +130,16 @@ MUTANTS = (
                                        "into the surface's rest frame",
            (Patch(SHADING, "n_a, ng_a, d_a = ns[active], ng[active], d_k[active]",
                   "n_a, ng_a, d_a = ns[active], ng[active], self._observer_d[active]"),
-            Patch(SHADING, "            values += self._secondary(k, tau,",
-                  "            self._observer_d = self.frames.map(k, self.frames.camera).rays(d_k)[0]\n"
-                  "            values += self._secondary(k, tau,")),
+            Patch(SHADING, "                values[s] += self._secondary(k, tau[s],",
+                  "                self._observer_d = self.frames.map(k, self.frames.camera).rays(d_k[s])[0]\n"
+                  "                values[s] += self._secondary(k, tau[s],")),
            (T_OBSERVERS,)),
     Mutant("bounce-traced-from-observer", "bounce rays traced as if their coordinates were the observer's",
            (Patch(SHADING, "values, _ = self.radiance(k, tau, origin, d, eps, np.inf,",
                   "values, _ = self.radiance(self.frames.camera, tau, origin, d, eps, np.inf,"),),
            (f"{T_SHADING}::test_approaching_mirror_doubles_the_doppler_shift",)),
     Mutant("emission-curve-frame-time", "the emission curve read at the frame time instead of the object's clock",
-           (Patch(SHADING, "emission_factor(mat, frame.object_clock(tau, prim))", "emission_factor(mat, tau)"),),
+           (Patch(SHADING, "self.frames.frames[k].object_clock(tau[s], prim[s])", "tau[s]"),),
            (T_OBSERVERS,)),
     Mutant("texture-uv-swapped", "texture coordinates interpolated with the barycentrics swapped",
            (Patch(SHADING, "column += np.multiply(u, cuv[:, 1, c], out=term)\n"
