@@ -327,7 +327,7 @@ class LayeredLobes:
 
 
 class Shader:
-    """Traces and shades backward rays for one prepared scene (thread-safe: read-only state).
+    """Traces and shades backward rays for one prepared scene (thread-safe: read-only state, but for caches of values that do not depend on the rays).
 
     ``layered``: evaluate surfaces with :class:`LayeredLobes` (Path Tracing) instead of the
     direct-light integrator's plain sum of lobes.
@@ -344,6 +344,7 @@ class Shader:
         self.searchlight = searchlight
         # how far secondary and shadow rays start off a surface (RestFrame.surface_offset)
         self.epsilon = MappingProxyType({k: float(frames.surface_offsets[k]) for k in frames.geometry})
+        self._sharp_suns: dict = {}  # _sharp_sun's rows (the same whichever thread adds one)
 
     # ------------------------------------------------------------------ helpers
     def searchlight_power(self, doppler, exponent: int):
@@ -725,15 +726,11 @@ class Shader:
             if to_surface.is_identity:  # at rest with the surface: D = 1, so D^p = 1
                 one = np.broadcast_to(1.0, (n,))
                 return e_j, one, one, np.inf, clock
-            # a sharp sun, one broadcast direction for every hit: mapped once (a one-row view of
-            # the same broadcast rows, the same steps on the same numbers) and broadcast back
-            sharp = e_j.strides[0] == 0
-            e_k, doppler = to_surface.rays(e_j[:1] if sharp else e_j)
-            sun_strength = self.searchlight_power(doppler, 2)
-            if sharp:
+            if e_j.strides[0] == 0:  # a sharp sun, one direction for every hit: mapped once per frame
                 e_k, sun_strength, doppler = (np.broadcast_to(a, (n,) + a.shape[1:])
-                                              for a in (e_k, sun_strength, doppler))
-            return e_k, sun_strength, doppler, np.inf, clock
+                                              for a in self._sharp_sun(pl.frame, k, z_axis))
+                return e_k, sun_strength, doppler, np.inf, clock
+            return *self._sunlight(to_surface, e_j), np.inf, clock
         if light.trajectory is None:
             tau_j, x_j = self.frames.map(k, pl.frame).events(tau, position)
             sample = np.broadcast_to(pl.position, (n, 3))
@@ -769,6 +766,26 @@ class Shader:
         # the light left the lamp (its point ``sample``) r_rest before the hit, in the lamp's frame
         clock = None if pl.keyed is None else tau_j - r_rest + clock_zero
         return e_k, intensity * self.searchlight_power(doppler, 4) / np.maximum(r, 1e-300) ** 2, doppler, r, clock
+
+    def _sunlight(self, to_surface, e_j) -> tuple:
+        """Sunlight along directions e_j (toward the sun, in its frame) as a surface sees it
+        (``to_surface``: the map into its frame): the directions, the irradiance factor D^2, D."""
+        e_k, doppler = to_surface.rays(e_j)
+        sun_strength = self.searchlight_power(doppler, 2)
+        return e_k, sun_strength, doppler
+
+    def _sharp_sun(self, j: int, k: int, axis) -> tuple:
+        """A sharp sun's light in frame k from its frame j (emitting along -``axis``): its direction,
+        irradiance factor and D, one read-only row each, mapped once per (j, k, axis) and kept (the
+        same steps on the same numbers as for one hit's row: the same bits)."""
+        key = (j, k, tuple(axis))
+        found = self._sharp_suns.get(key)
+        if found is None:
+            found = self._sunlight(self.frames.map(j, k), np.array([axis], dtype=np.float64))
+            for a in found:
+                a.flags.writeable = False
+            self._sharp_suns[key] = found
+        return found
 
     def _momentary(self, pl: PreparedLight, k, tau, position):
         """An animated lamp seen from hit events of frame k, in its momentary rest frame at the
