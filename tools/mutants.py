@@ -148,7 +148,7 @@ MUTANTS = (
                   "        column += np.multiply(u, cuv[:, 2, c], out=term)\n"),),
            (T_OBSERVERS,)),
     Mutant("doppler-pass-inverted", "D replaced by 1/D in the Doppler pass",
-           (Patch(PASSES, 'passes["Doppler"][sel, 0] = hit_doppler(', 'passes["Doppler"][sel, 0] = 1.0 / hit_doppler('),),
+           (Patch(PASSES, 'values["Doppler"] = [hit_doppler(', 'values["Doppler"] = [1.0 / hit_doppler('),),
            (f"{T_RENDER}::test_doppler_head_on_approach_on_the_axis_ray",)),
     Mutant("factor-display-inverse", "the FACTOR grey display computed from 1/D",
            (Patch(RENDER, "doppler = ray_doppler(prepared.frames, hits)", "doppler = 1.0 / ray_doppler(prepared.frames, hits)"),

@@ -57,6 +57,33 @@ def hit_times(hits: Hits, sel) -> np.ndarray:
     return hits.tau_frame[sel] - hits.s_frame[sel]
 
 
+def hits_by_frame(hits: Hits, keep=None):
+    """The rows of the rays that hit (and ``keep``, a mask, where given), grouped by frame in
+    increasing order -- a slice while that is every ray, else indices -- and each frame's
+    (k, its rows of that order).  Work on every frame's hits at once goes over these rows;
+    what depends on the frame, over each one's rows (:func:`joined_frames` joins those parts)."""
+    parts, segments, start = [], [], 0
+    for k in frames_hit(hits):
+        sel = rows.selection(hits.frame == k if keep is None else (hits.frame == k) & keep)
+        if sel is None:
+            continue
+        count = len(hits.frame) if isinstance(sel, slice) else len(sel)
+        parts.append(sel)
+        segments.append((int(k), slice(start, start + count)))
+        start += count
+    if len(parts) == 1:
+        return parts[0], segments
+    return (np.concatenate(parts) if parts else np.zeros(0, dtype=np.intp)), segments
+
+
+def joined_frames(parts):
+    """The frames' parts of one quantity (in :func:`hits_by_frame`'s order) as one array (one part
+    as it is: a broadcast view stays one; a number, the same for every frame, stays a number)."""
+    if len(parts) == 1 or np.ndim(parts[0]) == 0:
+        return parts[0]
+    return np.concatenate(parts)
+
+
 def surface_doppler(frame: RestFrame, prim, u, v, tau_hit, d_k) -> np.ndarray:
     """Doppler factor of the surface's own motion in its frame (1 but for spinning bodies:
     their points move with omega x r), for light leaving along backward directions d_k."""
@@ -129,12 +156,12 @@ def _emission_times(frames: FrameSet, light_speed: float, rays, hits: Hits, hit)
 
 
 def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
-                 shading_normals=None) -> dict[str, np.ndarray]:
+                 shading_normals=None, cache: TraceCache | None = None) -> dict[str, np.ndarray]:
     """The passes ``wanted`` (names besides Combined) of camera rays ``rays`` = (tau, x, d, ...)
     in the camera frame and their ``hits``, as (n, channels) float32 arrays (each value worked out
     in float64 and rounded once, as it is written).  ``shading_normals(k,
     prim, u, v, d_k, tau_hit)``: the Normal pass's normals at hits of frame k (normal maps applied,
-    as Cycles shows them; None: :func:`facing_normals`')."""
+    as Cycles shows them; None: :func:`facing_normals`'); ``cache``: the calling thread's)."""
     wanted = set(wanted)
     n = len(rays[2])
     hit = hits.frame >= 0
@@ -152,20 +179,30 @@ def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
         passes[name] = np.zeros((n, len(BY_NAME[name].channels)), dtype=np.float32)
     if not per_frame:
         return passes
-    for k in frames_hit(hits):
-        sel = rows.selection(hits.frame == k)  # (views, no gathers, where every ray hit this frame)
-        frame = frames.frames[int(k)]
-        tau_hit = hit_times(hits, sel)
-        prim, u, v = hits.prim[sel], hits.u[sel], hits.v[sel]
-        # the directions only where they matter: a spinning surface's Doppler factor, the normals
-        d_k = rows.take(hits.d_frame, sel) if frame.spin is not None or "Normal" in wanted else None
-        if "Doppler" in wanted:
-            passes["Doppler"][sel, 0] = hit_doppler(frame, prim, u, v, tau_hit, d_k, hits.w[sel])
-        if "Normal" in wanted:
-            passes["Normal"][sel] = (facing_normals(frame, prim, u, v, d_k, tau_hit)[2] if shading_normals is None
-                                     else shading_normals(int(k), prim, u, v, d_k, tau_hit))
-        if "IndexOB" in wanted:
-            passes["IndexOB"][sel, 0] = frame.geometry.tri_object_index[prim]
-        if "Object Time" in wanted:
-            passes["Object Time"][sel, 0] = frame.object_clock(tau_hit, prim) / light_speed
+    # every frame's hits at once: each pass's values worked out frame by frame, written once
+    order, segments = hits_by_frame(hits)
+    if not segments:
+        return passes
+    tau_hit = hit_times(hits, order)
+    prim, u, v = rows.take(hits.prim, order), rows.take(hits.u, order), rows.take(hits.v, order)
+    parts = [(int(k), frames.frames[k], s) for k, s in segments]
+    # the directions only where they matter: a spinning surface's Doppler factor, the normals
+    spins = any(frame.spin is not None for _, frame, _ in parts)
+    d_k = rows.take(hits.d_frame, order) if spins or "Normal" in wanted else None
+    values = {}
+    if "Doppler" in wanted:
+        w = rows.take(hits.w, order)
+        values["Doppler"] = [hit_doppler(frame, prim[s], u[s], v[s], tau_hit[s], None if d_k is None else d_k[s], w[s])
+                             for _, frame, s in parts]
+    if "Normal" in wanted:
+        values["Normal"] = [facing_normals(frame, prim[s], u[s], v[s], d_k[s], tau_hit[s], cache)[2]
+                            if shading_normals is None else shading_normals(k, prim[s], u[s], v[s], d_k[s], tau_hit[s])
+                            for k, frame, s in parts]
+    if "IndexOB" in wanted:
+        values["IndexOB"] = [np.take(frame.geometry.tri_object_index, prim[s]) for _, frame, s in parts]
+    if "Object Time" in wanted:
+        values["Object Time"] = [frame.object_clock(tau_hit[s], prim[s]) / light_speed for _, frame, s in parts]
+    for name, frame_values in values.items():
+        joined = joined_frames(frame_values)
+        rows.put_selection(passes[name], order, joined.reshape(len(joined), -1))
     return passes

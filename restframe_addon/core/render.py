@@ -76,7 +76,7 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
         centre_hits = shader.trace(frames.camera, *centre, RAY_CAMERA, pixel, np.broadcast_to(np.int64(0), (n,)), 0,
                                    cache, for_passes=True)
     passes = pixel_passes(frames, prepared.scene.light_speed, prepared.passes, centre, centre_hits,
-                          shader.shading_normals if prepared.materials.normal_mapped else None)
+                          shader.shading_normals if prepared.materials.normal_mapped else None, cache)
     samples = max(int(settings.samples), 1)
     batches = list(_batches(tile_pixels, samples, prepared.colour.channels, share))
     # one batch of every pixel and sample: its colours are the sums (added to 0.0 below, as to the sums' zeros)

@@ -31,7 +31,7 @@ from .bsdf import (dielectric_f0, fresnel_average_f82_tint, fresnel_average_prin
                    ggx_single_scattering)
 from .frames import FrameSet, clock_shift, shift_into_frame
 from .lorentz import RowBoosts
-from .passes import facing_normals, hit_doppler, hit_times
+from .passes import facing_normals, hit_doppler, hit_times, hits_by_frame, joined_frames
 from .scene import RAY_CAMERA, RAY_GLOSSY, RAY_TRANSMISSION, Light, Material, Scene
 from .tracer import Hits, TraceCache, frames_hit, occluded, trace_nearest
 from .world import Texels, image_lookup
@@ -412,37 +412,32 @@ class Shader:
         u, v = rows.take(hits.u, order), rows.take(hits.v, order)
         pixel, sample, lam = rows.take(pixel, order), rows.take(sample, order), _rows(lam, order)
         if not spins and all(self.frames.map(src, k).is_identity for k, _ in segments):  # at rest: D = 1
-            _put(values, order, self._shade_surfaces(segments, tau_hit, d_k, prim, u, v, depth, pixel, sample, lam,
+            rows.put_selection(values, order, self._shade_surfaces(segments, tau_hit, d_k, prim, u, v, depth, pixel, sample, lam,
                                                      cache))
             return values, hits
         w = rows.take(hits.w, order)
         # (a frame at rest with the viewer has w = 1: D = 1, and its hits are scaled by 1)
-        doppler = _joined([hit_doppler(self.frames.frames[k], prim[s], u[s], v[s], tau_hit[s],
+        doppler = joined_frames([hit_doppler(self.frames.frames[k], prim[s], u[s], v[s], tau_hit[s],
                                        None if d_k is None else d_k[s], w[s]) for k, s in segments])
         local = self._shade_surfaces(segments, tau_hit, d_k, prim, u, v, depth, pixel, sample,
                                      self.colour.shift(lam, doppler), cache)
-        _put(values, order, rows.scale(local, self.searchlight_power(doppler, 4)))
+        rows.put_selection(values, order, rows.scale(local, self.searchlight_power(doppler, 4)))
         return values, hits
 
     def _hits_by_frame(self, hits: Hits, held, depth: int, values):
-        """The rows of the hits to shade, grouped by frame in increasing order (a slice while that
-        is every ray), and each frame's (k, rows of that order).  Holdouts (``held``) are left out;
-        with emission alone, so are the frames whose surfaces are dark (their values set to 0)."""
-        parts, segments, start = [], [], 0
-        for k in frames_hit(hits):
-            sel = rows.selection(hits.frame == k if held is None else (hits.frame == k) & ~held)
-            if sel is None:
-                continue
-            if self._emission_only(depth) and self._dark(self.frames.frames[k], rows.take(hits.prim, sel)):
-                values[sel] = 0.0  # black whatever its Doppler factor (it is finite)
-                continue
-            count = len(hits.frame) if isinstance(sel, slice) else len(sel)
-            parts.append(sel)
-            segments.append((int(k), slice(start, start + count)))
-            start += count
-        if len(parts) == 1:
-            return parts[0], segments
-        return (np.concatenate(parts) if parts else None), segments
+        """:func:`~.passes.hits_by_frame` of the hits to shade: holdouts (``held``) left out, and
+        with emission alone the frames whose surfaces are dark (their values set to 0)."""
+        keep = None if held is None else ~held
+        order, segments = hits_by_frame(hits, keep)
+        if not self._emission_only(depth):
+            return order, segments
+        dark = [k for k, s in segments
+                if self._dark(self.frames.frames[k], rows.take(hits.prim, s if isinstance(order, slice) else order[s]))]
+        if not dark:
+            return order, segments
+        black = np.isin(hits.frame, dark)
+        values[black] = 0.0  # black whatever its Doppler factor (it is finite)
+        return hits_by_frame(hits, ~black if keep is None else keep & ~black)
 
     # ------------------------------------------------------------------ tracing
     def trace(self, src: int, tau0, x0, d, s_lo, s_hi, ray: int, pixel, sample, depth: int,
@@ -516,17 +511,17 @@ class Shader:
         (the geometry, the lamps' light) worked out frame by frame, the rest once for all."""
         mats = self.materials
         if self._emission_only(depth):  # no normals, texture or base colour needed
-            mat = _joined([mats.clamp(self.frames.frames[k].geometry.tri_material[prim[s]]) for k, s in segments])
+            mat = joined_frames([mats.clamp(self.frames.frames[k].geometry.tri_material[prim[s]]) for k, s in segments])
             return self._emission(segments, tau, prim, mat, lam)
         info = [self.surface_info(k, prim[s], u[s], v[s], d_k[s], tau[s], cache) for k, s in segments]
-        position, ng, ns, mat, back = (_joined([part[i] for part in info]) for i in range(5))
+        position, ng, ns, mat, back = (joined_frames([part[i] for part in info]) for i in range(5))
         if all(part[2] is part[1] for part in info):  # flat shading: the two normals are one array
             ns = ng
         uvs = [hit_uv(self.frames.frames[k], prim[s], u[s], v[s]) for k, s in segments]
         if all(uv is None for uv in uvs) or all(uv is not None for uv in uvs):
-            base = self.colour.base_color(mat, None if uvs[0] is None else _joined(uvs), lam)
+            base = self.colour.base_color(mat, None if uvs[0] is None else joined_frames(uvs), lam)
         else:  # frames with and without UVs
-            base = _joined([self.colour.base_color(mat[s], uv, _rows(lam, s)) for (_, s), uv in zip(segments, uvs)])
+            base = joined_frames([self.colour.base_color(mat[s], uv, _rows(lam, s)) for (_, s), uv in zip(segments, uvs)])
         one = _only_material(mat)
         if self.lights and one is not None and not mats.emits[one]:  # the direct light alone
             values = self._direct(segments, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
@@ -561,7 +556,7 @@ class Shader:
         """The surfaces' own emission at hits of several frames (``segments``: (k, rows)), a new array."""
         values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
         if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
-            clock = _joined([self.frames.frames[k].object_clock(tau[s], prim[s]) for k, s in segments])
+            clock = joined_frames([self.frames.frames[k].object_clock(tau[s], prim[s]) for k, s in segments])
             values *= self.materials.emission_factor(mat, clock)[:, None]
         return values
 
@@ -640,7 +635,7 @@ class Shader:
                 xi1, xi2 = sampling.uniforms(pixel, sample, (dim, dim + 1))
             incident = [self._incident(light, k, tau[s], position[s], None if xi1 is None else xi1[s],
                                        None if xi2 is None else xi2[s]) for k, s in segments]
-            e_k, strength, doppler, s_max, clock = (_joined([part[i] for part in incident]) for i in range(5))
+            e_k, strength, doppler, s_max, clock = (joined_frames([part[i] for part in incident]) for i in range(5))
             cos_n = rows.dot(ns, e_k)
             lit = cos_n > 0.0
             if ns is not ng:  # (flat shading: one array, the same test)
@@ -675,7 +670,7 @@ class Shader:
                 total = f
             else:
                 total = np.zeros_like(base)
-                _put(total, sel, f)
+                rows.put_selection(total, sel, f)
         return np.zeros_like(base) if total is None else total
 
     def _occluded(self, segments, sel, tau, position, ng, e_sel, s_max, pixel, sample, dimension: int, cache):
@@ -696,7 +691,7 @@ class Shader:
             pixel_sel, sample_sel = rows.take(pixel, rays), rows.take(sample, rays)
             parts.append(occluded(self.frames, k, rows.take(tau, rays), origin, e_sel[start:stop], eps, reach, cache,
                                   see_through=self.cutouts(pixel_sel, sample_sel, dimension)))
-        return _joined(parts)
+        return joined_frames(parts)
 
     def _incident(self, pl: PreparedLight, k, tau, position, xi1, xi2):
         """Light arriving at hit events of frame k from one light.
@@ -904,14 +899,6 @@ def uv_tangents(frame, prim, tau=None):
     return tangent, sign
 
 
-def _joined(parts):
-    """The frames' parts of one quantity as one array, in order (one part as it is: a broadcast
-    view stays one; a number, the same for every frame, stays a number)."""
-    if len(parts) == 1 or np.ndim(parts[0]) == 0:
-        return parts[0]
-    return np.concatenate(parts)
-
-
 def _rows(lam, index):
     """The wavelengths of some rays (None in RGB mode)."""
     return None if lam is None else rows.take(lam, index)
@@ -925,15 +912,6 @@ def _put_rows(values, mask, index, new):
         return
     for channel in range(values.shape[1]):
         np.copyto(values[:, channel], new[0, channel], where=mask)
-
-
-def _put(a, sel, new):
-    """``a[sel] = new`` for rows ``sel`` (a slice or indices) of an array (see rows.put; ``new`` may
-    have contiguous columns)."""
-    if isinstance(sel, slice):
-        rows.assign(a[sel], new)
-    else:
-        rows.put(a, sel, new)
 
 
 def _spot_falloff(cos_angle, spot_size, blend):
