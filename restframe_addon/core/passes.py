@@ -57,28 +57,33 @@ def hit_times(hits: Hits, sel) -> np.ndarray:
     return hits.tau_frame[sel] - hits.s_frame[sel]
 
 
-def hits_by_frame(hits: Hits, keep=None):
-    """The rows of the rays that hit (and ``keep``, a mask, where given), grouped by frame in
-    increasing order -- a slice while that is every ray, else indices -- and each frame's
-    (k, its rows of that order).  Work on every frame's hits at once goes over these rows;
-    what depends on the frame, over each one's rows (:func:`joined_frames` joins those parts)."""
-    parts, segments, start = [], [], 0
+# a frame with this many hits is worked on alone: joining its rows with other frames' would cost
+# more than the small steps it saves (those of ~4000 rows cost about what a step of one frame does)
+_OWN_BATCH = 4096
+
+
+def frame_batches(hits: Hits, keep=None) -> list:
+    """The rays that hit (and ``keep``, a mask, where given) in batches to work on at once: each
+    frame with at least ``_OWN_BATCH`` hits alone, the others together, grouped by frame in
+    increasing order.  A batch is its rows (a slice while that is every ray, else indices) and
+    each of its frames' (k, rows of those).  What depends on the frame is worked out over each
+    frame's rows and the parts joined (:func:`joined_frames`), the rest once per batch."""
+    alone, together = [], []
     for k in frames_hit(hits):
         sel = rows.selection(hits.frame == k if keep is None else (hits.frame == k) & keep)
-        if sel is None:
-            continue
-        count = len(hits.frame) if isinstance(sel, slice) else len(sel)
-        parts.append(sel)
-        segments.append((int(k), slice(start, start + count)))
-        start += count
-    if len(parts) == 1:
-        return parts[0], segments
-    return (np.concatenate(parts) if parts else np.zeros(0, dtype=np.intp)), segments
+        if sel is not None:
+            count = len(hits.frame) if isinstance(sel, slice) else len(sel)
+            (alone if count >= _OWN_BATCH else together).append((int(k), sel, count))
+    batches = [[frame] for frame in alone] + ([together] if together else [])
+    return [(joined_frames([sel for _, sel, _ in batch]),
+             [(k, slice(start - count, start)) for (k, _, count), start in
+              zip(batch, np.cumsum([count for _, _, count in batch]).tolist())]) for batch in batches]
 
 
 def joined_frames(parts):
-    """The frames' parts of one quantity (in :func:`hits_by_frame`'s order) as one array (one part
-    as it is: a broadcast view stays one; a number, the same for every frame, stays a number)."""
+    """The frames' parts of one quantity, in the order of a :func:`frame_batches` batch, as one
+    array (one part as it is: a broadcast view stays one; a number, the same for every frame,
+    stays a number)."""
     if len(parts) == 1 or np.ndim(parts[0]) == 0:
         return parts[0]
     return np.concatenate(parts)
@@ -179,13 +184,18 @@ def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
         passes[name] = np.zeros((n, len(BY_NAME[name].channels)), dtype=np.float32)
     if not per_frame:
         return passes
-    # every frame's hits at once: each pass's values worked out frame by frame, written once
-    order, segments = hits_by_frame(hits)
-    if not segments:
-        return passes
+    for order, segments in frame_batches(hits):  # several frames' hits at once, each pass written once
+        _frame_passes(frames, light_speed, wanted, hits, order, segments, shading_normals, cache, passes)
+    return passes
+
+
+def _frame_passes(frames: FrameSet, light_speed: float, wanted, hits: Hits, order, segments, shading_normals, cache,
+                  passes) -> None:
+    """:func:`pixel_passes`' per-frame passes at the hits of one of :func:`frame_batches`' batches,
+    each frame's values worked out over its rows and written at once."""
     tau_hit = hit_times(hits, order)
     prim, u, v = rows.take(hits.prim, order), rows.take(hits.u, order), rows.take(hits.v, order)
-    parts = [(int(k), frames.frames[k], s) for k, s in segments]
+    parts = [(k, frames.frames[k], s) for k, s in segments]
     # the directions only where they matter: a spinning surface's Doppler factor, the normals
     spins = any(frame.spin is not None for _, frame, _ in parts)
     d_k = rows.take(hits.d_frame, order) if spins or "Normal" in wanted else None
@@ -205,4 +215,3 @@ def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
     for name, frame_values in values.items():
         joined = joined_frames(frame_values)
         rows.put_selection(passes[name], order, joined.reshape(len(joined), -1))
-    return passes

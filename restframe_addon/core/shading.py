@@ -31,7 +31,7 @@ from .bsdf import (dielectric_f0, fresnel_average_f82_tint, fresnel_average_prin
                    ggx_single_scattering)
 from .frames import FrameSet, clock_shift, shift_into_frame
 from .lorentz import RowBoosts
-from .passes import facing_normals, hit_doppler, hit_times, hits_by_frame, joined_frames
+from .passes import facing_normals, hit_doppler, hit_times, frame_batches, joined_frames
 from .scene import RAY_CAMERA, RAY_GLOSSY, RAY_TRANSMISSION, Light, Material, Scene
 from .tracer import Hits, TraceCache, frames_hit, occluded, trace_nearest
 from .world import Texels, image_lookup
@@ -327,7 +327,8 @@ class LayeredLobes:
 
 
 class Shader:
-    """Traces and shades backward rays for one prepared scene (thread-safe: read-only state, but for caches of values that do not depend on the rays).
+    """Traces and shades backward rays for one prepared scene (thread-safe: read-only state but
+    for caches of values that do not depend on the rays).
 
     ``layered``: evaluate surfaces with :class:`LayeredLobes` (Path Tracing) instead of the
     direct-light integrator's plain sum of lobes.
@@ -399,10 +400,28 @@ class Shader:
         held = self.held_out(hits) if self.has_holdouts else None
         if held is not None:
             values[held] = 0.0
-        order, segments = self._hits_by_frame(hits, held, depth, values)
-        if not segments:
-            return values, hits
-        # every frame's hits shaded together, in the frames' order (``segments``: each frame's rows)
+        for order, segments in self._frame_batches(hits, held, depth, values):
+            self._shade_batch(src, hits, order, segments, depth, pixel, sample, lam, cache, values)
+        return values, hits
+
+    def _frame_batches(self, hits: Hits, held, depth: int, values) -> list:
+        """:func:`~.passes.frame_batches` of the hits to shade: holdouts (``held``) left out, and
+        with emission alone the frames whose surfaces are dark (their values set to 0)."""
+        keep = None if held is None else ~held
+        batches = frame_batches(hits, keep)
+        if not self._emission_only(depth):
+            return batches
+        dark = [k for order, segments in batches for k, s in segments
+                if self._dark(self.frames.frames[k], rows.take(hits.prim, s if isinstance(order, slice) else order[s]))]
+        if not dark:
+            return batches
+        black = np.isin(hits.frame, dark)
+        values[black] = 0.0  # black whatever its Doppler factor (it is finite)
+        return frame_batches(hits, ~black if keep is None else keep & ~black)
+
+    def _shade_batch(self, src: int, hits: Hits, order, segments, depth: int, pixel, sample, lam, cache, values):
+        """Shade the hits ``order`` of the frames ``segments`` ((k, rows of order) each) together into
+        ``values``: :meth:`radiance` of one of :meth:`_frame_batches`' batches."""
         emission_only = self._emission_only(depth)
         prim = rows.take(hits.prim, order)
         # the directions only where they matter: shading beyond emission, a spinning surface's Doppler factor
@@ -412,32 +431,16 @@ class Shader:
         u, v = rows.take(hits.u, order), rows.take(hits.v, order)
         pixel, sample, lam = rows.take(pixel, order), rows.take(sample, order), _rows(lam, order)
         if not spins and all(self.frames.map(src, k).is_identity for k, _ in segments):  # at rest: D = 1
-            rows.put_selection(values, order, self._shade_surfaces(segments, tau_hit, d_k, prim, u, v, depth, pixel, sample, lam,
-                                                     cache))
-            return values, hits
+            rows.put_selection(values, order, self._shade_surfaces(segments, tau_hit, d_k, prim, u, v, depth, pixel,
+                                                                   sample, lam, cache))
+            return
         w = rows.take(hits.w, order)
         # (a frame at rest with the viewer has w = 1: D = 1, and its hits are scaled by 1)
         doppler = joined_frames([hit_doppler(self.frames.frames[k], prim[s], u[s], v[s], tau_hit[s],
-                                       None if d_k is None else d_k[s], w[s]) for k, s in segments])
+                                             None if d_k is None else d_k[s], w[s]) for k, s in segments])
         local = self._shade_surfaces(segments, tau_hit, d_k, prim, u, v, depth, pixel, sample,
                                      self.colour.shift(lam, doppler), cache)
         rows.put_selection(values, order, rows.scale(local, self.searchlight_power(doppler, 4)))
-        return values, hits
-
-    def _hits_by_frame(self, hits: Hits, held, depth: int, values):
-        """:func:`~.passes.hits_by_frame` of the hits to shade: holdouts (``held``) left out, and
-        with emission alone the frames whose surfaces are dark (their values set to 0)."""
-        keep = None if held is None else ~held
-        order, segments = hits_by_frame(hits, keep)
-        if not self._emission_only(depth):
-            return order, segments
-        dark = [k for k, s in segments
-                if self._dark(self.frames.frames[k], rows.take(hits.prim, s if isinstance(order, slice) else order[s]))]
-        if not dark:
-            return order, segments
-        black = np.isin(hits.frame, dark)
-        values[black] = 0.0  # black whatever its Doppler factor (it is finite)
-        return hits_by_frame(hits, ~black if keep is None else keep & ~black)
 
     # ------------------------------------------------------------------ tracing
     def trace(self, src: int, tau0, x0, d, s_lo, s_hi, ray: int, pixel, sample, depth: int,
@@ -521,7 +524,8 @@ class Shader:
         if all(uv is None for uv in uvs) or all(uv is not None for uv in uvs):
             base = self.colour.base_color(mat, None if uvs[0] is None else joined_frames(uvs), lam)
         else:  # frames with and without UVs
-            base = joined_frames([self.colour.base_color(mat[s], uv, _rows(lam, s)) for (_, s), uv in zip(segments, uvs)])
+            base = joined_frames([self.colour.base_color(mat[s], uv, _rows(lam, s))
+                                  for (_, s), uv in zip(segments, uvs)])
         one = _only_material(mat)
         if self.lights and one is not None and not mats.emits[one]:  # the direct light alone
             values = self._direct(segments, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
