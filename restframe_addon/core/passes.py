@@ -68,16 +68,32 @@ def frame_batches(hits: Hits, keep=None) -> list:
     increasing order.  A batch is its rows (a slice while that is every ray, else indices) and
     each of its frames' (k, rows of those).  What depends on the frame is worked out over each
     frame's rows and the parts joined (:func:`joined_frames`), the rest once per batch."""
-    alone, together = [], []
-    for k in frames_hit(hits):
-        sel = rows.selection(hits.frame == k if keep is None else (hits.frame == k) & keep)
-        if sel is not None:
-            count = len(hits.frame) if isinstance(sel, slice) else len(sel)
-            (alone if count >= _OWN_BATCH else together).append((int(k), sel, count))
-    batches = [[frame] for frame in alone] + ([together] if together else [])
-    return [(joined_frames([sel for _, sel, _ in batch]),
-             [(k, slice(start - count, start)) for (k, _, count), start in
-              zip(batch, np.cumsum([count for _, _, count in batch]).tolist())]) for batch in batches]
+    frame = hits.frame
+    hit = rows.selection(frame >= 0 if keep is None else (frame >= 0) & keep)
+    if hit is None:
+        return []
+    of_hit = rows.take(frame, hit)
+    if of_hit[0] == of_hit[-1] and (of_hit == of_hit[0]).all():  # one frame (the common case)
+        return [(hit, [(int(of_hit[0]), slice(0, len(of_hit)))])]
+    # one stable sort of the hits' frames (a radix sort of the smallest integers that hold them),
+    # not a pass over every ray per frame
+    counts = np.bincount(of_hit)
+    by_frame = np.argsort(of_hit.astype(np.min_scalar_type(len(counts) - 1)), kind="stable")
+    order = by_frame if isinstance(hit, slice) else np.take(hit, by_frame)
+    batches, together, stop = [], [], 0
+    for k in np.flatnonzero(counts).tolist():
+        start, stop = stop, stop + int(counts[k])
+        if stop - start >= _OWN_BATCH:
+            batches.append((order[start:stop], [(k, slice(0, stop - start))]))
+        else:
+            together.append((k, start, stop))
+    if together:
+        segments, at = [], 0
+        for k, start, stop in together:
+            segments.append((k, slice(at, at + stop - start)))
+            at += stop - start
+        batches.append((joined_frames([order[start:stop] for _, start, stop in together]), segments))
+    return batches
 
 
 def joined_frames(parts):
