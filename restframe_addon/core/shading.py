@@ -650,8 +650,8 @@ class Shader:
             if sel is None:
                 continue
             e_sel = rows.take(e_k, sel)
-            blocked = self._occluded(segments, sel, tau, position, ng, e_sel, s_max, pixel, sample,
-                                     _cutout_dimension(depth, 8 + index), cache)
+            blocked = self._occluded(segments, sel, tau, position, ng, e_sel, [part[0] for part in incident],
+                                     s_max, pixel, sample, _cutout_dimension(depth, 8 + index), cache)
             weight = rows.take(strength, sel) * rows.take(cos_n, sel)
             shadowed = np.count_nonzero(blocked)
             if shadowed == len(blocked):
@@ -677,14 +677,17 @@ class Shader:
                 rows.put_selection(total, sel, f)
         return np.zeros_like(base) if total is None else total
 
-    def _occluded(self, segments, sel, tau, position, ng, e_sel, s_max, pixel, sample, dimension: int, cache):
+    def _occluded(self, segments, sel, tau, position, ng, e_sel, e_frames, s_max, pixel, sample, dimension: int,
+                  cache):
         """Whether the shadow rays of the hits ``sel`` (toward ``e_sel``, at most ``s_max`` long) are
-        blocked: asked of the tracer frame by frame (``segments``: (frame k, its rows)), each from
-        its frame's surface offset; ``dimension``: the sampler dimension of their cut-out decisions."""
+        blocked: asked of the tracer frame by frame (``segments``: (frame k, its rows); ``e_frames``:
+        each frame's directions, of which a sharp sun's one broadcast row stays one: the tracer sees
+        the rays are parallel), each from its frame's surface offset; ``dimension``: the sampler
+        dimension of their cut-out decisions."""
         starts = [s.start for _, s in segments] + [segments[-1][1].stop]
         bounds = starts if isinstance(sel, slice) else np.searchsorted(sel, starts)  # each frame's part of sel
         parts = []
-        for (k, _), start, stop in zip(segments, bounds[:-1], bounds[1:]):
+        for (k, _), e_frame, start, stop in zip(segments, e_frames, bounds[:-1], bounds[1:]):
             if stop == start:
                 continue
             rays = slice(start, stop) if isinstance(sel, slice) else sel[start:stop]
@@ -693,7 +696,8 @@ class Shader:
             origin += rows.take(position, rays)
             reach = rows.take(s_max, rays) - 2.0 * eps if np.ndim(s_max) else s_max  # sunlight: unbounded
             pixel_sel, sample_sel = rows.take(pixel, rays), rows.take(sample, rays)
-            parts.append(occluded(self.frames, k, rows.take(tau, rays), origin, e_sel[start:stop], eps, reach, cache,
+            d = e_sel[start:stop] if e_frame.strides[0] else np.broadcast_to(e_frame[0], (stop - start, 3))
+            parts.append(occluded(self.frames, k, rows.take(tau, rays), origin, d, eps, reach, cache,
                                   see_through=self.cutouts(pixel_sel, sample_sel, dimension)))
         return joined_frames(parts)
 
