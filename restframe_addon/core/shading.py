@@ -685,20 +685,23 @@ class Shader:
         the rays are parallel), each from its frame's surface offset; ``dimension``: the sampler
         dimension of their cut-out decisions."""
         starts = [s.start for _, s in segments] + [segments[-1][1].stop]
-        bounds = starts if isinstance(sel, slice) else np.searchsorted(sel, starts)  # each frame's part of sel
+        bounds = starts if isinstance(sel, slice) else np.searchsorted(sel, starts).tolist()  # each frame's part
+        # each frame's surface offset a row of its rays (the same products as by the one number)
+        eps = np.array([self.epsilon[k] for k, _ in segments])
+        eps_rays = eps[0] if len(segments) == 1 else np.repeat(eps, np.diff(bounds))
+        origin = np.multiply(rows.take(ng, sel), eps_rays if np.ndim(eps_rays) == 0 else eps_rays[:, None])
+        origin += rows.take(position, sel)
+        reach = rows.take(s_max, sel) - 2.0 * eps_rays if np.ndim(s_max) else s_max  # sunlight: unbounded
+        tau_sel, pixel_sel, sample_sel = rows.take(tau, sel), rows.take(pixel, sel), rows.take(sample, sel)
         parts = []
         for (k, _), e_frame, start, stop in zip(segments, e_frames, bounds[:-1], bounds[1:]):
             if stop == start:
                 continue
-            rays = slice(start, stop) if isinstance(sel, slice) else sel[start:stop]
-            eps = self.epsilon[k]
-            origin = np.multiply(rows.take(ng, rays), eps)
-            origin += rows.take(position, rays)
-            reach = rows.take(s_max, rays) - 2.0 * eps if np.ndim(s_max) else s_max  # sunlight: unbounded
-            pixel_sel, sample_sel = rows.take(pixel, rays), rows.take(sample, rays)
-            d = e_sel[start:stop] if e_frame.strides[0] else np.broadcast_to(e_frame[0], (stop - start, 3))
-            parts.append(occluded(self.frames, k, rows.take(tau, rays), origin, d, eps, reach, cache,
-                                  see_through=self.cutouts(pixel_sel, sample_sel, dimension)))
+            rays = slice(start, stop)
+            d = e_sel[rays] if e_frame.strides[0] else np.broadcast_to(e_frame[0], (stop - start, 3))
+            parts.append(occluded(self.frames, k, tau_sel[rays], origin[rays], d, self.epsilon[k],
+                                  reach[rays] if np.ndim(reach) else reach, cache,
+                                  see_through=self.cutouts(pixel_sel[rays], sample_sel[rays], dimension)))
         return joined_frames(parts)
 
     def _incident(self, pl: PreparedLight, k, tau, position, xi1, xi2):
