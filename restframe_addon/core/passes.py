@@ -60,6 +60,8 @@ def hit_times(hits: Hits, sel) -> np.ndarray:
 # a frame with this many hits is worked on alone: joining its rows with other frames' would cost
 # more than the small steps it saves (those of ~4000 rows cost about what a step of one frame does)
 _OWN_BATCH = 4096
+# grouping the hits of more frames than this by one sort is cheaper than a pass over them per frame
+_SORTED_FRAMES = 3
 
 
 def frame_batches(hits: Hits, keep=None) -> list:
@@ -75,24 +77,23 @@ def frame_batches(hits: Hits, keep=None) -> list:
     of_hit = rows.take(frame, hit)
     if of_hit[0] == of_hit[-1] and (of_hit == of_hit[0]).all():  # one frame (the common case)
         return [(hit, [(int(of_hit[0]), slice(0, len(of_hit)))])]
-    # one stable sort of the hits' frames (a radix sort of the smallest integers that hold them),
-    # not a pass over every ray per frame
     counts = np.bincount(of_hit)
-    by_frame = np.argsort(of_hit.astype(np.min_scalar_type(len(counts) - 1)), kind="stable")
-    order = by_frame if isinstance(hit, slice) else np.take(hit, by_frame)
-    batches, together, stop = [], [], 0
-    for k in np.flatnonzero(counts).tolist():
-        start, stop = stop, stop + int(counts[k])
-        if stop - start >= _OWN_BATCH:
-            batches.append((order[start:stop], [(k, slice(0, stop - start))]))
-        else:
-            together.append((k, start, stop))
+    hit_frames = np.flatnonzero(counts).tolist()
+    if len(hit_frames) > _SORTED_FRAMES:  # one stable (radix) sort of the hits' frames
+        by_frame = np.argsort(of_hit.astype(np.min_scalar_type(len(counts) - 1)), kind="stable")
+        order = by_frame if isinstance(hit, slice) else np.take(hit, by_frame)
+        frame_rows = np.split(order, np.cumsum(counts[hit_frames])[:-1])
+    else:  # a few frames: a pass over the hits for each
+        frame_rows = [np.flatnonzero(of_hit == k) for k in hit_frames]
+        if not isinstance(hit, slice):
+            frame_rows = [np.take(hit, index) for index in frame_rows]
+    batches = [(index, [(k, slice(0, len(index)))]) for k, index in zip(hit_frames, frame_rows)
+               if len(index) >= _OWN_BATCH]
+    together = [(k, index) for k, index in zip(hit_frames, frame_rows) if len(index) < _OWN_BATCH]
     if together:
-        segments, at = [], 0
-        for k, start, stop in together:
-            segments.append((k, slice(at, at + stop - start)))
-            at += stop - start
-        batches.append((joined_frames([order[start:stop] for _, start, stop in together]), segments))
+        stops = np.cumsum([len(index) for _, index in together]).tolist()
+        batches.append((joined_frames([index for _, index in together]),
+                        [(k, slice(stop - len(index), stop)) for (k, index), stop in zip(together, stops)]))
     return batches
 
 
