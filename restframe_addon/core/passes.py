@@ -124,22 +124,32 @@ def hit_doppler(frame: RestFrame, prim, u, v, tau_hit, d_k, w) -> np.ndarray:
     return surface_doppler(frame, prim, u, v, tau_hit, d_k) / w
 
 
-def facing_normals(frame: RestFrame, prim, u, v, d_k, tau_hit=None, cache: TraceCache | None = None):
-    """Position, geometric and shading normals turned toward the viewer, and whether the
-    back was hit, at hits of one frame (frame coordinates).  A shading normal turned away
-    from the viewer falls back to the geometric one.  Read-only for the caller: with flat
+def facing_normals(frames: FrameSet, segments, prim, u, v, d_k, tau_hit=None, cache: TraceCache | None = None):
+    """Position, geometric and shading normals turned toward the viewer, and whether the back
+    was hit, at hits of one or more frames (``segments``: (frame k, its rows); frame
+    coordinates): the geometry frame by frame, joined, turned at once.  A shading normal turned
+    away from the viewer falls back to the geometric one.  Read-only for the caller: with flat
     shading the two normals are one array.  ``cache``: the calling thread's (see hit_geometry)."""
-    position, ng, ns = hit_geometry(frame, prim, u, v, tau_hit, cache)
+    geometry = [hit_geometry(frames.frames[k], prim[s], u[s], v[s], None if tau_hit is None else tau_hit[s], cache)
+                for k, s in segments]
+    position, ng = (joined_frames([part[i] for part in geometry]) for i in range(2))
+    flat = all(part[2] is part[1] for part in geometry)  # (then the two normals are one array)
+    return (position, *_turned_to_viewer(ng, ng if flat else joined_frames([part[2] for part in geometry]), d_k))
+
+
+def _turned_to_viewer(ng, ns, d_k):
+    """Geometric and shading normals (hit_geometry's own arrays: turned in place) facing the
+    viewer, and whether the back was hit."""
     back = rows.dot(ng, d_k) > 0.0
-    for normals in (ng,) if ns is ng else (ng, ns):  # (hit_geometry's own arrays: turned in place)
+    for normals in (ng,) if ns is ng else (ng, ns):
         for axis in range(3):
             np.negative(normals[:, axis], out=normals[:, axis], where=back)
     if ns is ng:  # flat: the turned normal faces the viewer (or grazes it)
-        return position, ng, ng, back
+        return ng, ng, back
     away = rows.dot(ns, d_k) >= 0.0
     if away.any():
         ns[away] = rows.take(ng, away)
-    return position, ng, ns, back
+    return ng, ns, back
 
 
 def ray_doppler(frames: FrameSet, hits: Hits) -> np.ndarray:
@@ -222,9 +232,9 @@ def _frame_passes(frames: FrameSet, light_speed: float, wanted, hits: Hits, orde
         values["Doppler"] = [hit_doppler(frame, prim[s], u[s], v[s], tau_hit[s], None if d_k is None else d_k[s], w[s])
                              for _, frame, s in parts]
     if "Normal" in wanted:
-        values["Normal"] = [facing_normals(frame, prim[s], u[s], v[s], d_k[s], tau_hit[s], cache)[2]
-                            if shading_normals is None else shading_normals(k, prim[s], u[s], v[s], d_k[s], tau_hit[s])
-                            for k, frame, s in parts]
+        values["Normal"] = ([facing_normals(frames, segments, prim, u, v, d_k, tau_hit, cache)[2]]
+                            if shading_normals is None else
+                            [shading_normals(k, prim[s], u[s], v[s], d_k[s], tau_hit[s]) for k, _, s in parts])
     if "IndexOB" in wanted:
         values["IndexOB"] = [np.take(frame.geometry.tri_object_index, prim[s]) for _, frame, s in parts]
     if "Object Time" in wanted:

@@ -31,7 +31,7 @@ from .bsdf import (dielectric_f0, fresnel_average_f82_tint, fresnel_average_prin
                    ggx_single_scattering)
 from .frames import FrameSet, clock_shift, shift_into_frame
 from .lorentz import RowBoosts
-from .passes import facing_normals, hit_doppler, hit_times, frame_batches, joined_frames
+from .passes import facing_normals, frame_batches, hit_doppler, hit_times, joined_frames
 from .scene import RAY_CAMERA, RAY_GLOSSY, RAY_TRANSMISSION, Light, Material, Scene
 from .tracer import Hits, TraceCache, frames_hit, occluded, trace_nearest
 from .world import Texels, image_lookup
@@ -500,12 +500,27 @@ class Shader:
     def surface_info(self, k: int, prim, u, v, d_k, tau_hit=None, cache: TraceCache | None = None):
         """Position, facing geometric and shading normals (normal maps applied), and material
         index at hits of frame k (``cache``: the calling thread's)."""
-        frame = self.frames.frames[k]
-        position, ng, ns, back = facing_normals(frame, prim, u, v, d_k, tau_hit, cache)
-        material = self.materials.clamp(np.take(frame.geometry.tri_material, prim))
-        if self.materials.normal_mapped and frame.geometry.corner_uvs is not None:
-            ns = self._normal_mapped(frame, prim, material, hit_uv(frame, prim, u, v), ng, ns, back, d_k,
-                                     np.zeros(len(prim)) if tau_hit is None else tau_hit)
+        return self.frames_surface_info([(k, slice(0, len(prim)))], prim, u, v, d_k, tau_hit, cache)
+
+    def frames_surface_info(self, segments, prim, u, v, d_k, tau_hit=None, cache: TraceCache | None = None):
+        """:meth:`surface_info` at hits of several frames (``segments``: (frame k, its rows))."""
+        position, ng, ns, back = facing_normals(self.frames, segments, prim, u, v, d_k, tau_hit, cache)
+        material = joined_frames([self.materials.clamp(np.take(self.frames.frames[k].geometry.tri_material, prim[s]))
+                                  for k, s in segments])
+        if self.materials.normal_mapped:
+            own = False  # (ns may be ng, or the geometry's: copied before a normal map writes into it)
+            for k, s in segments:
+                frame = self.frames.frames[k]
+                if frame.geometry.corner_uvs is None:
+                    continue
+                plain = ns[s]
+                mapped = self._normal_mapped(frame, prim[s], material[s], hit_uv(frame, prim[s], u[s], v[s]), ng[s],
+                                             plain, back[s], d_k[s],
+                                             np.zeros(len(plain)) if tau_hit is None else tau_hit[s])
+                if mapped is not plain:
+                    if not own:
+                        ns, own = ns.copy(), True
+                    ns[s] = mapped
         return position, ng, ns, material, back
 
     def _shade_surfaces(self, segments, tau, d_k, prim, u, v, depth, pixel, sample, lam, cache):
@@ -516,10 +531,7 @@ class Shader:
         if self._emission_only(depth):  # no normals, texture or base colour needed
             mat = joined_frames([mats.clamp(self.frames.frames[k].geometry.tri_material[prim[s]]) for k, s in segments])
             return self._emission(segments, tau, prim, mat, lam)
-        info = [self.surface_info(k, prim[s], u[s], v[s], d_k[s], tau[s], cache) for k, s in segments]
-        position, ng, ns, mat, back = (joined_frames([part[i] for part in info]) for i in range(5))
-        if all(part[2] is part[1] for part in info):  # flat shading: the two normals are one array
-            ns = ng
+        position, ng, ns, mat, back = self.frames_surface_info(segments, prim, u, v, d_k, tau, cache)
         uvs = [hit_uv(self.frames.frames[k], prim[s], u[s], v[s]) for k, s in segments]
         if all(uv is None for uv in uvs) or all(uv is not None for uv in uvs):
             base = self.colour.base_color(mat, None if uvs[0] is None else joined_frames(uvs), lam)
