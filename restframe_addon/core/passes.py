@@ -60,7 +60,7 @@ def hit_times(hits: Hits, sel) -> np.ndarray:
 # a frame with this many hits is worked on alone: joining its rows with other frames' would cost
 # more than the small steps it saves (those of ~4000 rows cost about what a step of one frame does)
 _OWN_BATCH = 4096
-# grouping the hits of more frames than this by one sort is cheaper than a pass over them per frame
+# grouping the hits of more frames than this by one sort is cheaper than a pass over the rays per frame
 _SORTED_FRAMES = 3
 
 
@@ -71,22 +71,23 @@ def frame_batches(hits: Hits, keep=None) -> list:
     each of its frames' (k, rows of those).  What depends on the frame is worked out over each
     frame's rows and the parts joined (:func:`joined_frames`), the rest once per batch."""
     frame = hits.frame
-    hit = rows.selection(frame >= 0 if keep is None else (frame >= 0) & keep)
-    if hit is None:
-        return []
-    of_hit = rows.take(frame, hit)
-    if of_hit[0] == of_hit[-1] and (of_hit == of_hit[0]).all():  # one frame (the common case)
-        return [(hit, [(int(of_hit[0]), slice(0, len(of_hit)))])]
-    counts = np.bincount(of_hit)
-    hit_frames = np.flatnonzero(counts).tolist()
-    if len(hit_frames) > _SORTED_FRAMES:  # one stable (radix) sort of the hits' frames
+    hit_frames = frames_hit(hits).tolist()
+    if len(hit_frames) <= _SORTED_FRAMES:  # a few frames (one, the common case): a pass over the rays for each
+        kept = [(k, rows.selection(frame == k if keep is None else (frame == k) & keep)) for k in hit_frames]
+        hit_frames, frame_rows = [k for k, sel in kept if sel is not None], [sel for _, sel in kept if sel is not None]
+    else:  # one stable (radix) sort of the hits' frames
+        hit = rows.selection(frame >= 0 if keep is None else (frame >= 0) & keep)
+        if hit is None:
+            return []
+        of_hit = rows.take(frame, hit)
+        counts = np.bincount(of_hit, minlength=hit_frames[-1] + 1)
+        hit_frames = np.flatnonzero(counts).tolist()
         by_frame = np.argsort(of_hit.astype(np.min_scalar_type(len(counts) - 1)), kind="stable")
         order = by_frame if isinstance(hit, slice) else np.take(hit, by_frame)
         frame_rows = np.split(order, np.cumsum(counts[hit_frames])[:-1])
-    else:  # a few frames: a pass over the hits for each
-        frame_rows = [np.flatnonzero(of_hit == k) for k in hit_frames]
-        if not isinstance(hit, slice):
-            frame_rows = [np.take(hit, index) for index in frame_rows]
+    if len(frame_rows) == 1:  # (a slice while it is every ray)
+        count = len(frame) if isinstance(frame_rows[0], slice) else len(frame_rows[0])
+        return [(frame_rows[0], [(hit_frames[0], slice(0, count))])]
     batches = [(index, [(k, slice(0, len(index)))]) for k, index in zip(hit_frames, frame_rows)
                if len(index) >= _OWN_BATCH]
     together = [(k, index) for k, index in zip(hit_frames, frame_rows) if len(index) < _OWN_BATCH]
