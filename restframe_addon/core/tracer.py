@@ -268,18 +268,22 @@ def _ray_range(frame: RestFrame, tau, origin, d, s_lo, s_hi):
 class TraceCache:
     """What the tracer derives from a frame set and keeps for later bundles: the culling
     cones of frames seen from observation events (every tile of a perspective camera shares
-    its event), the body boxes per source frame and the triangle rows of small meshes
-    (:func:`hit_geometry`).
+    its event), the body boxes per source frame (and per set of candidate frames, :class:`_Boxes`),
+    a parallel bundle's direction mapped into each frame (a sharp sun's: the same for every
+    tile and sample) and the triangle rows of small meshes (:func:`hit_geometry`).
 
     Not thread-safe: each render thread (or tile) owns one and passes it explicitly; the
-    frame set itself stays read-only.
+    frame set itself stays read-only, and so is everything handed out from here.
     """
 
     _MAX_CONES = 4096  # many observation events (animations, secondary bundles): start afresh past this
+    _MAX_KEPT = 1024  # sets of candidate frames, directions mapped: start afresh past this
 
     def __init__(self):
         self._cones: dict = {}
         self._body_boxes: dict[int, tuple] = {}
+        self._boxes: dict[tuple, _Boxes] = {}  # (src, candidate frames) -> their boxes
+        self._directions: dict[tuple, tuple] = {}  # (src, k, direction's bytes) -> (mapped direction, s'/s)
         self._hit_tables: dict[int, tuple] = {}  # id(geometry) -> (geometry, its rows for hit_geometry)
 
     def cones(self, keys: list, compute) -> list:
@@ -299,6 +303,28 @@ class TraceCache:
             self._body_boxes[src] = frames.body_boxes(src)
         return self._body_boxes[src]
 
+    def boxes(self, frames: FrameSet, src: int, ks) -> "_Boxes":
+        """The :class:`_Boxes` of the frames ``ks`` seen from frame src."""
+        key = (src, tuple(ks))
+        kept = self._boxes.get(key)
+        if kept is None:
+            if len(self._boxes) >= self._MAX_KEPT:
+                self._boxes.clear()
+            slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
+            kept = self._boxes[key] = _Boxes(*(a[slots] for a in self.body_boxes(frames, src)))
+        return kept
+
+    def direction_in(self, frames: FrameSet, src: int, k: int, direction) -> tuple:
+        """(d', w) of one direction (3,) of frame src mapped into frame k (``FrameMap.rays``), read-only."""
+        key = (src, k, direction.tobytes())
+        kept = self._directions.get(key)
+        if kept is None:
+            if len(self._directions) >= self._MAX_KEPT:
+                self._directions.clear()
+            kept = self._directions[key] = _direction_in(frames, src, k, direction)
+            kept[0].flags.writeable = False
+        return kept
+
     def hit_table(self, geometry) -> tuple:
         """:func:`hit_geometry`'s rows of every triangle of ``geometry``, one (triangles, 4) table per
         axis (first corner, the two edges, the unit normal), made at its first lit hit."""
@@ -309,6 +335,12 @@ class TraceCache:
                 geometry, tuple(np.stack([corner[:, axis], e1[:, axis], e2[:, axis], normal[:, axis]], axis=1)
                                 for axis in range(3)))
         return kept[1]
+
+
+def _direction_in(frames: FrameSet, src: int, k: int, direction) -> tuple:
+    """(d', w): one direction (3,) of frame src mapped into frame k (``FrameMap.rays``), w a number."""
+    d_k, w = frames.map(src, k).rays(direction)
+    return d_k, float(w)
 
 
 def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None = None,
@@ -881,8 +913,9 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         tau_k, origin, d_rays, lo, hi = _rows_of(rays, tau0, x0, d, s_lo, s_hi)
         tau_k, origin = fmap.events(tau_k, origin)
         if reach is not None and reach.direction is not None:  # parallel rays (sunlight): map one
-            dk, w = fmap.rays(reach.direction)
-            dk, w = np.broadcast_to(dk, (len(lo), 3)), float(w)
+            dk, w = (_direction_in(frames, src, k, reach.direction) if cache is None
+                     else cache.direction_in(frames, src, k, reach.direction))
+            dk = np.broadcast_to(dk, (len(lo), 3))
         elif fmap.is_identity:
             dk, w = d_rays, None
         else:
@@ -951,32 +984,84 @@ def _near_body(frames: FrameSet, src: int, k: int, cache, extent, tau0, x0, d, s
 
 def _body_box(frames: FrameSet, src: int, k: int, cache, extent):
     """(t, x, velocity, widened half-extents) of frame k's body box (:func:`_body_boxes`)."""
-    return tuple(a[0] for a in _body_boxes(frames, src, [k], cache, extent))
+    return tuple(a[0] for a in _body_boxes(frames, src, (k,), cache, extent))
 
 
 def _body_boxes(frames: FrameSet, src: int, ks, cache, extent):
     """(t, x, velocity, widened half-extents) of the body boxes (``FrameSet.body_boxes``) of the
     frames ``ks``, (len(ks),) and (len(ks), 3), for rays whose (largest |coordinate| of x0,
     largest |tau0|) is ``extent``."""
-    t_box, x_box, velocity, half = _boxes_of(frames, src, ks, cache)
+    boxes = _boxes(frames, src, ks, cache)
     # the rays meet the box where |s (d + v)| is about |x0 - X(tau0)|: coordinates up to this
     x_max, tau_max = extent
-    scale = 1.0 + x_max + np.max(np.abs(x_box), axis=1) + np.max(np.abs(velocity), axis=1) * (tau_max + np.abs(t_box))
-    return t_box, x_box, velocity, _widened(half, scale[:, None])
+    scale = 1.0 + x_max + boxes.x_reach + boxes.v_reach * (tau_max + boxes.abs_t)
+    return boxes.t, boxes.x, boxes.velocity, boxes.margin + 1e-9 * scale[:, None]
 
 
 def _boxes_of(frames: FrameSet, src: int, ks, cache: TraceCache | None):
     """(t, x, velocity, half-extents) of the body boxes (``FrameSet.body_boxes``) of the frames
     ``ks``, (len(ks),) and (len(ks), 3), from the thread's cache where it has them."""
+    boxes = _boxes(frames, src, ks, cache)
+    return boxes.t, boxes.x, boxes.velocity, boxes.half
+
+
+def _boxes(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> "_Boxes":
+    """The :class:`_Boxes` of the frames ``ks`` seen from frame src, the thread's kept ones where it has them."""
+    if cache is not None:
+        return cache.boxes(frames, src, ks)
     slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
-    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
-    return tuple(a[slots] for a in boxes)
+    return _Boxes(*(a[slots] for a in frames.body_boxes(src)))
+
+
+class _Boxes:
+    """Body boxes (``FrameSet.body_boxes``) of some frames seen from one source frame, (m,) and (m, 3)
+    arrays, with what the tests of every bundle derive from them alone (read-only: a thread keeps
+    them, :meth:`TraceCache.boxes`): the half-extents widened for float32 geometry, the largest
+    |coordinate| of each centre and velocity, and the boxes a row per axis ((3, m): a bundle's
+    slab test, :func:`_may_meet`, then takes the extremes of three rows, not of m short ones)."""
+
+    def __init__(self, t, x, velocity, half):
+        self.t, self.x, self.velocity, self.half = t, x, velocity, half
+        self.margin = _float32_margin(half)
+        self.abs_t = np.abs(t)
+        self.x_reach, self.v_reach = np.max(np.abs(x), axis=1), np.max(np.abs(velocity), axis=1)
+        self.axes_t = t[None, :]
+        self.axes_x, self.axes_velocity, self.axes_margin = (np.ascontiguousarray(a.T) for a in (x, velocity,
+                                                                                                  self.margin))
+        self.axes_half_speed = np.abs(self.axes_velocity) * 0.5
+        self._parallel: dict[bytes, tuple] = {}
+        for a in vars(self).values():
+            if isinstance(a, np.ndarray):
+                a.flags.writeable = False
+
+    def along(self, direction) -> tuple:
+        """(w, w == 0, whether any w is 0) for unbounded rays along ``direction`` (3,): each body's
+        centre sees them run along -w = -(direction + v); kept per direction (a sharp sun's)."""
+        key = direction.tobytes()
+        kept = self._parallel.get(key)
+        if kept is None:
+            if len(self._parallel) >= _MAX_DIRECTIONS:
+                self._parallel.clear()
+            w = -(direction[:, None] + self.axes_velocity)
+            parallel = w == 0.0
+            w.flags.writeable = parallel.flags.writeable = False
+            kept = self._parallel[key] = (w, parallel, bool(parallel.any()))
+        return kept
+
+
+_MAX_DIRECTIONS = 64  # parallel bundles' directions kept per source frame (a sharp sun's: one per sun)
+
+
+def _float32_margin(half) -> np.ndarray:
+    """Half-extents (m, 3) of body boxes widened for float32 geometry (:func:`_widened` without
+    the arithmetic's term)."""
+    return half * (1.0 + 2 * _PAD) + 2 * _PAD * half.max(axis=1, keepdims=True)
 
 
 def _widened(half, scale) -> np.ndarray:
     """Half-extents (m, 3) of body boxes widened for rounding: float32 geometry, float64 arithmetic
     on coordinates up to ``scale`` (one number, or one per box (m, 1))."""
-    return half * (1.0 + 2 * _PAD) + 2 * _PAD * half.max(axis=1, keepdims=True) + 1e-9 * scale
+    return _float32_margin(half) + 1e-9 * scale
 
 
 @dataclass
@@ -996,9 +1081,16 @@ def _bundle_reach(tau0, x0, d, s_lo, s_hi) -> Reach | None:
     """The bundle's :class:`Reach`; None for unbounded rays in different directions."""
     if len(d) == 0:
         return None
-    bounded = bool(np.all(np.isfinite(s_hi)))
-    if not bounded and not (np.array_equal(d[-1], d[0]) and np.all(d == d[0])):  # (the ends first: no pass)
+    bounded = math.isfinite(s_hi[0]) if _one_row(s_hi) else bool(np.all(np.isfinite(s_hi)))
+    if not bounded and not (_one_row(d) or (np.array_equal(d[-1], d[0]) and np.all(d == d[0]))):  # (the ends first)
         return None
+    if not bounded and _one_row(s_lo):
+        # parallel rays from one path length: each axis' start is x0 + one number, and rounding is
+        # monotonic, so its least (greatest) is that of the least (greatest) x0: the same bits
+        s_start, step = float(s_lo[0]), float(s_lo[0]) * d[0]
+        lo = np.array([float(x0[:, axis].min()) for axis in range(3)]) + step
+        hi = np.array([float(x0[:, axis].max()) for axis in range(3)]) + step
+        return Reach(lo, hi, float(tau0.min()) - s_start, float(tau0.max()) - s_start, np.array(d[0]))
     lo, hi = np.empty(3), np.empty(3)
     ends = np.empty(len(d))
     for axis in range(3):  # one axis at a time: numpy is slow along a length-3 last axis
@@ -1014,6 +1106,11 @@ def _bundle_reach(tau0, x0, d, s_lo, s_hi) -> Reach | None:
                  None if bounded else np.array(d[0]))
 
 
+def _one_row(values) -> bool:
+    """Whether ``values`` is one row broadcast to every ray (``_per_ray`` of one number, a shared direction)."""
+    return values.strides[0] == 0
+
+
 def _may_meet(frames: FrameSet, src: int, ks, reach: Reach, cache: TraceCache | None) -> np.ndarray:
     """Which of the frames ``ks`` have a body that can come within reach of the bundle (a mask)?
 
@@ -1023,32 +1120,41 @@ def _may_meet(frames: FrameSet, src: int, ks, reach: Reach, cache: TraceCache | 
     Unbounded parallel rays: relative to a body a ray starting at p at time t runs from
     p - X(t) along w = d + v, so it can meet the body only if the ray from the body's centre
     along -w meets the box of relative starts widened by the body's half-extents.
-    All frames at once: a slab test per frame, vectorised.
+    All frames at once: a slab test per frame, vectorised (a row per axis, :class:`_Boxes`).
     """
-    t_a, x_a, velocity, half = _boxes_of(frames, src, ks, cache)
-    scale = 1.0 + float(np.max(np.abs(reach.hi))) + float(np.max(np.abs(reach.lo)))
-    widen = _widened(half, scale)
+    boxes = _boxes(frames, src, ks, cache)
+    lo, hi = reach.lo[:, None], reach.hi[:, None]
+    scale = 1.0 + max(map(abs, reach.hi.tolist())) + max(map(abs, reach.lo.tolist()))
+    widen = boxes.axes_margin + 1e-9 * scale
     if reach.direction is None:
-        start = x_a + velocity * (reach.earliest - t_a)[:, None]
-        return _segments_meet_boxes(start, velocity * (reach.latest - reach.earliest), 1.0,
-                                    reach.lo - widen, reach.hi + widen)
+        start = boxes.axes_x + boxes.axes_velocity * (reach.earliest - boxes.axes_t)
+        direction = boxes.axes_velocity * (reach.latest - reach.earliest)
+        return _segments_meet_boxes(start, direction, 1.0, lo - widen, hi + widen, direction == 0.0)
     middle = 0.5 * (reach.earliest + reach.latest)
-    centre = x_a + velocity * (middle - t_a)[:, None]
-    drift = np.abs(velocity) * 0.5 * (reach.latest - reach.earliest)  # how far each body moves about X(middle)
-    return _segments_meet_boxes(np.zeros_like(centre), -(reach.direction + velocity), np.inf,
-                                reach.lo - centre - drift - widen, reach.hi - centre + drift + widen)
+    centre = boxes.axes_x + boxes.axes_velocity * (middle - boxes.axes_t)
+    drift = boxes.axes_half_speed * (reach.latest - reach.earliest)  # how far each body moves about X(middle)
+    w, parallel, any_parallel = boxes.along(reach.direction)
+    return _segments_meet_boxes(None, w, np.inf, lo - centre - drift - widen, hi - centre + drift + widen,
+                                parallel if any_parallel else None)
 
 
-def _segments_meet_boxes(origin, direction, t_max: float, lo, hi) -> np.ndarray:
-    """Whether each origin + t direction, 0 <= t <= t_max, meets its box [lo, hi] ((m, 3) arrays;
-    all axes at once: m is the number of frames, small, so the calls are what costs)."""
-    parallel = direction == 0.0  # inside the slab for every t, or never
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_a = np.where(parallel, -np.inf, (lo - origin) / direction)
-        t_b = np.where(parallel, np.inf, (hi - origin) / direction)
-    enter = np.maximum(np.minimum(t_a, t_b).max(axis=1), 0.0)
-    leave = np.minimum(np.maximum(t_a, t_b).min(axis=1), t_max)
-    leave[(parallel & ((origin < lo) | (origin > hi))).any(axis=1)] = -np.inf
+def _segments_meet_boxes(origin, direction, t_max: float, lo, hi, parallel) -> np.ndarray:
+    """Whether each origin + t direction, 0 <= t <= t_max, meets its box [lo, hi]: (3, m) arrays, a
+    row per axis, m boxes (few: the calls are what costs); ``origin`` None: 0.  ``parallel``:
+    ``direction == 0`` (inside the slab for every t, or never), None where no component is 0."""
+    if origin is not None:
+        lo, hi = lo - origin, hi - origin
+    if parallel is None:
+        t_a, t_b = lo / direction, hi / direction
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_a = np.where(parallel, -np.inf, lo / direction)
+            t_b = np.where(parallel, np.inf, hi / direction)
+    near, far = np.minimum(t_a, t_b), np.maximum(t_a, t_b)
+    enter = np.maximum(np.maximum(np.maximum(near[0], near[1]), near[2]), 0.0)
+    leave = np.minimum(np.minimum(np.minimum(far[0], far[1]), far[2]), t_max)
+    if parallel is not None:
+        leave[(parallel & ((lo > 0.0) | (hi < 0.0))).any(axis=0)] = -np.inf
     return enter <= leave
 
 
