@@ -213,6 +213,19 @@ class Boost:
         return 1.0 / self.rays(d)[1]
 
 
+def events_of_boosts(boosts, tau, x):
+    """:meth:`Boost.events` of each of ``boosts`` at once: events tau (e,), x (e, 3) -> (tau', x'),
+    (len(boosts), e) and (len(boosts), e, 3) -- the same formula with each boost's own numbers
+    (exact near c), n.x of every pair in one product (its rounding may differ by an ulp)."""
+    n = np.array([boost.n for boost in boosts])
+    b, gamma, gamma_minus_one = (np.array([[getattr(boost, name)] for boost in boosts])
+                                 for name in ("b", "gamma", "gamma_minus_one"))
+    nx = n @ np.asarray(x, dtype=np.float64).T  # (boosts, e)
+    tau = np.asarray(tau, dtype=np.float64)
+    shift = gamma_minus_one * nx - gamma * b * tau
+    return gamma * (tau - b * nx), x + shift[:, :, None] * n[:, None, :]
+
+
 def compose_velocities(u, v):
     """Velocity of a body moving with ``v`` (in S) as measured in the frame moving with ``u``.
 

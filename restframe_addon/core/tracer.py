@@ -301,6 +301,7 @@ class TraceCache:
 
     _MAX_CONES = 4096  # many observation events (animations, secondary bundles): start afresh past this
     _MAX_KEPT = 1024  # sets of candidate frames, directions mapped: start afresh past this
+    _BOXES_AT_ONCE = 64  # up to this many geometry frames, the body boxes seen from each are worked out at once
 
     def __init__(self):
         self._cones: dict = {}
@@ -322,9 +323,17 @@ class TraceCache:
         return [self._cones[key] for key in keys]
 
     def body_boxes(self, frames: FrameSet, src: int):
-        if src not in self._body_boxes:
-            self._body_boxes[src] = frames.body_boxes(src)
-        return self._body_boxes[src]
+        """``frames.body_boxes(src)``; the first call works out those of every geometry frame too (in one
+        pass, ``FrameSet.body_boxes_of``: the frames hit are where shadow and secondary rays start)."""
+        kept = self._body_boxes.get(src)
+        if kept is None:
+            sources = [src]
+            if len(frames.geometry) <= self._BOXES_AT_ONCE:
+                sources += [k for k in frames.geometry if k != src and k not in self._body_boxes]
+            for k, boxes in zip(sources, frames.body_boxes_of(sources)):
+                self._body_boxes[k] = boxes
+            kept = self._body_boxes[src]
+        return kept
 
     def boxes(self, frames: FrameSet, src: int, ks) -> "_Boxes":
         """The :class:`_Boxes` of the frames ``ks`` seen from frame src."""
