@@ -338,11 +338,12 @@ class FrameSet:
         linear map I - c n n^T with 0 <= c < 1: each of its entries lies between its values at
         c = 0 and c = 1, which bounds the image box); a spinning body: the cube around its sphere.
         """
-        return self.body_boxes_of([src])[0]
+        return tuple(a[0] for a in self.body_boxes_of([src]))
 
-    def body_boxes_of(self, sources) -> list[tuple]:
+    def body_boxes_of(self, sources) -> tuple:
         """:meth:`body_boxes` of each frame of ``sources``, worked out at once (every source frame's
-        map of the world lines in one pass: a scene's many velocities cost about as much as one)."""
+        map of the world lines in one pass: a scene's many velocities cost about as much as one):
+        (t, x, velocity, half), each (len(sources), len(self.geometry), ...)."""
         lines = self._world_lines  # in S (the world frame)
         t, x = events_of_boosts([self.frames[src].boost for src in sources], lines[..., 0].ravel(),
                                 lines[..., 1:].reshape(-1, 3))
@@ -356,7 +357,7 @@ class FrameSet:
             along = np.abs(velocity[moving] / speed[moving, None])
             weighted = along * half[moving]
             half[moving] += along * (weighted.sum(axis=1, keepdims=True) - weighted)
-        return [(t[i, :, 0], x[i, :, 0], velocity[i], half[i]) for i in range(len(sources))]
+        return t[:, :, 0], x[:, :, 0], velocity, half
 
     def map(self, a: int, b: int) -> FrameMap:
         """The map from frame a's coordinates to frame b's (through S)."""

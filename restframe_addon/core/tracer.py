@@ -305,8 +305,8 @@ class TraceCache:
 
     def __init__(self):
         self._cones: dict = {}
-        self._body_boxes: dict[int, tuple] = {}
-        self._boxes: dict[tuple, _Boxes] = {}  # (src, candidate frames) -> their boxes
+        self._body_boxes: dict[int, _Boxes] = {}  # src -> every geometry frame's boxes
+        self._boxes: dict[tuple, _Boxes] = {}  # (src, some frames) -> theirs
         self._directions: dict[tuple, tuple] = {}  # (src, k, direction's bytes) -> (mapped direction, s'/s)
         self._hit_tables: dict[int, tuple] = {}  # id(geometry) -> (geometry, its rows for hit_geometry)
 
@@ -322,28 +322,27 @@ class TraceCache:
                 self._cones[keys[i]] = cones
         return [self._cones[key] for key in keys]
 
-    def body_boxes(self, frames: FrameSet, src: int):
-        """``frames.body_boxes(src)``; the first call works out those of every geometry frame too (in one
-        pass, ``FrameSet.body_boxes_of``: the frames hit are where shadow and secondary rays start)."""
-        kept = self._body_boxes.get(src)
-        if kept is None:
+    def boxes(self, frames: FrameSet, src: int, ks) -> "_Boxes":
+        """The :class:`_Boxes` of the frames ``ks`` seen from frame src.  The first request works out
+        those of every geometry frame seen from src and, up to ``_BOXES_AT_ONCE`` frames, from each
+        geometry frame too, in one pass (``FrameSet.body_boxes_of``: hit frames are where shadow and
+        secondary rays start)."""
+        every = self._body_boxes.get(src)
+        if every is None:
             sources = [src]
             if len(frames.geometry) <= self._BOXES_AT_ONCE:
                 sources += [k for k in frames.geometry if k != src and k not in self._body_boxes]
-            for k, boxes in zip(sources, frames.body_boxes_of(sources)):
+            for k, boxes in zip(sources, _boxes_of_sources(*frames.body_boxes_of(sources))):
                 self._body_boxes[k] = boxes
-            kept = self._body_boxes[src]
-        return kept
-
-    def boxes(self, frames: FrameSet, src: int, ks) -> "_Boxes":
-        """The :class:`_Boxes` of the frames ``ks`` seen from frame src."""
+            every = self._body_boxes[src]
+        if ks is frames.geometry:
+            return every
         key = (src, tuple(ks))
         kept = self._boxes.get(key)
         if kept is None:
             if len(self._boxes) >= self._MAX_KEPT:
                 self._boxes.clear()
-            slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
-            kept = self._boxes[key] = _Boxes(*(a[slots] for a in self.body_boxes(frames, src)))
+            kept = self._boxes[key] = every.of(frames, ks)
         return kept
 
     def direction_in(self, frames: FrameSet, src: int, k: int, direction) -> tuple:
@@ -1026,7 +1025,8 @@ def _near_body(frames: FrameSet, src: int, k: int, cache, extent, tau0, x0, d, s
 
 def _body_box(frames: FrameSet, src: int, k: int, cache, extent):
     """(t, x, velocity, widened half-extents) of frame k's body box (:func:`_body_boxes`)."""
-    return tuple(a[0] for a in _body_boxes(frames, src, (k,), cache, extent))
+    boxes, slot = _boxes(frames, src, frames.geometry, cache), frames.geometry_slot[k]
+    return boxes.t[slot], boxes.x[slot], boxes.velocity[slot], boxes.widened(extent)[slot]
 
 
 def _body_boxes(frames: FrameSet, src: int, ks, cache, extent):
@@ -1034,10 +1034,7 @@ def _body_boxes(frames: FrameSet, src: int, ks, cache, extent):
     frames ``ks``, (len(ks),) and (len(ks), 3), for rays whose (largest |coordinate| of x0,
     largest |tau0|) is ``extent``."""
     boxes = _boxes(frames, src, ks, cache)
-    # the rays meet the box where |s (d + v)| is about |x0 - X(tau0)|: coordinates up to this
-    x_max, tau_max = extent
-    scale = 1.0 + x_max + boxes.x_reach + boxes.v_reach * (tau_max + boxes.abs_t)
-    return boxes.t, boxes.x, boxes.velocity, boxes.margin + 1e-9 * scale[:, None]
+    return boxes.t, boxes.x, boxes.velocity, boxes.widened(extent)
 
 
 def _boxes_of(frames: FrameSet, src: int, ks, cache: TraceCache | None):
@@ -1052,29 +1049,41 @@ def _boxes(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> "_Boxes"
     if cache is not None:
         return cache.boxes(frames, src, ks)
     slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
-    return _Boxes(*(a[slots] for a in frames.body_boxes(src)))
+    return _boxes_of_sources(*(a[None, slots] for a in frames.body_boxes(src)))[0]
+
+
+_BOX_FIELDS = ("t", "x", "velocity", "half", "margin", "abs_t", "x_reach", "v_reach", "axes_t", "axes_x",
+               "axes_velocity", "axes_margin", "axes_half_speed")
 
 
 class _Boxes:
     """Body boxes (``FrameSet.body_boxes``) of some frames seen from one source frame, (m,) and (m, 3)
     arrays, with what the tests of every bundle derive from them alone (read-only: a thread keeps
-    them, :meth:`TraceCache.boxes`): the half-extents widened for float32 geometry, the largest
-    |coordinate| of each centre and velocity, and the boxes a row per axis ((3, m): a bundle's
-    slab test, :func:`_may_meet`, then takes the extremes of three rows, not of m short ones)."""
+    them, :meth:`TraceCache.boxes`): the half-extents widened for float32 geometry (``margin``), the
+    largest |coordinate| of each centre and velocity, and the boxes a row per axis (``axes_*``,
+    (3, m): a bundle's slab test, :func:`_may_meet`, then takes the extremes of three rows, not of
+    m short ones).  Made by :func:`_boxes_of_sources`."""
 
-    def __init__(self, t, x, velocity, half):
-        self.t, self.x, self.velocity, self.half = t, x, velocity, half
-        self.margin = _float32_margin(half)
-        self.abs_t = np.abs(t)
-        self.x_reach, self.v_reach = np.max(np.abs(x), axis=1), np.max(np.abs(velocity), axis=1)
-        self.axes_t = t[None, :]
-        self.axes_x, self.axes_velocity, self.axes_margin = (np.ascontiguousarray(a.T) for a in (x, velocity,
-                                                                                                  self.margin))
-        self.axes_half_speed = np.abs(self.axes_velocity) * 0.5
+    __slots__ = _BOX_FIELDS + ("_parallel",)
+
+    def __init__(self, fields: dict):
+        for name, value in fields.items():
+            setattr(self, name, value)
         self._parallel: dict[bytes, tuple] = {}
-        for a in vars(self).values():
-            if isinstance(a, np.ndarray):
-                a.flags.writeable = False
+
+    def of(self, frames: FrameSet, ks) -> "_Boxes":
+        """The boxes of the frames ``ks`` among these (which are every geometry frame's)."""
+        slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
+        return _boxes_of_sources(self.t[None, slots], self.x[None, slots], self.velocity[None, slots],
+                                 self.half[None, slots])[0]
+
+    def widened(self, extent) -> np.ndarray:
+        """Half-extents (m, 3) widened for rounding, for rays whose (largest |coordinate| of x0,
+        largest |tau0|) is ``extent``."""
+        # the rays meet the box where |s (d + v)| is about |x0 - X(tau0)|: coordinates up to this
+        x_max, tau_max = extent
+        scale = 1.0 + x_max + self.x_reach + self.v_reach * (tau_max + self.abs_t)
+        return self.margin + 1e-9 * scale[:, None]
 
     def along(self, direction) -> tuple:
         """(w, w == 0, whether any w is 0) for unbounded rays along ``direction`` (3,): each body's
@@ -1094,16 +1103,24 @@ class _Boxes:
 _MAX_DIRECTIONS = 64  # parallel bundles' directions kept per source frame (a sharp sun's: one per sun)
 
 
+def _boxes_of_sources(t, x, velocity, half) -> list[_Boxes]:
+    """The :class:`_Boxes` of each source frame from the body boxes seen from each, (sources, m) and
+    (sources, m, 3) (``FrameSet.body_boxes_of``): what they derive worked out for all at once."""
+    derived = {"t": t, "x": x, "velocity": velocity, "half": half, "margin": _float32_margin(half),
+               "abs_t": np.abs(t), "x_reach": np.max(np.abs(x), axis=-1), "v_reach": np.max(np.abs(velocity), axis=-1),
+               "axes_t": t[:, None, :]}
+    for name in ("x", "velocity", "margin"):
+        derived["axes_" + name] = np.ascontiguousarray(np.swapaxes(derived[name], 1, 2))
+    derived["axes_half_speed"] = np.abs(derived["axes_velocity"]) * 0.5
+    for a in derived.values():
+        a.flags.writeable = False
+    return [_Boxes({name: a[i] for name, a in derived.items()}) for i in range(len(t))]
+
+
 def _float32_margin(half) -> np.ndarray:
-    """Half-extents (m, 3) of body boxes widened for float32 geometry (:func:`_widened` without
-    the arithmetic's term)."""
-    return half * (1.0 + 2 * _PAD) + 2 * _PAD * half.max(axis=1, keepdims=True)
-
-
-def _widened(half, scale) -> np.ndarray:
-    """Half-extents (m, 3) of body boxes widened for rounding: float32 geometry, float64 arithmetic
-    on coordinates up to ``scale`` (one number, or one per box (m, 1))."""
-    return _float32_margin(half) + 1e-9 * scale
+    """Half-extents (..., m, 3) of body boxes widened for float32 geometry (:meth:`_Boxes.widened`
+    adds the float64 arithmetic's share)."""
+    return half * (1.0 + 2 * _PAD) + 2 * _PAD * half.max(axis=-1, keepdims=True)
 
 
 @dataclass

@@ -255,7 +255,8 @@ def test_body_boxes_hold_each_body_at_every_time_of_every_frame():
     frame_set = build_frames(Scene(camera=grid_scene().camera, meshes=meshes))
     times = np.linspace(-20.0, 20.0, 9)
     sources = list(range(len(frame_set.frames)))
-    together = frame_set.body_boxes_of(sources)  # every source frame's boxes in one pass
+    stacked = frame_set.body_boxes_of(sources)  # every source frame's boxes in one pass
+    together = [tuple(a[i] for a in stacked) for i in range(len(sources))]
     each = [frame_set.body_boxes(src) for src in sources]
     for both in zip(together, each):
         for a, b in zip(*both):
