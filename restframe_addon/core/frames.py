@@ -362,7 +362,8 @@ class FrameSet:
     def map(self, a: int, b: int) -> FrameMap:
         """The map from frame a's coordinates to frame b's (through S)."""
         fa, fb = self.frames[a].boost, self.frames[b].boost
-        return FrameMap([]) if fa.same_as(fb) else FrameMap([self._inverse[a], fb])
+        # (one frame's boost is one object: is tells it without same_as' comparison of directions)
+        return FrameMap([]) if fa is fb or fa.same_as(fb) else FrameMap([self._inverse[a], fb])
 
 
 @dataclass
