@@ -228,6 +228,14 @@ def test_culled_shadow_rays_block_exactly_as_unculled_ones(monkeypatch, sun):
     np.testing.assert_array_equal(culled, full)
     assert 0 < np.count_nonzero(full) < n
     assert queried.count(False) > 0
+    # bundles from several source frames through one thread's TraceCache (every source's body boxes
+    # worked out at once, a sun direction's maps kept: the second round reads them) and without one
+    monkeypatch.setattr(tracer, "_may_meet", original)
+    cache = tracer.TraceCache()
+    for i, b in enumerate(bundles * 2):
+        k = frames.geometry[i % 7]
+        np.testing.assert_array_equal(tracer.occluded(frames, k, tau0[b], x0[b], d[b], 1e-6, s_hi[b], cache),
+                                      tracer.occluded(frames, k, tau0[b], x0[b], d[b], 1e-6, s_hi[b]))
 
 
 def test_segment_box_test_handles_axis_parallel_segments_on_faces():
