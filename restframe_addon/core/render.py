@@ -46,29 +46,34 @@ class Tile:
 
 
 def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] = lambda: False,
-                cache: TraceCache | None = None, rows: tuple[int, int] | None = None) -> Tile:
+                cache: TraceCache | None = None, rows: tuple[int, int] | None = None,
+                unseen: dict | None = None) -> Tile:
     """Render the pixels ``rect`` = (x0, y0, x1, y1) (x1, y1 exclusive) of a prepared scene.
 
     ``should_stop()`` is polled between sample batches of a long tile (the tile is then
     returned with ``complete`` False: never show it as finished); ``cache``: the calling thread's
     :class:`~.tracer.TraceCache` (None: one for this tile); ``rows`` = (y0, y1): only these rows
     of the tile (a share of it for another worker), in the whole tile's sample batches, so they
-    are the same bits as in the whole tile.
+    are the same bits as in the whole tile; ``unseen``: the pass arrays of this prepared scene's
+    tiles that see nothing, by shape, kept across its tiles (None: none kept; see :func:`_unseen_key`).
     """
     cache = cache if cache is not None else TraceCache()
     settings, frames = prepared.settings, prepared.frames
     x0, y0, x1, y1 = rect
     tile_pixels, share = (x1 - x0) * (y1 - y0), None
+    unseen_key = _unseen_key(rect, rows)
     if rows is not None:
         share = slice((rows[0] - y0) * (x1 - x0), (rows[1] - y0) * (x1 - x0))
         y0, y1 = rows
         rect = x0, y0, x1, y1
     h, w = y1 - y0, x1 - x0
+    empty = prepared.misses_everything(rect, cache)  # then no ray of the tile is made or traced
+    if empty and unseen is not None and unseen_key in unseen:
+        return Tile(x0, y0, x1, y1, dict(unseen[unseen_key]))
     pixel = prepared.pixel_ids(rect)
     n = len(pixel)
     xs = ys = None  # the pixels' coordinates, for jittered samples
     shader = prepared.shader
-    empty = prepared.misses_everything(rect, cache)  # then no ray of the tile is made or traced
     if empty:
         centre, centre_hits = prepared.missing_rays(n), no_hits(n, read_only=True)
     else:
@@ -133,8 +138,23 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     passes["Combined"] = combined
     for name, total in denoising.items():
         passes[name] = total / samples
-    return Tile(x0, y0, x1, y1, {k: v.reshape(h, w, -1).astype(np.float32, copy=False) for k, v in passes.items()},
-                complete)
+    passes = {k: v.reshape(h, w, -1).astype(np.float32, copy=False) for k, v in passes.items()}
+    if empty and complete and unseen is not None:
+        for values in passes.values():
+            values.flags.writeable = False  # shared by every tile of this shape that sees nothing
+        unseen[unseen_key] = passes
+        passes = dict(passes)
+    return Tile(x0, y0, x1, y1, passes, complete)
+
+
+def _unseen_key(rect, rows: tuple[int, int] | None) -> tuple[int, int, int, int]:
+    """What the passes of a tile that sees nothing depend on: its shape and share of rows.  Its
+    camera rays are then one ray repeated (:meth:`~.prepared.PreparedScene.missing_rays`) and
+    its hits none, and nothing else the tile computes depends on where it is (a pixel's
+    wavelengths and random numbers come in only where rays are made or hit a surface)."""
+    x0, y0, x1, y1 = rect
+    first, last = rows if rows is not None else (y0, y1)
+    return x1 - x0, y1 - y0, first - y0, last - y0
 
 
 def _per_pixel(values, m: int, count: int):
@@ -230,12 +250,13 @@ def render_tiles(prepared: PreparedScene, should_stop: Callable[[], bool] = lamb
 
 def tiles_in_threads(prepared: PreparedScene, rects, workers: int, should_stop) -> Iterator[Tile]:
     """Yield the tiles ``rects`` of the prepared scene as ``workers`` threads complete them."""
+    unseen = {}  # the passes of tiles that see nothing, by shape (shared by the threads: a dict's get and set are atomic)
     if workers == 1:
         cache = TraceCache()
         for rect in rects:
             if should_stop():
                 return
-            tile = render_tile(prepared, rect, should_stop, cache)
+            tile = render_tile(prepared, rect, should_stop, cache, unseen=unseen)
             if not tile.complete:
                 return
             yield tile
@@ -245,7 +266,7 @@ def tiles_in_threads(prepared: PreparedScene, rects, workers: int, should_stop) 
     def work(rect):
         if not hasattr(owned, "cache"):
             owned.cache = TraceCache()
-        return render_tile(prepared, rect, should_stop, owned.cache)
+        return render_tile(prepared, rect, should_stop, owned.cache, unseen=unseen)
 
     pool = ThreadPoolExecutor(max_workers=workers)
     pending = set()
