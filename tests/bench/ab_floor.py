@@ -6,7 +6,8 @@
 
 The floor of ``bench_per_sample`` (261k-triangle sphere at (0.5, 0.2, 0) c, 1536^2, one sample, no
 lights, threads) against raw Embree (its build, then ``embree.run`` of the same pixel rays over as
-many Python threads), both in each checkout's own server, asked in turn (``ab_servers``).  Wall
+many Python threads: ``bench_per_sample``'s fixed split, and ``raw dealt``, each thread taking the
+next tile's rays when it is free), both in each checkout's own server, asked in turn (``ab_servers``).  Wall
 clock means little on a shared machine, so each interval of a thread is split by the kernel's
 accounting of that thread (``/proc/thread-self/schedstat``): on a CPU, waiting for one (other
 processes: the machine's load) and the rest, asleep (the GIL, the pool's queue).  Reported per
@@ -78,9 +79,14 @@ def serve(repo: str, threads: int) -> None:
 
     raw_bvh = []
 
-    def raw():
+    def raw(dealt: bool = False):
+        """bench_per_sample's raw: every ``threads``-th tile's rays on each thread, or ``dealt``
+        (each thread takes the next tile's rays as it is free, as the render's pool deals tiles)."""
         raw_bvh[:] = [build(vertices, triangles, True)]
-        workers = [threading.Thread(target=trace, args=(batches[i::threads],), name=f"raw-{i}") for i in range(threads)]
+        queue = iter(batches)
+        dealt_trace = _timed("raw trace", lambda: sum(raw_primary([batch]) for batch in queue), events)
+        workers = [threading.Thread(target=dealt_trace) if dealt else
+                   threading.Thread(target=trace, args=(batches[i::threads],), name=f"raw-{i}") for i in range(threads)]
         for worker in workers:
             worker.start()
         for worker in workers:
@@ -96,10 +102,12 @@ def serve(repo: str, threads: int) -> None:
     print("ready", flush=True)
     for _ in sys.stdin:
         (f12_wall, f12_events), (raw_wall, raw_events) = measured(f12), measured(raw)
+        dealt_wall, _ = measured(lambda: raw(dealt=True))
         tiles = [e for e in f12_events if e[1].startswith("tile")]
         prepare_end = next(e[3] for e in f12_events if e[1] == "prepare")
         bvh = next(e for e in f12_events if e[1] == "BVH")
-        print(json.dumps({"F12": f12_wall, "raw": raw_wall, "ratio": f12_wall / raw_wall, "prepare": prepare_end,
+        print(json.dumps({"F12": f12_wall, "raw": raw_wall, "ratio": f12_wall / raw_wall,
+                          "raw dealt": dealt_wall, "ratio to raw dealt": f12_wall / dealt_wall, "prepare": prepare_end,
                           "prepare but BVH": prepare_end - (bvh[3] - bvh[2]), "BVH": bvh[3] - bvh[2],
                           "raw build": next(e[3] - e[2] for e in raw_events if e[1] == "raw build"),
                           "raw BVH": raw_bvh[0],
@@ -144,9 +152,9 @@ def main() -> int:
                           args.repeats)
     print(f"primary-ray floor on {args.threads} threads, wall ms, {args.repeats} interleaved repeats (min / median)")
     print("| | before | after | after / before |\n|---|---|---|---|")
-    for key in ("F12", "raw", "ratio", "prepare", "prepare but BVH", "BVH", "raw build", "raw BVH", "tiles", "tile sleep",
+    for key in ("F12", "raw", "ratio", "raw dealt", "ratio to raw dealt", "prepare", "prepare but BVH", "BVH", "raw build", "raw BVH", "tiles", "tile sleep",
                 "tile cpu", "runq"):
-        scale, form = (1, "{:.2f}") if key == "ratio" else (1e3, "{:.1f}")
+        scale, form = (1, "{:.2f}") if key.startswith("ratio") else (1e3, "{:.1f}")
         cells = []
         for name in ("before", "after"):
             values = [a[key] * scale for a in answers[name]]
