@@ -504,7 +504,8 @@ def _add_clusters(geometries: list[Geometry], should_stop) -> None:
 
 
 def _mesh_part(mesh, boost: Boost, warnings: list[str], relative_to=None):
-    """Valid triangles of a mesh, placed in its shared frame (or relative to a pivot)."""
+    """Valid triangles of a mesh, placed in its shared frame (or relative to a pivot): the
+    vertices in a new array, the other arrays possibly views of the mesh's."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
     triangles = np.asarray(mesh.triangles, dtype=np.int64).reshape(-1, 3)
     if len(triangles) == 0:
@@ -572,7 +573,8 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     (checked between pieces of ``_DIRECT_PIECE_TRIANGLES``, through embreex ``_PIECE_TRIANGLES``;
     embree's BVH build, last, cannot be interrupted)."""
     offsets = np.cumsum([0] + [len(p["vertices"]) for p in parts[:-1]])
-    vertices = _joined([p["vertices"] for p in parts])
+    # (a lone part's vertices are its own: _mesh_part places them in a new array)
+    vertices = parts[0]["vertices"] if len(parts) == 1 else np.concatenate([p["vertices"] for p in parts])
     triangles = _joined([p["triangles"] + o if o else p["triangles"] for p, o in zip(parts, offsets)])
     normals = uvs = None
     if any(p["normals"] is not None for p in parts):
