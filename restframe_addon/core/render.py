@@ -45,17 +45,45 @@ class Tile:
     complete: bool = True  # False: stopped between sample batches (its Combined lacks samples)
 
 
+class UnseenTiles:
+    """The tiles of one render of a prepared scene that see nothing
+    (:meth:`~.prepared.PreparedScene.misses_everything`), each found once, and their pass arrays
+    by :func:`_unseen_key`, rendered once: every such tile of a shape has the same ones.  Shared
+    by the render's threads (a dict's get and set are atomic; two threads may find the same)."""
+
+    def __init__(self, prepared: PreparedScene):
+        self.prepared = prepared
+        self._found: dict[tuple, bool] = {}
+        self._passes: dict[tuple, dict] = {}
+
+    def sees_nothing(self, rect, cache: TraceCache) -> bool:
+        found = self._found.get(tuple(rect))
+        if found is None:
+            found = self._found[tuple(rect)] = self.prepared.misses_everything(rect, cache)
+        return found
+
+    def passes(self, key) -> dict | None:
+        """The pass arrays (read-only) of the tiles of ``key`` that see nothing, once one is rendered."""
+        kept = self._passes.get(key)
+        return None if kept is None else dict(kept)
+
+    def keep(self, key, passes: dict) -> None:
+        for values in passes.values():
+            values.flags.writeable = False  # shared by every tile of this shape that sees nothing
+        self._passes[key] = passes
+
+
 def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] = lambda: False,
                 cache: TraceCache | None = None, rows: tuple[int, int] | None = None,
-                unseen: dict | None = None) -> Tile:
+                unseen: UnseenTiles | None = None) -> Tile:
     """Render the pixels ``rect`` = (x0, y0, x1, y1) (x1, y1 exclusive) of a prepared scene.
 
     ``should_stop()`` is polled between sample batches of a long tile (the tile is then
     returned with ``complete`` False: never show it as finished); ``cache``: the calling thread's
     :class:`~.tracer.TraceCache` (None: one for this tile); ``rows`` = (y0, y1): only these rows
     of the tile (a share of it for another worker), in the whole tile's sample batches, so they
-    are the same bits as in the whole tile; ``unseen``: the pass arrays of this prepared scene's
-    tiles that see nothing, by shape, kept across its tiles (None: none kept; see :func:`_unseen_key`).
+    are the same bits as in the whole tile; ``unseen``: the render's :class:`UnseenTiles` (None:
+    this tile's own).
     """
     cache = cache if cache is not None else TraceCache()
     settings, frames = prepared.settings, prepared.frames
@@ -67,9 +95,11 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
         y0, y1 = rows
         rect = x0, y0, x1, y1
     h, w = y1 - y0, x1 - x0
-    empty = prepared.misses_everything(rect, cache)  # then no ray of the tile is made or traced
-    if empty and unseen is not None and unseen_key in unseen:
-        return Tile(x0, y0, x1, y1, dict(unseen[unseen_key]))
+    unseen = unseen if unseen is not None else UnseenTiles(prepared)
+    empty = unseen.sees_nothing(rect, cache)  # then no ray of the tile is made or traced
+    kept = unseen.passes(unseen_key) if empty else None
+    if kept is not None:
+        return Tile(x0, y0, x1, y1, kept)
     pixel = prepared.pixel_ids(rect)
     n = len(pixel)
     xs = ys = None  # the pixels' coordinates, for jittered samples
@@ -139,10 +169,8 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     for name, total in denoising.items():
         passes[name] = total / samples
     passes = {k: v.reshape(h, w, -1).astype(np.float32, copy=False) for k, v in passes.items()}
-    if empty and complete and unseen is not None:
-        for values in passes.values():
-            values.flags.writeable = False  # shared by every tile of this shape that sees nothing
-        unseen[unseen_key] = passes
+    if empty and complete:
+        unseen.keep(unseen_key, passes)
         passes = dict(passes)
     return Tile(x0, y0, x1, y1, passes, complete)
 
@@ -249,8 +277,10 @@ def render_tiles(prepared: PreparedScene, should_stop: Callable[[], bool] = lamb
 
 
 def tiles_in_threads(prepared: PreparedScene, rects, workers: int, should_stop) -> Iterator[Tile]:
-    """Yield the tiles ``rects`` of the prepared scene as ``workers`` threads complete them."""
-    unseen = {}  # the passes of tiles that see nothing, by shape (shared by the threads: a dict's get and set are atomic)
+    """Yield the tiles ``rects`` of the prepared scene as ``workers`` threads complete them:
+    those that see something first, so that the short ones that see nothing even out the
+    threads' ends."""
+    unseen = UnseenTiles(prepared)
     if workers == 1:
         cache = TraceCache()
         for rect in rects:
@@ -270,7 +300,7 @@ def tiles_in_threads(prepared: PreparedScene, rects, workers: int, should_stop) 
 
     pool = ThreadPoolExecutor(max_workers=workers)
     pending = set()
-    queue = iter(rects)
+    queue = seen_first(unseen, rects)
     try:
         while True:
             while len(pending) < 2 * workers and not should_stop():
@@ -288,6 +318,18 @@ def tiles_in_threads(prepared: PreparedScene, rects, workers: int, should_stop) 
     finally:
         # on Esc, return at once: tiles still running stop at their next sample batch
         pool.shutdown(wait=False, cancel_futures=True)
+
+
+def seen_first(unseen: UnseenTiles, rects) -> Iterator[tuple]:
+    """The tiles ``rects`` that see something, then those that see nothing (in their order),
+    each found as it is reached (on the calling thread, with a trace cache of its own)."""
+    cache, later = TraceCache(), []
+    for rect in rects:
+        if unseen.sees_nothing(rect, cache):
+            later.append(rect)
+        else:
+            yield rect
+    yield from later
 
 
 def render_image(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bool] = lambda: False,

@@ -546,3 +546,19 @@ def test_tiles_that_see_nothing_are_rendered_once_per_shape(threads):
             np.testing.assert_array_equal(tile.passes[name], values, err_msg=name)
             assert tile.passes[name].dtype == values.dtype
     assert not any(values.flags.writeable for tile in unseen for values in tile.passes.values())
+
+
+def test_tiles_that_see_something_are_dealt_first():
+    """The render threads take the tiles that see something first, then the short ones that see
+    nothing (which even out the threads' ends), each tile once."""
+    from restframe_addon.core.prepared import prepare
+    from restframe_addon.core.render import UnseenTiles, seen_first, tiles_in_threads
+
+    prepared = prepare(lone_ball_off_centre(), settings((44, 40), tile_size=8, threads=2))
+    rects = prepared.tiles()
+    empty = [prepared.misses_everything(rect) for rect in rects]
+    assert 0 < sum(empty) < len(rects) and empty[0] and not all(empty[:len(rects) - sum(empty)])  # not so already
+    order = list(seen_first(UnseenTiles(prepared), rects))
+    assert order == [r for r, e in zip(rects, empty) if not e] + [r for r, e in zip(rects, empty) if e]
+    tiles = list(tiles_in_threads(prepared, rects, 2, lambda: False))
+    assert sorted((t.x0, t.y0, t.x1, t.y1) for t in tiles) == sorted(rects)
