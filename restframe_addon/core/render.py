@@ -83,7 +83,7 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     :class:`~.tracer.TraceCache` (None: one for this tile); ``rows`` = (y0, y1): only these rows
     of the tile (a share of it for another worker), in the whole tile's sample batches, so they
     are the same bits as in the whole tile; ``unseen``: the render's :class:`UnseenTiles` (None:
-    this tile's own).
+    this tile's own).  The pass arrays of a tile that sees nothing are read-only (shared).
     """
     cache = cache if cache is not None else TraceCache()
     settings, frames = prepared.settings, prepared.frames
