@@ -300,7 +300,7 @@ def tiles_in_threads(prepared: PreparedScene, rects, workers: int, should_stop) 
 
     pool = ThreadPoolExecutor(max_workers=workers)
     pending = set()
-    queue = seen_first(unseen, rects)
+    queue = seen_first(unseen, rects, should_stop)
     try:
         while True:
             while len(pending) < 2 * workers and not should_stop():
@@ -320,11 +320,15 @@ def tiles_in_threads(prepared: PreparedScene, rects, workers: int, should_stop) 
         pool.shutdown(wait=False, cancel_futures=True)
 
 
-def seen_first(unseen: UnseenTiles, rects) -> Iterator[tuple]:
+def seen_first(unseen: UnseenTiles, rects, should_stop: Callable[[], bool] = lambda: False) -> Iterator[tuple]:
     """The tiles ``rects`` that see something, then those that see nothing (in their order),
-    each found as it is reached (on the calling thread, with a trace cache of its own)."""
+    each found as it is reached (on the calling thread, with a trace cache of its own); none
+    more once ``should_stop()`` is true (a long run of tiles that see nothing is looked through
+    at 0.1 ms a tile)."""
     cache, later = TraceCache(), []
     for rect in rects:
+        if should_stop():
+            return
         if unseen.sees_nothing(rect, cache):
             later.append(rect)
         else:
