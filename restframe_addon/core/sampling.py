@@ -62,7 +62,8 @@ def _from_keys(keys: np.ndarray, dimension: int) -> np.ndarray:
         z = keys + np.uint64(dimension) * _GOLDEN
     z = _mix(z)
     z >>= np.uint64(11)
-    return np.multiply(z, np.float64(1.0 / (1 << 53)))  # (exact: z < 2^53 converts without rounding)
+    # (exact: z < 2^53 converts without rounding; as int64, the same bits, twice as fast as uint64)
+    return np.multiply(z.view(np.int64), np.float64(1.0 / (1 << 53)))
 
 
 def uniform(pixel: np.ndarray, sample: np.ndarray, dimension: int) -> np.ndarray:
