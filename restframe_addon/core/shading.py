@@ -344,6 +344,14 @@ class Shader:
         self.searchlight = searchlight
         # how far secondary and shadow rays start off a surface (RestFrame.surface_offset)
         self.epsilon = MappingProxyType({k: float(frames.surface_offsets[k]) for k in frames.geometry})
+        # the material of every triangle of a frame whose triangles have one (a body of one
+        # material, the common case): its hits' material numbers are that number broadcast, not gathered
+        single = {}
+        for k in frames.geometry:
+            geometry = frames.frames[k].geometry
+            if id(geometry) not in single:
+                single[id(geometry)] = _only_material(materials.clamp(geometry.tri_material))
+        self._one_material = MappingProxyType({k: single[id(frames.frames[k].geometry)] for k in frames.geometry})
 
     # ------------------------------------------------------------------ helpers
     def searchlight_power(self, doppler, exponent: int):
@@ -449,6 +457,15 @@ class Shader:
             return self.hit_opacity(hits) <= sampling.uniform(pixel[rays], sample[rays], dimension + layer)
         return see_through
 
+    def hit_materials(self, k: int, prim) -> np.ndarray:
+        """Material numbers (rows of the MaterialTable) of triangles ``prim`` of frame k (read-only:
+        one number broadcast where all the frame's triangles have it)."""
+        geometry = self.frames.frames[k].geometry
+        one = self._one_material.get(k)
+        if one is not None:
+            return np.broadcast_to(geometry.tri_material.dtype.type(one), (len(prim),))
+        return self.materials.clamp(np.take(geometry.tri_material, prim))
+
     def hit_opacity(self, hits: Hits) -> np.ndarray:
         """Principled Alpha at hits (every ray hit something)."""
         alpha = np.ones(len(hits.frame))
@@ -456,8 +473,7 @@ class Shader:
             sel = np.flatnonzero(hits.frame == k)
             frame = self.frames.frames[k]
             prim = hits.prim[sel]
-            material = self.materials.clamp(frame.geometry.tri_material[prim])
-            alpha[sel] = self.materials.opacity(material, hit_uv(frame, prim, hits.u[sel], hits.v[sel]))
+            alpha[sel] = self.materials.opacity(self.hit_materials(k, prim), hit_uv(frame, prim, hits.u[sel], hits.v[sel]))
         return alpha
 
     @property
@@ -474,7 +490,7 @@ class Shader:
             geometry = self.frames.frames[k].geometry
             sel = np.flatnonzero(hits.frame == k)
             prim = hits.prim[sel]
-            held[sel] = self.materials.holdout[self.materials.clamp(geometry.tri_material[prim])]
+            held[sel] = self.materials.holdout[self.hit_materials(k, prim)]
             if geometry.tri_holdout is not None:
                 held[sel] |= geometry.tri_holdout[prim]
         return held
@@ -484,7 +500,7 @@ class Shader:
         index at hits of frame k (``cache``: the calling thread's)."""
         frame = self.frames.frames[k]
         position, ng, ns, back = facing_normals(frame, prim, u, v, d_k, tau_hit, cache)
-        material = self.materials.clamp(np.take(frame.geometry.tri_material, prim))
+        material = self.hit_materials(k, prim)
         if self.materials.normal_mapped and frame.geometry.corner_uvs is not None:
             ns = self._normal_mapped(frame, prim, material, hit_uv(frame, prim, u, v), ng, ns, back, d_k,
                                      np.zeros(len(prim)) if tau_hit is None else tau_hit)
@@ -493,7 +509,7 @@ class Shader:
     def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample, lam, cache):
         frame = self.frames.frames[k]
         if self._emission_only(depth):  # no normals, texture or base colour needed
-            return self._emission(frame, tau, prim, self.materials.clamp(frame.geometry.tri_material[prim]), lam)
+            return self._emission(frame, tau, prim, self.hit_materials(k, prim), lam)
         position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau, cache)
         uv = hit_uv(frame, prim, u, v)
         base = self.colour.base_color(mat, uv, lam)
@@ -521,7 +537,7 @@ class Shader:
         """Whether none of these hits' surfaces emits (their emission is 0 at every wavelength)."""
         if self.materials.emission_curves:
             return False
-        mat = self.materials.clamp(frame.geometry.tri_material[prim])
+        mat = self.hit_materials(frame.index, prim)
         one = _only_material(mat)
         return not (self.materials.emits[one] if one is not None else self.materials.emits[mat].any())
 
@@ -903,9 +919,9 @@ def _cone_sample(axis, half_angle, xi1, xi2):
     t1, t2 = _axis_basis(tuple(axis))
     cos_t = xi1 * (1.0 - np.cos(half_angle))  # in place from here: temporaries cost page faults
     np.subtract(1.0, cos_t, out=cos_t)
-    sin_t = cos_t * cos_t
+    sin_t = cos_t * cos_t  # (|cos_t| <= 1 for xi1 in [0, 1), so 1 - cos_t^2 >= 0: no clamp)
     np.subtract(1.0, sin_t, out=sin_t)
-    np.sqrt(np.maximum(sin_t, 0.0, out=sin_t), out=sin_t)
+    np.sqrt(sin_t, out=sin_t)
     cos_phi, sin_phi = unit_circle(xi2)
     cos_phi *= sin_t
     sin_phi *= sin_t
@@ -943,6 +959,8 @@ def _texels(image, colour: bool = False):
 
 def _only_material(mat):
     """The material number when every hit has the same one, else None."""
+    if len(mat) and mat.strides == (0,):  # one number broadcast (Shader.hit_materials)
+        return int(mat[0])
     if len(mat) and mat[0] == mat[-1] and bool((mat == mat[0]).all()):
         return int(mat[0])
     return None
