@@ -123,11 +123,12 @@ class MaterialTable:
         they always are from the export, the array itself: see rows.clipped)."""
         return rows.clipped(index, 0, len(self.materials) - 1)
 
-    def base_color(self, index, uv):
-        """Base colour per hit, with image textures looked up (bilinear or closest, repeat) where present."""
+    def base_color(self, index, uv, columns: bool = False):
+        """Base colour per hit, with image textures looked up (bilinear or closest, repeat) where present
+        (``columns``: one textured material's into contiguous columns, see world.image_lookup)."""
         one = _only_material(index) if uv is not None else None
         if one is not None and self.textures[one] is not None:  # one textured material: no gathers
-            return self._texture_color(one, uv[:, 0], uv[:, 1])
+            return self._texture_color(one, uv[:, 0], uv[:, 1], columns)
         color = np.take(self.base, index, axis=0)
         if uv is None:
             return color
@@ -139,8 +140,9 @@ class MaterialTable:
                 color[sel] = self._texture_color(m, uv[sel, 0], uv[sel, 1])
         return color
 
-    def _texture_color(self, m, u, v):
-        return image_lookup(self.textures[m], u, v, "Closest" if self.closest[m] else "Linear", channels=3)
+    def _texture_color(self, m, u, v, columns: bool = False):
+        return image_lookup(self.textures[m], u, v, "Closest" if self.closest[m] else "Linear", channels=3,
+                            columns=columns)
 
     def opacity(self, index, uv):
         """Principled Alpha per hit (the alpha image looked up where there is one, UVs or not)."""
@@ -512,7 +514,7 @@ class Shader:
             return self._emission(frame, tau, prim, self.hit_materials(k, prim), lam)
         position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau, cache)
         uv = hit_uv(frame, prim, u, v)
-        base = self.colour.base_color(mat, uv, lam)
+        base = self.colour.base_color(mat, uv, lam, columns=True)  # (brdf scales it column by column)
         one = _only_material(mat)
         if self.lights and one is not None and not self.materials.emits[one]:  # the direct light alone
             values = self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
@@ -658,9 +660,9 @@ class Shader:
             elif isinstance(sel, slice):
                 total = f
             else:
-                total = np.zeros_like(base)
+                total = np.zeros(base.shape)  # (rows, whatever base's layout: see rows.put)
                 _put(total, sel, f)
-        return np.zeros_like(base) if total is None else total
+        return np.zeros(base.shape) if total is None else total
 
     def _incident(self, pl: PreparedLight, k, tau, position, xi1, xi2):
         """Light arriving at hit events of frame k from one light.

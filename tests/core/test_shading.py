@@ -353,6 +353,24 @@ def rows_normalized(a):
     return a / np.linalg.norm(a, axis=1, keepdims=True)
 
 
+def test_rows_take_gathers_rows_as_fancy_indexing_does_in_either_layout():
+    """rows.take gives ``a[index]`` for indices, masks and slices, of row-major and of column-major
+    arrays (these column by column, into contiguous columns), of (n, 3) and (n, 16) rows."""
+    from restframe_addon.core import rows
+
+    rng = np.random.default_rng(5)
+    for columns in (3, 16):
+        rows_major = rng.random((500, columns))
+        for a in (rows_major, np.asfortranarray(rows_major)):
+            for index in (rng.choice(500, 200, replace=False), rng.random(500) < 0.3, np.arange(0),
+                          np.zeros(500, dtype=bool), slice(10, 90)):
+                taken = rows.take(a, index)
+                np.testing.assert_array_equal(taken, rows_major[index])
+                assert taken.shape == rows_major[index].shape
+            if a.flags.f_contiguous and columns <= 4:
+                assert rows.take(a, np.arange(7)).flags.f_contiguous  # the caller's layout kept
+
+
 def test_rows_put_assigns_rows_as_fancy_indexing_does():
     """rows.put (whole rows copied by np.put) gives what ``a[index] = new`` gives, and rows.assign
     (column by column between layouts) what ``a[...] = new`` gives: (n, 3) and (n, 16) rows, a
