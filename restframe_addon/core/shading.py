@@ -475,7 +475,8 @@ class Shader:
             sel = np.flatnonzero(hits.frame == k)
             frame = self.frames.frames[k]
             prim = hits.prim[sel]
-            alpha[sel] = self.materials.opacity(self.hit_materials(k, prim), hit_uv(frame, prim, hits.u[sel], hits.v[sel]))
+            uv = hit_uv(frame, prim, hits.u[sel], hits.v[sel])
+            alpha[sel] = self.materials.opacity(self.hit_materials(k, prim), uv)
         return alpha
 
     @property
@@ -944,14 +945,15 @@ def unit_circle(xi):
 
 def _combine(*weights_and_vectors):
     """Rows ``a t1 + b t2 (+ c t3)`` of (n,) weights and (n, 3) or (3,) vectors, summed in that order."""
-    pairs = list(zip(weights_and_vectors[::2], weights_and_vectors[1::2]))
-    out = np.empty((len(pairs[0][0]), 3))
+    (first_weight, first_vector), *middle, (last_weight, last_vector) = zip(weights_and_vectors[::2],
+                                                                             weights_and_vectors[1::2])
+    out = np.empty((len(first_weight), 3))
     column, term = np.empty(len(out)), np.empty(len(out))  # contiguous: twice as fast as out's columns
     for c in range(3):
-        np.multiply(pairs[0][0], pairs[0][1][..., c], out=column)
-        for weight, vector in pairs[1:]:
+        np.multiply(first_weight, first_vector[..., c], out=column)
+        for weight, vector in middle:
             column += np.multiply(weight, vector[..., c], out=term)
-        out[:, c] = column
+        np.add(column, np.multiply(last_weight, last_vector[..., c], out=term), out=out[:, c])  # the last sum: into out
     return out
 
 
