@@ -971,12 +971,14 @@ def _only_material(mat):
 
 
 def _weighted_product(a, b, s):
-    """``a * b * s[:, None]`` for (n, C) a (overwritten) and b (often one row broadcast) and (n,) s,
-    column by column for few columns (see rows)."""
+    """``a * b * s[:, None]`` (a new row-major array, as the radiance it adds to) for (n, C) a
+    (overwritten) and b (often one row broadcast) and (n,) s, column by column for few columns
+    (see rows): the last product written into the rows (no copy of contiguous columns into rows after)."""
     if a.shape[1] > 4:
         return rows.scale(a * b, s)
+    out = np.empty(a.shape, np.result_type(a, b, s))
     for c in range(a.shape[1]):
         column = a[:, c]
         column *= b[:, c]
-        column *= s
-    return a
+        np.multiply(column, s, out=out[:, c])
+    return out
