@@ -352,7 +352,11 @@ class Shader:
         for k in frames.geometry:
             geometry = frames.frames[k].geometry
             if id(geometry) not in single:
-                single[id(geometry)] = _only_material(materials.clamp(geometry.tri_material))
+                one = _only_material(materials.clamp(geometry.tri_material))
+                if one is not None:  # (one element, viewed n times by hit_materials)
+                    one = np.array([one], geometry.tri_material.dtype)
+                    one.flags.writeable = False
+                single[id(geometry)] = one
         self._one_material = MappingProxyType({k: single[id(frames.frames[k].geometry)] for k in frames.geometry})
 
     # ------------------------------------------------------------------ helpers
@@ -462,11 +466,10 @@ class Shader:
     def hit_materials(self, k: int, prim) -> np.ndarray:
         """Material numbers (rows of the MaterialTable) of triangles ``prim`` of frame k (read-only:
         one number broadcast where all the frame's triangles have it)."""
-        geometry = self.frames.frames[k].geometry
         one = self._one_material.get(k)
-        if one is not None:
-            return np.broadcast_to(geometry.tri_material.dtype.type(one), (len(prim),))
-        return self.materials.clamp(np.take(geometry.tri_material, prim))
+        if one is not None:  # (the view made directly: np.broadcast_to costs 5x as much)
+            return np.ndarray((len(prim),), one.dtype, one, strides=(0,))
+        return self.materials.clamp(np.take(self.frames.frames[k].geometry.tri_material, prim))
 
     def hit_opacity(self, hits: Hits) -> np.ndarray:
         """Principled Alpha at hits (every ray hit something)."""
