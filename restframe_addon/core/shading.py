@@ -123,11 +123,12 @@ class MaterialTable:
         they always are from the export, the array itself: see rows.clipped)."""
         return rows.clipped(index, 0, len(self.materials) - 1)
 
-    def base_color(self, index, uv):
-        """Base colour per hit, with image textures looked up (bilinear or closest, repeat) where present."""
+    def base_color(self, index, uv, columns: bool = False):
+        """Base colour per hit, with image textures looked up (bilinear or closest, repeat) where present
+        (``columns``: one textured material's into contiguous columns, see world.image_lookup)."""
         one = _only_material(index) if uv is not None else None
         if one is not None and self.textures[one] is not None:  # one textured material: no gathers
-            return self._texture_color(one, uv[:, 0], uv[:, 1])
+            return self._texture_color(one, uv[:, 0], uv[:, 1], columns)
         color = np.take(self.base, index, axis=0)
         if uv is None:
             return color
@@ -139,8 +140,9 @@ class MaterialTable:
                 color[sel] = self._texture_color(m, uv[sel, 0], uv[sel, 1])
         return color
 
-    def _texture_color(self, m, u, v):
-        return image_lookup(self.textures[m], u, v, "Closest" if self.closest[m] else "Linear", channels=3)
+    def _texture_color(self, m, u, v, columns: bool = False):
+        return image_lookup(self.textures[m], u, v, "Closest" if self.closest[m] else "Linear", channels=3,
+                            columns=columns)
 
     def opacity(self, index, uv):
         """Principled Alpha per hit (the alpha image looked up where there is one, UVs or not)."""
@@ -346,6 +348,18 @@ class Shader:
         # how far secondary and shadow rays start off a surface (RestFrame.surface_offset)
         self.epsilon = MappingProxyType({k: float(frames.surface_offsets[k]) for k in frames.geometry})
         self._sharp_suns: dict = {}  # _sharp_sun's rows (the same whichever thread adds one)
+        # the material of every triangle of a frame whose triangles have one (a body of one
+        # material, the common case): its hits' material numbers are that number broadcast, not gathered
+        single = {}
+        for k in frames.geometry:
+            geometry = frames.frames[k].geometry
+            if id(geometry) not in single:
+                one = _only_material(materials.clamp(geometry.tri_material))
+                if one is not None:  # (one element, viewed n times by hit_materials)
+                    one = np.array([one], geometry.tri_material.dtype)
+                    one.flags.writeable = False
+                single[id(geometry)] = one
+        self._one_material = MappingProxyType({k: single[id(frames.frames[k].geometry)] for k in frames.geometry})
 
     # ------------------------------------------------------------------ helpers
     def searchlight_power(self, doppler, exponent: int):
@@ -467,6 +481,14 @@ class Shader:
             return self.hit_opacity(hits) <= sampling.uniform(pixel[rays], sample[rays], dimension + layer)
         return see_through
 
+    def hit_materials(self, k: int, prim) -> np.ndarray:
+        """Material numbers (rows of the MaterialTable) of triangles ``prim`` of frame k (read-only:
+        one number broadcast where all the frame's triangles have it)."""
+        one = self._one_material.get(k)
+        if one is not None:  # (the view made directly: np.broadcast_to costs 5x as much)
+            return np.ndarray((len(prim),), one.dtype, one, strides=(0,))
+        return self.materials.clamp(np.take(self.frames.frames[k].geometry.tri_material, prim))
+
     def hit_opacity(self, hits: Hits) -> np.ndarray:
         """Principled Alpha at hits (every ray hit something)."""
         alpha = np.ones(len(hits.frame))
@@ -474,8 +496,8 @@ class Shader:
             sel = np.flatnonzero(hits.frame == k)
             frame = self.frames.frames[k]
             prim = hits.prim[sel]
-            material = self.materials.clamp(frame.geometry.tri_material[prim])
-            alpha[sel] = self.materials.opacity(material, hit_uv(frame, prim, hits.u[sel], hits.v[sel]))
+            uv = hit_uv(frame, prim, hits.u[sel], hits.v[sel])
+            alpha[sel] = self.materials.opacity(self.hit_materials(k, prim), uv)
         return alpha
 
     @property
@@ -492,7 +514,7 @@ class Shader:
             geometry = self.frames.frames[k].geometry
             sel = np.flatnonzero(hits.frame == k)
             prim = hits.prim[sel]
-            held[sel] = self.materials.holdout[self.materials.clamp(geometry.tri_material[prim])]
+            held[sel] = self.materials.holdout[self.hit_materials(k, prim)]
             if geometry.tri_holdout is not None:
                 held[sel] |= geometry.tri_holdout[prim]
         return held
@@ -505,8 +527,7 @@ class Shader:
     def frames_surface_info(self, segments, prim, u, v, d_k, tau_hit=None, cache: TraceCache | None = None):
         """:meth:`surface_info` at hits of several frames (``segments``: (frame k, its rows))."""
         position, ng, ns, back = facing_normals(self.frames, segments, prim, u, v, d_k, tau_hit, cache)
-        material = joined_frames([self.materials.clamp(np.take(self.frames.frames[k].geometry.tri_material, prim[s]))
-                                  for k, s in segments])
+        material = joined_frames([self.hit_materials(k, prim[s]) for k, s in segments])
         if self.materials.normal_mapped:
             own = False  # (ns may be ng, or the geometry's: copied before a normal map writes into it)
             for k, s in segments:
@@ -529,12 +550,13 @@ class Shader:
         (the geometry, the lamps' light) worked out frame by frame, the rest once for all."""
         mats = self.materials
         if self._emission_only(depth):  # no normals, texture or base colour needed
-            mat = joined_frames([mats.clamp(self.frames.frames[k].geometry.tri_material[prim[s]]) for k, s in segments])
+            mat = joined_frames([self.hit_materials(k, prim[s]) for k, s in segments])
             return self._emission(segments, tau, prim, mat, lam)
         position, ng, ns, mat, back = self.frames_surface_info(segments, prim, u, v, d_k, tau, cache)
         uvs = [hit_uv(self.frames.frames[k], prim[s], u[s], v[s]) for k, s in segments]
         if all(uv is None for uv in uvs) or all(uv is not None for uv in uvs):
-            base = self.colour.base_color(mat, None if uvs[0] is None else joined_frames(uvs), lam)
+            base = self.colour.base_color(mat, None if uvs[0] is None else joined_frames(uvs), lam,
+                                          columns=True)  # (brdf scales it column by column)
         else:  # frames with and without UVs
             base = joined_frames([self.colour.base_color(mat[s], uv, _rows(lam, s))
                                   for (_, s), uv in zip(segments, uvs)])
@@ -564,7 +586,7 @@ class Shader:
         """Whether none of these hits' surfaces emits (their emission is 0 at every wavelength)."""
         if self.materials.emission_curves:
             return False
-        mat = self.materials.clamp(frame.geometry.tri_material[prim])
+        mat = self.hit_materials(frame.index, prim)
         one = _only_material(mat)
         return not (self.materials.emits[one] if one is not None else self.materials.emits[mat].any())
 
@@ -685,9 +707,9 @@ class Shader:
             elif isinstance(sel, slice):
                 total = f
             else:
-                total = np.zeros_like(base)
+                total = np.zeros(base.shape)  # (rows, whatever base's layout: see rows.put)
                 rows.put_selection(total, sel, f)
-        return np.zeros_like(base) if total is None else total
+        return np.zeros(base.shape) if total is None else total
 
     def _occluded(self, segments, sel, tau, position, ng, e_sel, e_frames, s_max, pixel, sample, dimension: int,
                   cache):
@@ -980,9 +1002,9 @@ def _cone_sample(axis, half_angle, xi1, xi2):
     t1, t2 = _axis_basis(tuple(axis))
     cos_t = xi1 * (1.0 - np.cos(half_angle))  # in place from here: temporaries cost page faults
     np.subtract(1.0, cos_t, out=cos_t)
-    sin_t = cos_t * cos_t
+    sin_t = cos_t * cos_t  # (|cos_t| <= 1 for xi1 in [0, 1), so 1 - cos_t^2 >= 0: no clamp)
     np.subtract(1.0, sin_t, out=sin_t)
-    np.sqrt(np.maximum(sin_t, 0.0, out=sin_t), out=sin_t)
+    np.sqrt(sin_t, out=sin_t)
     cos_phi, sin_phi = unit_circle(xi2)
     cos_phi *= sin_t
     sin_phi *= sin_t
@@ -1003,14 +1025,15 @@ def unit_circle(xi):
 
 def _combine(*weights_and_vectors):
     """Rows ``a t1 + b t2 (+ c t3)`` of (n,) weights and (n, 3) or (3,) vectors, summed in that order."""
-    pairs = list(zip(weights_and_vectors[::2], weights_and_vectors[1::2]))
-    out = np.empty((len(pairs[0][0]), 3))
+    (first_weight, first_vector), *middle, (last_weight, last_vector) = zip(weights_and_vectors[::2],
+                                                                             weights_and_vectors[1::2])
+    out = np.empty((len(first_weight), 3))
     column, term = np.empty(len(out)), np.empty(len(out))  # contiguous: twice as fast as out's columns
     for c in range(3):
-        np.multiply(pairs[0][0], pairs[0][1][..., c], out=column)
-        for weight, vector in pairs[1:]:
+        np.multiply(first_weight, first_vector[..., c], out=column)
+        for weight, vector in middle:
             column += np.multiply(weight, vector[..., c], out=term)
-        out[:, c] = column
+        np.add(column, np.multiply(last_weight, last_vector[..., c], out=term), out=out[:, c])  # the last sum: into out
     return out
 
 
@@ -1020,18 +1043,22 @@ def _texels(image, colour: bool = False):
 
 def _only_material(mat):
     """The material number when every hit has the same one, else None."""
+    if len(mat) and mat.strides == (0,):  # one number broadcast (Shader.hit_materials)
+        return int(mat[0])
     if len(mat) and mat[0] == mat[-1] and bool((mat == mat[0]).all()):
         return int(mat[0])
     return None
 
 
 def _weighted_product(a, b, s):
-    """``a * b * s[:, None]`` for (n, C) a (overwritten) and b (often one row broadcast) and (n,) s,
-    column by column for few columns (see rows)."""
+    """``a * b * s[:, None]`` (a new row-major array, as the radiance it adds to) for (n, C) a
+    (overwritten) and b (often one row broadcast) and (n,) s, column by column for few columns
+    (see rows): the last product written into the rows (no copy of contiguous columns into rows after)."""
     if a.shape[1] > 4:
         return rows.scale(a * b, s)
+    out = np.empty(a.shape, np.result_type(a, b, s))
     for c in range(a.shape[1]):
         column = a[:, c]
         column *= b[:, c]
-        column *= s
-    return a
+        np.multiply(column, s, out=out[:, c])
+    return out

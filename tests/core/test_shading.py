@@ -366,8 +366,51 @@ def test_one_material_shades_bit_for_bit_as_gathered_per_hit():
         assert np.any(value > diffuse * (1.0 + 1e-9)) == (m < 2)  # the glossy ones have their GGX lobe
 
 
+def test_hit_materials_are_the_clamped_triangle_materials_broadcast_for_one_material_bodies():
+    """Shader.hit_materials gives every hit its triangle's material number, clamped to the table (as
+    a gather of tri_material would): one number broadcast (no gather) for a body whose triangles
+    all have one, even an out-of-range one; gathered for a body of two materials."""
+    from restframe_addon.core.prepared import prepare
+    from restframe_addon.core.shading import _only_material
+
+    meshes = [Mesh("two", *quad((0, 0, 0), (10.0, 10.0)), material_indices=np.array([0, 1])),
+              Mesh("one", *quad((0, 0, 1.0), (2.0, 2.0)), material_indices=np.array([7, 7]),
+                   velocity=Velocity((0.3, 0.0, 0.0)))]
+    scene = Scene(camera=look_at_camera((0.0, -3.0, 2.0), (0, 0, 0)), meshes=meshes,
+                  materials=[Material("a"), Material("b", base_color=(0.2, 0.4, 0.6))],
+                  lights=[Light("lamp", "POINT", (0, 0, 2.0), power=100.0)], world_color=BLACK)
+    shader = prepare(scene, settings()).shader
+    broadcast = []
+    for k in shader.frames.geometry:
+        geometry = shader.frames.frames[k].geometry
+        prim = np.arange(len(geometry.tri_material)).repeat(3)
+        got = shader.hit_materials(k, prim)
+        np.testing.assert_array_equal(got, np.clip(geometry.tri_material[prim], 0, 1))
+        broadcast.append(got.strides == (0,))
+        assert _only_material(got) == (1 if broadcast[-1] else None)
+    assert sorted(broadcast) == [False, True]
+
+
 def rows_normalized(a):
     return a / np.linalg.norm(a, axis=1, keepdims=True)
+
+
+def test_rows_take_gathers_rows_as_fancy_indexing_does_in_either_layout():
+    """rows.take gives ``a[index]`` for indices, masks and slices, of row-major and of column-major
+    arrays (these column by column, into contiguous columns), of (n, 3) and (n, 16) rows."""
+    from restframe_addon.core import rows
+
+    rng = np.random.default_rng(5)
+    for columns in (3, 16):
+        rows_major = rng.random((500, columns))
+        for a in (rows_major, np.asfortranarray(rows_major)):
+            for index in (rng.choice(500, 200, replace=False), rng.random(500) < 0.3, np.arange(0),
+                          np.zeros(500, dtype=bool), slice(10, 90)):
+                taken = rows.take(a, index)
+                np.testing.assert_array_equal(taken, rows_major[index])
+                assert taken.shape == rows_major[index].shape
+            if a.flags.f_contiguous and columns <= 4:
+                assert rows.take(a, np.arange(7)).flags.f_contiguous  # the caller's layout kept
 
 
 def test_rows_put_assigns_rows_as_fancy_indexing_does():
