@@ -81,9 +81,9 @@ def test_esc_stops_the_tile_a_worker_renders_and_the_tiles_it_holds(pool):
     tiles = list(pool.render(prepared, lambda: polls.append(1) or len(polls) > 20, 1))
     answers = pool.status()
     answer = answers.pop(pool.pids[0])  # the one worker used
-    assert all(other["late_tiles"] == [] for other in answers.values())
-    assert len(tiles) + len(answer["late_tiles"]) <= 2  # dealt before Esc: two; the second never started
-    assert len(answer["late_tiles"]) <= 1 and not any(tile.complete for tile in answer["late_tiles"])
+    assert all(other["late_shares"] == [] for other in answers.values())
+    assert len(tiles) + len(answer["late_shares"]) <= 2  # dealt before Esc: two; the second never started
+    assert len(answer["late_shares"]) <= 1 and not any(answer["late_shares"])  # cut short
     small = prepare(busy_scene(), settings(tile_size=8))
     assert_same_passes(assemble(small, pool.render(small, lambda: False, 1)), in_threads(small))
 
@@ -376,23 +376,28 @@ def test_without_room_for_a_results_image_the_results_come_through_the_pipes(poo
     assert pool.last_stats.in_place == 0 and pool.last_stats.shares > len(prepared.tiles())
 
 
-def test_bands_in_place_and_through_the_pipe_join_into_one_tile():
-    """A tile whose bands came back both ways (a worker could not map the image) is whole."""
-    rect, layout = (2, 4, 5, 8), {"Combined": 4, "Depth": 1}
-    results = workers._ResultsImage.create([(0, 0, 2, 2), rect], layout)
+def test_bands_in_place_and_through_the_pipe_make_one_tile():
+    """A tile whose bands came back both ways (a worker could not map the image) is whole, in
+    the image; without a file the bands that came through the pipes are whole too."""
+    rects, rect, layout = [(0, 0, 2, 2), (2, 4, 5, 8)], (2, 4, 5, 8), {"Combined": 4, "Depth": 1}
+    whole = {name: np.arange(12 * channels, dtype=np.float32).reshape(4, 3, channels) + 100 * channels
+             for name, channels in layout.items()}
+    results = workers._ResultsImage.create(rects, layout)
     try:
-        whole = {name: np.arange(12 * channels, dtype=np.float32).reshape(4, 3, channels) + 100 * channels
-                 for name, channels in layout.items()}
-        in_place = workers._write_share((results.path, results.offsets[1], layout), rect, (4, 6),
-                                        {name: value[:2] for name, value in whole.items()})
-        piped = render_module.Tile(2, 6, 5, 8, {name: value[2:] for name, value in whole.items()})
-        pieces = [workers._piece(None, results, 1, rect, (4, 6)), workers._piece(piped, results, 1, rect, (6, 8))]
-        joined = workers._joined(rect, pieces)
+        in_place = workers._write_share(results.place(1), rect, (4, 6), {name: value[:2] for name, value in whole.items()})
+        results.put(1, rect, (6, 8), {name: value[2:] for name, value in whole.items()})
+        tile = results.tile(1, rect)
     finally:
         workers._remove(results.path)
-    assert in_place and (joined.x0, joined.y0, joined.x1, joined.y1) == rect
-    assert all(np.array_equal(joined.passes[name], whole[name]) for name in layout)
-    assert not workers._write_share((results.path, results.offsets[1], layout), rect, None, whole)  # file gone
+    assert in_place and (tile.x0, tile.y0, tile.x1, tile.y1) == rect
+    assert all(np.array_equal(tile.passes[name], whole[name]) for name in layout)
+    assert not workers._write_share(results.place(1), rect, None, whole)  # file gone
+    own = workers._ResultsImage(None, None, layout, results.offsets)  # no room for a file
+    assert own.place(1) is None
+    for rows in ((6, 8), (4, 6)):
+        own.put(1, rect, rows, {name: value[rows[0] - 4:rows[1] - 4] for name, value in whole.items()})
+    tile = own.tile(1, rect)
+    assert all(np.array_equal(tile.passes[name], whole[name]) for name in layout) and own._own == {}
 
 
 @pytest.mark.parametrize("mode", MODES, ids=["rgb", "spectral", "factor", "transparent"])
@@ -487,20 +492,21 @@ def test_short_shares_are_dealt_for_a_batch_and_the_loop_sleeps_half_of_it():
     pace = workers._Pace(shares, rects)
     todo = list(enumerate(shares))[4:]
     worker = _Dealt(0, 1)
-    assert pace.wants(_Dealt(0), todo, 2) and not pace.wants(worker, todo, 2)  # no share finished yet: two
+    assert pace.wants(_Dealt(0), pace.batching(todo, 2)) and not pace.wants(worker, pace.batching(todo, 2))  # none finished yet: two
     assert pace.pause([worker]) == 0
-    pace.finished(1000, 0.25 * workers._BATCH)  # a share takes a quarter of a batch
-    assert pace.wants(_Dealt(0, 1, 2, 3, 4, 5, 6), todo, 2)  # 7 shares: 1.75 batches of work
-    assert not pace.wants(_Dealt(*range(8)), todo, 2)  # 8: 2 batches
+    assert pace.finished(0, 0.25 * workers._BATCH) == 1000  # a share takes a quarter of a batch
+    assert pace.batching(todo, 2)
+    assert pace.wants(_Dealt(0, 1, 2, 3, 4, 5, 6), True)  # 7 shares: 1.75 batches of work
+    assert not pace.wants(_Dealt(*range(8)), True)  # 8: 2 batches
     assert pace.pause([_Dealt(*range(8)), _Dealt(*range(8, 16))]) == workers._BATCH
     assert pace.pause([_Dealt(*range(8)), _Dealt(8, 9)]) == pytest.approx(0.25 * workers._BATCH)  # half of 2 shares
     assert pace.pause([_Dealt(*range(8)), _Dealt()]) == 0  # a worker with nothing: wait for the first message
     end = todo[-8:]  # 2 batches of work left: 1 a worker, so no more than two shares each
-    assert not pace.wants(_Dealt(0, 1), end, 2)
-    assert pace.wants(_Dealt(0, 1), end, 1)  # one worker: nobody to wait for at the end
+    assert not pace.batching(end, 2) and not pace.wants(_Dealt(0, 1), pace.batching(end, 2))
+    assert pace.batching(end, 1) and pace.wants(_Dealt(0, 1), pace.batching(end, 1))  # one worker: nobody to wait for
     slow = workers._Pace(shares, rects)
-    slow.finished(1000, 3 * workers._BATCH)  # a share takes 1.5 batches a worker
-    assert not slow.wants(_Dealt(0, 1), todo, 2) and slow.pause([_Dealt(0, 1), _Dealt(2, 3)]) == 0
+    slow.finished(0, 3 * workers._BATCH)  # a share takes 1.5 batches a worker
+    assert not slow.batching(todo, 2) and slow.pause([_Dealt(0, 1), _Dealt(2, 3)]) == 0
 
 
 def test_short_shares_render_the_same_bits_in_batches_with_fewer_wake_ups(pool, monkeypatch):
