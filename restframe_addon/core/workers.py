@@ -17,7 +17,8 @@ every worker reads for itself, at once, so no worker waits for the scene to pass
 pipes of the others (a new scene replaces the old one there; the same one rendered again is
 not sent again).  The engine does that before it prepares the scene (:func:`build_ahead`), so
 the workers build it while this process does, and the render sends them only what the
-pre-passes measured.  It then deals work two shares at a time per worker.  A share
+pre-passes measured.  It then deals work two shares at a time per worker (one in the
+render's tail, so that none waits behind a long share while the others run dry).  A share
 is a whole tile or, towards the end of a render with several workers, a band of a tile's
 rows (:func:`share_out`), so the workers finish together however unevenly the cost is spread
 over the image; the caller gets whole tiles, as from threads.  A worker writes each share's
@@ -72,7 +73,12 @@ MALLOC_TUNING = malloc.ENVIRONMENT  # a worker's malloc keeps its large temporar
 _ONE_BLAS_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 _TILES_IN_FLIGHT = 2  # shares per worker: one rendering, one waiting, so a worker never idles between them
-_SHARES_PER_WORKER = 4  # guided dealing: a share is about this fraction of a worker's part of what is left
+_SHARES_PER_WORKER = 2  # guided dealing: a share is about this fraction of a worker's part of what is left
+# the tail of a render: with at most this many shares a worker left to deal, each worker holds one
+# share at a time (none is tied up waiting behind a long one while others run dry) while shares
+# take at least _TAIL_SECONDS (the round trip to deal the next, 0.3-1 ms, is then a few percent)
+_TAIL_SHARES = 4
+_TAIL_SECONDS = 0.02
 _MIN_SHARE_PIXELS = 8192  # smaller bands cost more than they win: a render_tile call costs 0.2-3.5 ms whatever its size
 _WORKER_MEMORY = 400 << 20  # bytes a worker needs besides its scene (interpreter, numpy, embree, tile batches)
 _SCENE_MEMORY_FACTOR = 6  # a worker's rebuilt scene (frames, BVHs, caches) against its pickled size
@@ -498,16 +504,29 @@ class _Pace:
         per_pixel = self._seconds_finished / max(self._pixels_finished, 1)
         return per_pixel * sum(self._pixels[share] for share in shares)
 
-    def wants(self, worker: _Worker, batching: bool) -> bool:
-        """Whether ``worker`` is to be dealt another share (``batching``: :meth:`batching`, once a round)."""
+    def wants(self, worker: _Worker, batching: bool, tail: bool = False) -> bool:
+        """Whether ``worker`` is to be dealt another share (``batching``: :meth:`batching`; ``tail``:
+        :meth:`tail`; decided once a round)."""
+        if tail:
+            return not worker.dealt
         return len(worker.dealt) < _TILES_IN_FLIGHT or (batching and self.seconds(worker.dealt) < 2 * _BATCH)
 
-    def pause(self, workers) -> float:
+    def tail(self, todo, workers: int) -> bool:
+        """Whether the render is in its tail: few shares left to deal (``_TAIL_SHARES`` a worker),
+        long ones (``_TAIL_SECONDS``), and someone to balance with.  Simulated with moving_sphere's
+        measured band costs (2-16 workers), a worker then holding one share instead of two evens
+        out the workers' ends (16 workers: 0.77 -> 0.86 of the ideal)."""
+        share_seconds = self._share_seconds()
+        return (workers > 1 and share_seconds is not None and share_seconds >= _TAIL_SECONDS
+                and len(todo) <= _TAIL_SHARES * workers)
+
+    def pause(self, workers, todo=()) -> float:
         """Seconds the loop may sleep before it handles what came: 0 (wait for each message) unless
         shares come faster than one a ``_BATCH``; then at most ``_BATCH`` and half the work a
-        worker holds, so that none runs dry and the last shares are handled soon after they end."""
+        worker holds, so that none runs dry and the last shares are handled soon after they end.
+        0 in the tail (a worker waits for its next share)."""
         share_seconds = self._share_seconds()
-        if share_seconds is None or share_seconds >= len(workers) * _BATCH:
+        if share_seconds is None or share_seconds >= len(workers) * _BATCH or self.tail(todo, len(workers)):
             return 0.0
         return min(_BATCH, min(self.seconds(worker.dealt) for worker in workers) / 2)
 
@@ -628,7 +647,7 @@ class WorkerPool:
                     yield from tiles_in_threads(prepared, [rect for index, rect in enumerate(rects)
                                                            if index not in done], count, should_stop)
                     return
-                pause = pace.pause(workers)
+                pause = pace.pause(workers, todo)
                 if pause > 0:
                     time.sleep(pause)
                 messages = self._inbox.take(0.0 if pause > 0 else _POLL)
@@ -730,11 +749,12 @@ class WorkerPool:
         """Deal every worker the shares it wants (``pace``: at least ``_TILES_IN_FLIGHT``), one
         share per worker in turn (so the first round reaches every worker); each share names its
         tile's place in the ``results`` image (None: no image, the passes come back in the message)."""
-        batching, dealt = pace.batching(todo, len(workers)), True
+        tail = pace.tail(todo, len(workers))
+        batching, dealt = not tail and pace.batching(todo, len(workers)), True
         while todo and dealt:
             dealt = False
             for worker in workers:
-                if todo and worker.alive and pace.wants(worker, batching):
+                if todo and worker.alive and pace.wants(worker, batching, tail):
                     share, (tile_index, rows) = todo.popleft()
                     worker.post(("tile", job, scene_id, share, rects[tile_index], rows, results.place(tile_index)))
                     worker.dealt[share] = (tile_index, rows)

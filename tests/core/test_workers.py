@@ -5,7 +5,9 @@ with their parent."""
 
 import dataclasses
 import glob
+import io
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -279,7 +281,8 @@ def test_the_shares_cover_every_row_of_every_tile_once_in_tile_order(workers_cou
     if workers_count == 1:
         assert shares == [(index, None) for index in range(len(rects))]  # one worker: whole tiles
     else:  # guided: whole tiles first, smaller bands towards the end, none below the minimum (but a tile's last rows)
-        assert (shares[0] == (0, None)) == (workers_count == 2) and len(shares) >= 4 * workers_count
+        assert (shares[0] == (0, None)) == (workers_count == 2)
+        assert len(shares) >= workers._SHARES_PER_WORKER * workers_count
         assert max(pixels[-3:]) <= 960 * 540 / (workers_count * workers._SHARES_PER_WORKER)
         assert min(pixels) >= min(workers._MIN_SHARE_PIXELS, 192 * 28) / 2
 
@@ -533,3 +536,50 @@ def test_short_shares_render_the_same_bits_in_batches_with_fewer_wake_ups(pool, 
     shares = pool.last_stats.shares
     assert shares == len(prepared.tiles()) == 30
     assert len([count for count in takes if count]) < shares and max(held) > workers._TILES_IN_FLIGHT, (takes, held)
+
+
+def test_in_the_tail_of_long_shares_a_worker_holds_one_share_and_the_loop_does_not_sleep():
+    rects = [(0, y, 100, y + 10) for y in range(0, 1000, 10)]  # 100 tiles of 1000 pixels
+    shares = [(tile, None) for tile in range(len(rects))]
+    pace = workers._Pace(shares, rects)
+    todo = list(enumerate(shares))
+    assert not pace.tail(todo[-2:], 2)  # nothing finished yet: no estimate
+    pace.finished(0, workers._TAIL_SECONDS)
+    tail = todo[-workers._TAIL_SHARES * 2:]
+    assert not pace.tail(todo[-workers._TAIL_SHARES * 2 - 1:], 2) and pace.tail(tail, 2)
+    assert not pace.tail(tail, 1)  # one worker: nobody to balance with
+    assert pace.wants(_Dealt(), False, True) and not pace.wants(_Dealt(0), False, True)
+    assert pace.wants(_Dealt(0), False, False)  # before the tail: two each
+    short = workers._Pace(shares, rects)
+    short.finished(0, workers._TAIL_SECONDS / 2)  # short shares: a round trip would weigh, no tail
+    assert not short.tail(tail, 2) and short.pause([_Dealt(1, 2), _Dealt(3, 4)], tail) > 0
+    assert pace.pause([_Dealt(1), _Dealt(3)], tail) == 0
+
+
+def test_a_workers_messages_of_a_round_go_in_one_write(pool):
+    """The measurements of a scene built ahead and a worker's first shares: one write (each
+    costs both processes a system call, and the worker a wake-up)."""
+
+    class Recorded:
+        def __init__(self, stream):
+            self.stream, self.writes = stream, []
+
+        def write(self, data):
+            stream = io.BytesIO(data)
+            self.writes.append([pickle.load(stream)[0] for _ in iter(lambda: stream.tell() < len(data), False)])
+            return self.stream.write(data)
+
+        def __getattr__(self, name):
+            return getattr(self.stream, name)
+
+    scene, render_settings = busy_scene(), settings(tile_size=6)
+    pool.build_ahead(scene, render_settings, 2)
+    prepared = prepare(scene, render_settings)
+    for worker in pool._workers:
+        worker.process.stdin = Recorded(worker.process.stdin)
+    try:
+        assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
+        assert [worker.process.stdin.writes[0] for worker in pool._workers] == [["measured", "tile", "tile"]] * 2
+    finally:
+        for worker in pool._workers:
+            worker.process.stdin = worker.process.stdin.stream
