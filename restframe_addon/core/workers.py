@@ -90,6 +90,7 @@ _BATCH = 0.04
 _WATCHDOG = 0.2  # seconds between a worker's checks that its parent lives
 # where a render's results image is made: shared memory first (Linux), else the temporary folder
 _RESULTS_FOLDERS = ("/dev/shm", tempfile.gettempdir())
+_ALIGN = 64  # bytes: where each array of a scene's file starts (as numpy aligns its own)
 _FRAME = struct.Struct("<Q")  # a worker's message on its pipe: the length of its pickle, then the pickle
 # Windows cannot wait on pipes with select: a reader thread per worker reads its pipe there
 _READER_THREADS = sys.platform == "win32"
@@ -156,6 +157,50 @@ def share_out(rects, workers: int) -> list[tuple[int, tuple[int, int] | None]]:
             shares.extend((index, (y0 + height * k // bands, y0 + height * (k + 1) // bands)) for k in range(bands))
         left -= pixels
     return shares
+
+
+class _Pickled:
+    """A value pickled for a file, its arrays out of band (pickle protocol 5): their bytes go
+    from their place into the file, not first into the pickle (moving_sphere's 5.6 MB scene:
+    0.4-0.5 ms to pickle instead of 3.9-4.1, on the loaded VM), and a reader's arrays are views
+    of the one buffer it reads the file into, each at a multiple of ``_ALIGN`` bytes."""
+
+    _HEAD = struct.Struct("<QQ")  # the pickle's size, the number of arrays (then each array's size)
+
+    def __init__(self, value):
+        buffers = []
+        self.pickle = pickle.dumps(value, protocol=5, buffer_callback=buffers.append)
+        self.arrays = [buffer.raw() for buffer in buffers]
+
+    def write(self, file) -> int:
+        """Write it into the ``file`` open for writing; the bytes written."""
+        sizes = [array.nbytes for array in self.arrays]
+        file.write(self._HEAD.pack(len(self.pickle), len(sizes)) + struct.pack(f"<{len(sizes)}Q", *sizes))
+        file.write(self.pickle)
+        offset = self._HEAD.size + 8 * len(sizes) + len(self.pickle)
+        for array in self.arrays:
+            padding = -offset % _ALIGN
+            file.write(bytes(padding))
+            file.write(array)
+            offset += padding + array.nbytes
+        return offset
+
+    @classmethod
+    def read(cls, path: str):
+        """The value in the file ``path`` (written by :meth:`write`)."""
+        with open(path, "rb") as file:
+            size = os.fstat(file.fileno()).st_size
+            data = np.empty(size + _ALIGN, np.uint8)
+            data = data[-data.ctypes.data % _ALIGN:][:size]
+            file.readinto(memoryview(data))
+        pickled, count = cls._HEAD.unpack_from(data)
+        offset = cls._HEAD.size + 8 * count
+        buffers, start = [], offset + pickled
+        for size in struct.unpack_from(f"<{count}Q", data, cls._HEAD.size):
+            start += -start % _ALIGN
+            buffers.append(data[start:start + size])
+            start += size
+        return pickle.loads(data[offset:offset + pickled], buffers=buffers)
 
 
 def _pass_regions(image: np.ndarray, start: int, layout: dict[str, int], rect) -> dict[str, np.ndarray]:
@@ -711,16 +756,15 @@ class WorkerPool:
         if (self._sent_scene is None or self._sent_scene[0]() is not scene
                 or self._sent_scene[1] != settings_pickle):
             pickling = time.thread_time()
-            payload = pickle.dumps((scene, settings), protocol=pickle.HIGHEST_PROTOCOL)
+            pickled = _Pickled((scene, settings))
             stats.pickling = time.thread_time() - pickling
             writing = time.thread_time()
             self._forget_scene()
             descriptor, self._scene_file = tempfile.mkstemp(prefix=f"restframe-scene-{os.getpid()}-", suffix=".pickle")
             self._scene_file_removal = weakref.finalize(self, _remove, self._scene_file)
             with open(descriptor, "wb") as scene_file:
-                scene_file.write(payload)
+                self._scene_bytes = pickled.write(scene_file)
             stats.sending = time.thread_time() - writing
-            self._scene_bytes = len(payload)
             self._sent_scene = (weakref.ref(scene), settings_pickle, next(self._scene_ids))
         return self._sent_scene[2]
 
@@ -940,8 +984,7 @@ def serve(commands, results, parent_pid: int):
                 scene_id = message[1]
                 started, cpu = time.monotonic(), time.thread_time()
                 try:
-                    with open(message[2], "rb") as pickled:
-                        built = build_unmeasured(*pickle.loads(pickled.read()), geometry)
+                    built = build_unmeasured(*_Pickled.read(message[2]), geometry)
                     cache = TraceCache()
                 except Exception as error:
                     built = _picklable(error)
