@@ -73,7 +73,7 @@ MALLOC_TUNING = malloc.ENVIRONMENT  # a worker's malloc keeps its large temporar
 _ONE_BLAS_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 _TILES_IN_FLIGHT = 2  # shares per worker: one rendering, one waiting, so a worker never idles between them
-_SHARES_PER_WORKER = 2  # guided dealing: a share is about this fraction of a worker's part of what is left
+_SHARES_PER_WORKER = 4  # guided dealing: a share is about this fraction of a worker's part of what is left
 # the tail of a render: with at most this many shares a worker left to deal, each worker holds one
 # share at a time (none is tied up waiting behind a long one while others run dry) while shares
 # take at least _TAIL_SECONDS (the round trip to deal the next, 0.3-1 ms, is then a few percent)
@@ -559,8 +559,9 @@ class _Pace:
     def tail(self, todo, workers: int) -> bool:
         """Whether the render is in its tail: few shares left to deal (``_TAIL_SHARES`` a worker),
         long ones (``_TAIL_SECONDS``), and someone to balance with.  Simulated with moving_sphere's
-        measured band costs (2-16 workers), a worker then holding one share instead of two evens
-        out the workers' ends (16 workers: 0.77 -> 0.86 of the ideal)."""
+        measured band costs (tests/bench/sim_shares.py), a worker then holding one share instead
+        of two evens out the workers' ends: 16 workers 0.77 -> 0.85-0.86 of the ideal, 8 workers
+        0.85-0.88 -> 0.91-0.92, 2 workers 0.98-0.99 as before."""
         share_seconds = self._share_seconds()
         return (workers > 1 and share_seconds is not None and share_seconds >= _TAIL_SECONDS
                 and len(todo) <= _TAIL_SHARES * workers)

@@ -24,8 +24,7 @@ def test_amdahl_limits():
 def test_tiles_and_shares_are_those_of_a_render_on_that_many_workers():
     """512x256 at 256-px tiles is 2 tiles on one worker.  For 8 workers the tiles are halved,
     height first, to 8 of 128x128 (16384 px); each is cut into 2 bands, since a band is about
-    1/16 of the pixels left (2 shares a worker: workers._SHARES_PER_WORKER) but at least 8192.
-    For 16: 16 tiles of 128x64, one share each."""
+    1/32 of the pixels left but at least 8192.  For 16: 16 tiles of 128x64, one share each."""
     prepared = prepare(ball_scene(), settings((512, 256), tile_size=256, threads=1))
     assert len(prepared.tiles()) == 2
     assert tiles_and_shares(prepared, 1) == (2, 2)
