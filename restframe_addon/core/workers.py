@@ -560,7 +560,7 @@ class _Pace:
         """Whether the render is in its tail: few shares left to deal (``_TAIL_SHARES`` a worker),
         long ones (``_TAIL_SECONDS``), and someone to balance with.  Simulated with moving_sphere's
         measured band costs (tests/bench/sim_shares.py), a worker then holding one share instead
-        of two evens out the workers' ends: 16 workers 0.77 -> 0.85-0.86 of the ideal, 8 workers
+        of two evens out the workers' ends: 16 workers 0.76-0.77 -> 0.84-0.86 of the ideal, 8 workers
         0.85-0.88 -> 0.91-0.92, 2 workers 0.98-0.99 as before."""
         share_seconds = self._share_seconds()
         return (workers > 1 and share_seconds is not None and share_seconds >= _TAIL_SECONDS
