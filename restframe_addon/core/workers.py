@@ -91,6 +91,7 @@ _WATCHDOG = 0.2  # seconds between a worker's checks that its parent lives
 # where a render's results image is made: shared memory first (Linux), else the temporary folder
 _RESULTS_FOLDERS = ("/dev/shm", tempfile.gettempdir())
 _ALIGN = 64  # bytes: where each array of a scene's file starts (as numpy aligns its own)
+_IN_BAND_BYTES = 1 << 16  # smaller arrays are copied into the scene's pickle (a write and padding each would cost more)
 _FRAME = struct.Struct("<Q")  # a worker's message on its pipe: the length of its pickle, then the pickle
 # Windows cannot wait on pipes with select: a reader thread per worker reads its pipe there
 _READER_THREADS = sys.platform == "win32"
@@ -168,8 +169,9 @@ class _Pickled:
     _HEAD = struct.Struct("<QQ")  # the pickle's size, the number of arrays (then each array's size)
 
     def __init__(self, value):
-        buffers = []
-        self.pickle = pickle.dumps(value, protocol=5, buffer_callback=buffers.append)
+        buffers = []  # the large arrays' (a false answer: out of band); small ones stay in the pickle
+        self.pickle = pickle.dumps(value, protocol=5, buffer_callback=lambda buffer: (
+            buffer.raw().nbytes < _IN_BAND_BYTES or buffers.append(buffer)))
         self.arrays = [buffer.raw() for buffer in buffers]
 
     def write(self, file) -> int:

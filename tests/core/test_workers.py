@@ -587,16 +587,18 @@ def test_a_workers_messages_of_a_round_go_in_one_write(pool):
 
 def test_a_pickled_scene_file_gives_back_aligned_writable_arrays(tmp_path):
     """Its arrays out of band: each read back as a view of the file's one buffer, aligned, writable."""
-    value = {"a": np.arange(7, dtype=np.float64), "b": np.arange(12, dtype=np.int32).reshape(3, 4)[:, 1:],
-             "f": np.asfortranarray(np.arange(6.0).reshape(2, 3)), "text": "x", "empty": np.zeros(0)}
+    large = workers._IN_BAND_BYTES // 8
+    value = {"a": np.arange(large, dtype=np.float64), "b": np.arange(12, dtype=np.int32).reshape(3, 4)[:, 1:],
+             "f": np.asfortranarray(np.arange(2.0 * large).reshape(2, large)), "text": "x", "empty": np.zeros(0),
+             "small": np.arange(5.0)}
     pickled = workers._Pickled(value)
-    assert len(pickled.arrays) >= 3  # out of band: not in the pickle
+    assert len(pickled.arrays) == 2  # the large ones out of band: not in the pickle
     with open(tmp_path / "scene", "wb") as file:
         size = pickled.write(file)
     assert size == os.path.getsize(tmp_path / "scene")
     back = workers._Pickled.read(str(tmp_path / "scene"))
     assert back.keys() == value.keys() and back["text"] == "x"
-    for name in ("a", "b", "f", "empty"):
+    for name in ("a", "b", "f", "empty", "small"):
         assert np.array_equal(back[name], value[name]) and back[name].dtype == value[name].dtype
     for name in ("a", "f"):
         assert back[name].flags.writeable and back[name].ctypes.data % workers._ALIGN == 0
