@@ -361,7 +361,7 @@ class _Worker:
         self.measured = None  # (scene id, measurements) it was last sent
         self.dealt: dict[int, tuple] = {}  # share id -> (tile index, rows), of the current render
         self.receiving_cpu = 0.0  # CPU seconds spent reading and unpickling its messages
-        self._posted: list[bytes] = []  # pickled messages for its next write
+        self.posted: list[bytes] = []  # pickled messages for its next write
         self.send(boot)
         self._inbox = inbox
         inbox.add(self)
@@ -373,21 +373,21 @@ class _Worker:
     def post(self, message):
         """Queue ``message`` for the next :meth:`send` (one write for several: each write costs
         both processes a system call, and the worker a wake-up)."""
-        self._posted.append(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
+        self.posted.append(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
 
     def send(self, *messages) -> bool:
         """Pickle ``messages`` to the worker, after those posted, in one write; False once it is gone."""
         for message in messages:
             self.post(message)
-        if not self.alive or not self._posted:
-            self._posted.clear()
+        if not self.alive or not self.posted:
+            self.posted.clear()
             return self.alive
         try:
-            self.process.stdin.write(b"".join(self._posted))
+            self.process.stdin.write(b"".join(self.posted))
             self.process.stdin.flush()
         except (OSError, ValueError):
             self.alive = False
-        self._posted.clear()
+        self.posted.clear()
         return self.alive
 
     def close(self, wait: float = 1.0):
@@ -807,7 +807,7 @@ class WorkerPool:
                     worker.dealt[share] = (tile_index, rows)
                     dealt = True
         for worker in workers:  # one write a worker for all it was dealt (and what was posted before)
-            if worker.alive and not worker.send():
+            if worker.posted and worker.alive and not worker.send():
                 self._lost(worker, todo)
 
     def _lost(self, worker: _Worker, todo):
