@@ -387,7 +387,8 @@ def test_bands_in_place_and_through_the_pipe_make_one_tile():
              for name, channels in layout.items()}
     results = workers._ResultsImage.create(rects, layout)
     try:
-        in_place = workers._write_share(results.place(1), rect, (4, 6), {name: value[:2] for name, value in whole.items()})
+        in_place = workers._write_share(results.place(1), rect, (4, 6),
+                                        {name: value[:2] for name, value in whole.items()})
         results.put(1, rect, (6, 8), {name: value[2:] for name, value in whole.items()})
         tile = results.tile(1, rect)
     finally:
@@ -495,7 +496,8 @@ def test_short_shares_are_dealt_for_a_batch_and_the_loop_sleeps_half_of_it():
     pace = workers._Pace(shares, rects)
     todo = list(enumerate(shares))[4:]
     worker = _Dealt(0, 1)
-    assert pace.wants(_Dealt(0), pace.batching(todo, 2)) and not pace.wants(worker, pace.batching(todo, 2))  # none finished yet: two
+    batching = pace.batching(todo, 2)
+    assert pace.wants(_Dealt(0), batching) and not pace.wants(worker, batching)  # none finished yet: two
     assert pace.pause([worker]) == 0
     assert pace.finished(0, 0.25 * workers._BATCH) == 1000  # a share takes a quarter of a batch
     assert pace.batching(todo, 2)
