@@ -40,6 +40,15 @@ def put(a, index, new) -> None:
     np.put(a.view(row)[:, 0], index, c_contiguous(new, a.dtype).view(row)[:, 0])
 
 
+def put_selection(a, sel, new) -> None:
+    """``a[sel] = new`` for rows ``sel`` (a slice or indices, as :func:`selection` gives) of an array
+    (``new`` may have contiguous columns)."""
+    if isinstance(sel, slice):
+        assign(a[sel], new)
+    else:
+        put(a, sel, new)
+
+
 def c_contiguous(a, dtype=None) -> np.ndarray:
     """``np.ascontiguousarray(a, dtype)`` of (n, C) rows (see :func:`assign`)."""
     a = np.asarray(a)
