@@ -62,7 +62,11 @@ def _from_keys(keys: np.ndarray, dimension: int) -> np.ndarray:
         z = keys + np.uint64(dimension) * _GOLDEN
     z = _mix(z)
     z >>= np.uint64(11)
-    return np.multiply(z, np.float64(1.0 / (1 << 53)))  # (exact: z < 2^53 converts without rounding)
+    # exact: z < 2^53 converts without rounding, read as int64 (the same numbers: numpy converts
+    # them faster), and scaling by a power of two is exact
+    numbers = z.view(np.int64).astype(np.float64)
+    numbers *= np.float64(1.0 / (1 << 53))
+    return numbers
 
 
 def uniform(pixel: np.ndarray, sample: np.ndarray, dimension: int) -> np.ndarray:
