@@ -397,9 +397,9 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
             lo, hi = lo * w, hi * w
         lo, hi = _ray_range(frame, tau_k, origin, dk, lo, hi)
         t, prim, u, v = _query(frame, tau_k, origin, dk, lo, hi, occlusion=False)
-        s = t if w is None else t / w
-        nearer = s < (best if rays is None else best[rays])  # ties keep the earlier frame
         if hits is None and rays is None:  # the first frame to see every ray: its hits as they are
+            s = t if w is None else t / w
+            nearer = s < best  # ties keep the earlier frame
             s = np.where(nearer, s, np.inf)
             # s_frame, w, d_frame and tau_frame shared (s, a broadcast 1, the rays' own arrays) until a
             # later frame writes into them
@@ -414,15 +414,26 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         if hits is None:
             hits, borrowed = no_hits(n), False
             best = best.copy()
-        if borrowed and (rays is None or nearer.any()):
-            hits, borrowed = _owned(hits), False
-        if rays is None:
+        found = np.flatnonzero(prim >= 0)  # only a hit can be nearer (a miss's s is inf)
+        if rays is None and len(found) > _MASKED_SHARE * n:  # most rays: masks over all of them
+            s = t if w is None else t / w
+            nearer = s < best  # ties keep the earlier frame
+            if borrowed:
+                hits, borrowed = _owned(hits), False
             _update(hits, best, nearer, k, s, t, w, prim, u, v, dk, tau_k)
-        elif nearer.any():
-            keep = np.flatnonzero(nearer)
-            _update(hits, best, rays[keep], k, s[keep], t[keep], None if w is None else w[keep],
-                    prim[keep], u[keep], v[keep], rows.take(dk, keep), tau_k[keep])
+            continue
+        s = rows.take(t, found) if w is None else rows.take(t, found) / rows.take(w, found)
+        nearer = s < best[found if rays is None else rays[found]]
+        if nearer.any():
+            if borrowed:
+                hits, borrowed = _owned(hits), False
+            keep = found[nearer]  # (in this frame's rays)
+            _update(hits, best, keep if rays is None else rays[keep], k, s[nearer], t[keep],
+                    None if w is None else w[keep], prim[keep], u[keep], v[keep], rows.take(dk, keep), tau_k[keep])
     return no_hits(n) if hits is None else hits
+
+
+_MASKED_SHARE = 0.5  # hits of a later frame among all rays above which _nearest merges by masks, not indices
 
 
 def _owned(hits: Hits) -> Hits:
@@ -482,7 +493,7 @@ def _update(hits: Hits, best, where, k, s, t, w, prim, u, v, d_frame, tau_frame)
     hits.u[where] = u
     hits.v[where] = v
     hits.w[where] = 1.0 if w is None else w
-    hits.d_frame[where] = d_frame
+    rows.put(hits.d_frame, where, d_frame)
     hits.tau_frame[where] = tau_frame
 
 
