@@ -69,8 +69,12 @@ def _clip_to_bounds(geometry, origin, d, t_lo, t_hi):
         for axis in range(3):
             np.copyto(inv, d[:, axis])  # (numpy divides a contiguous column 2.5x faster than a strided one)
             np.divide(1.0, inv, out=inv)
-            np.multiply(np.subtract(geometry.lo[axis] - pad, origin[..., axis], out=t_a), inv, out=t_a)
-            np.multiply(np.subtract(geometry.hi[axis] + pad, origin[..., axis], out=t_b), inv, out=t_b)
+            if origin.ndim == 1:  # one shared origin (camera rays): each face's distance is one number
+                np.multiply(inv, geometry.lo[axis] - pad - origin[axis], out=t_a)
+                np.multiply(inv, geometry.hi[axis] + pad - origin[axis], out=t_b)
+            else:
+                np.multiply(np.subtract(geometry.lo[axis] - pad, origin[..., axis], out=t_a), inv, out=t_a)
+                np.multiply(np.subtract(geometry.hi[axis] + pad, origin[..., axis], out=t_b), inv, out=t_b)
             # fmin/fmax ignore the NaN of 0 * inf (a ray in the plane of a slab face)
             np.fmax(t_lo if axis == 0 else enter, np.fmin(t_a, t_b, out=near), out=enter)
             np.fmin(t_hi if axis == 0 else leave, np.fmax(t_a, t_b, out=near), out=leave)
