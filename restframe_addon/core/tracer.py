@@ -401,9 +401,17 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
             lo, hi = lo * w, hi * w
         lo, hi = _ray_range(frame, tau_k, origin, dk, lo, hi)
         t, prim, u, v = _query(frame, tau_k, origin, dk, lo, hi, occlusion=False)
-        if hits is None and rays is None:  # the first frame to see every ray: its hits as they are
-            s = t if w is None else t / w
-            nearer = s < best  # ties keep the earlier frame
+        first = hits is None and rays is None  # the first frame to see every ray: its hits as they are
+        # a later frame's hits are merged by their indices (only a hit can be nearer: a miss's s is
+        # inf), by masks over every ray where they are most of the bundle
+        found = None if first else np.flatnonzero(prim >= 0)
+        if rays is None and found is not None and len(found) > _MASKED_SHARE * n:
+            found = None
+        rest = t if found is None else rows.take(t, found)  # (path lengths in frame k of the rays compared)
+        s = rest if w is None else rest / (w if found is None else rows.take(w, found))
+        # ties keep the earlier frame
+        nearer = s < (best if found is None else best[found if rays is None else rays[found]])
+        if first:
             s = np.where(nearer, s, np.inf)
             # s_frame, w, d_frame and tau_frame shared (s, a broadcast 1, the rays' own arrays) until a
             # later frame writes into them
@@ -418,21 +426,15 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         if hits is None:
             hits, borrowed = no_hits(n), False
             best = best.copy()
-        found = np.flatnonzero(prim >= 0)  # only a hit can be nearer (a miss's s is inf)
-        if rays is None and len(found) > _MASKED_SHARE * n:  # most rays: masks over all of them
-            s = t if w is None else t / w
-            nearer = s < best  # ties keep the earlier frame
-            if borrowed:
-                hits, borrowed = _owned(hits), False
-            _update(hits, best, nearer, k, s, t, w, prim, u, v, dk, tau_k)
+        if not nearer.any():
             continue
-        s = rows.take(t, found) if w is None else rows.take(t, found) / rows.take(w, found)
-        nearer = s < best[found if rays is None else rays[found]]
-        if nearer.any():
-            if borrowed:
-                hits, borrowed = _owned(hits), False
+        if borrowed:
+            hits, borrowed = _owned(hits), False
+        if found is None:
+            _update(hits, best, nearer, k, s, t, w, prim, u, v, dk, tau_k)
+        else:
             keep = found[nearer]  # (in this frame's rays)
-            _update(hits, best, keep if rays is None else rays[keep], k, s[nearer], t[keep],
+            _update(hits, best, keep if rays is None else rays[keep], k, s[nearer], rest[nearer],
                     None if w is None else w[keep], prim[keep], u[keep], v[keep], rows.take(dk, keep), tau_k[keep])
     return no_hits(n) if hits is None else hits
 
