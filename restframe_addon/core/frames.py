@@ -29,7 +29,7 @@ from embreex import rtcore, rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
 from . import embree_direct, motion, observer, rows, validation
-from .lorentz import Boost
+from .lorentz import Boost, events_of_boosts
 from .scene import RAY_ALL, REST, Scene, Velocity
 
 if TYPE_CHECKING:
@@ -338,23 +338,32 @@ class FrameSet:
         linear map I - c n n^T with 0 <= c < 1: each of its entries lies between its values at
         c = 0 and c = 1, which bounds the image box); a spinning body: the cube around its sphere.
         """
-        lines = self._world_lines
-        t, x = self.map(self.world, src).events(lines[..., 0], lines[..., 1:])
-        velocity = (x[:, 1] - x[:, 0]) / (t[:, 1] - t[:, 0])[:, None]
-        half = self._rest_half.copy()
-        speed = np.sqrt(np.einsum("ij,ij->i", velocity, velocity))
+        return tuple(a[0] for a in self.body_boxes_of([src]))
+
+    def body_boxes_of(self, sources) -> tuple:
+        """:meth:`body_boxes` of each frame of ``sources``, worked out at once (every source frame's
+        map of the world lines in one pass: a scene's many velocities cost about as much as one):
+        (t, x, velocity, half), each (len(sources), len(self.geometry), ...)."""
+        lines = self._world_lines  # in S (the world frame)
+        t, x = events_of_boosts([self.frames[src].boost for src in sources], lines[..., 0].ravel(),
+                                lines[..., 1:].reshape(-1, 3))
+        t, x = t.reshape(len(sources), -1, 2), x.reshape(len(sources), -1, 2, 3)  # (sources, geometry, 2 events)
+        velocity = (x[:, :, 1] - x[:, :, 0]) / (t[:, :, 1] - t[:, :, 0])[..., None]
+        half = np.repeat(self._rest_half[None], len(sources), axis=0)
+        speed = np.sqrt(np.einsum("sij,sij->si", velocity, velocity))
         moving = (speed > 0.0) & self._rigid
         if moving.any():
             # max(I, |I - n n^T|) has 1 on its diagonal (0 <= n_i^2 <= 1) and |n_i n_j| off it
             along = np.abs(velocity[moving] / speed[moving, None])
             weighted = along * half[moving]
             half[moving] += along * (weighted.sum(axis=1, keepdims=True) - weighted)
-        return t[:, 0], x[:, 0], velocity, half
+        return t[:, :, 0], x[:, :, 0], velocity, half
 
     def map(self, a: int, b: int) -> FrameMap:
         """The map from frame a's coordinates to frame b's (through S)."""
         fa, fb = self.frames[a].boost, self.frames[b].boost
-        return FrameMap([]) if fa.same_as(fb) else FrameMap([self._inverse[a], fb])
+        # (one frame's boost is one object: is tells it without same_as' comparison of directions)
+        return FrameMap([]) if fa is fb or fa.same_as(fb) else FrameMap([self._inverse[a], fb])
 
 
 @dataclass

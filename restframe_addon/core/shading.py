@@ -619,7 +619,9 @@ class Shader:
             origin = np.multiply(rows.take(ng, sel), eps)
             origin += rows.take(position, sel)
             reach = rows.take(s_max, sel) - 2.0 * eps if np.ndim(s_max) else s_max  # sunlight: unbounded
-            blocked = occluded(self.frames, k, tau_sel, origin, e_sel, eps, reach, cache,
+            # a sharp sun's one direction stays one broadcast row: occluded sees the rays are parallel
+            shadow_d = e_sel if e_k.strides[0] else np.broadcast_to(e_k[0], e_sel.shape)
+            blocked = occluded(self.frames, k, tau_sel, origin, shadow_d, eps, reach, cache,
                                see_through=self.cutouts(pixel_sel, sample_sel, _cutout_dimension(depth, 8 + index)))
             weight = rows.take(strength, sel) * rows.take(cos_n, sel)
             shadowed = np.count_nonzero(blocked)

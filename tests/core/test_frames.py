@@ -244,7 +244,8 @@ def test_culling_clusters_hold_every_triangle_and_match_the_plain_computation(me
 def test_body_boxes_hold_each_body_at_every_time_of_every_frame():
     """Every vertex of every body, at many times of its own frame, mapped into each frame (bodies
     moving along an axis, obliquely, near c, and a spinning one): inside its body box there,
-    which moves uniformly (plain numpy here: the box's centre at the vertex event's time)."""
+    which moves uniformly (plain numpy here: the box's centre at the vertex event's time); the
+    boxes of every source frame worked out at once are those of each on its own, to rounding."""
     meshes = [Mesh("oblique", *uv_sphere((1.0, 2.0, 0.5), 0.7, 8, 4), velocity=Velocity((0.5, -0.4, 0.3)), pivot=(1.0, 2.0, 0.5)),
               Mesh("along", *uv_sphere((-3.0, 0.0, 0.0), 1.0, 8, 4), velocity=Velocity((0.9, 0.0, 0.0))),
               Mesh("fast", *uv_sphere((0.0, 4.0, 1.0), 0.5, 8, 4), velocity=Velocity((0.0, 0.6, -0.79))),
@@ -253,8 +254,14 @@ def test_body_boxes_hold_each_body_at_every_time_of_every_frame():
               Mesh("still", *uv_sphere((4.0, 0.0, 0.0), 0.5, 8, 4))]
     frame_set = build_frames(Scene(camera=grid_scene().camera, meshes=meshes))
     times = np.linspace(-20.0, 20.0, 9)
-    for src in range(len(frame_set.frames)):
-        t_box, x_box, velocity, half = frame_set.body_boxes(src)
+    sources = list(range(len(frame_set.frames)))
+    stacked = frame_set.body_boxes_of(sources)  # every source frame's boxes in one pass
+    together = [tuple(a[i] for a in stacked) for i in range(len(sources))]
+    each = [frame_set.body_boxes(src) for src in sources]
+    for both in zip(together, each):
+        for a, b in zip(*both):
+            np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-14)
+    for src, (t_box, x_box, velocity, half) in zip(sources + sources, together + each):
         for slot, k in enumerate(frame_set.geometry):
             frame = frame_set.frames[k]
             used = frame.geometry.vertices[np.unique(frame.geometry.triangles)]

@@ -228,6 +228,14 @@ def test_culled_shadow_rays_block_exactly_as_unculled_ones(monkeypatch, sun):
     np.testing.assert_array_equal(culled, full)
     assert 0 < np.count_nonzero(full) < n
     assert queried.count(False) > 0
+    # bundles from several source frames through one thread's TraceCache (every source's body boxes
+    # worked out at once, a sun direction's maps kept: the second round reads them) and without one
+    monkeypatch.setattr(tracer, "_may_meet", original)
+    cache = tracer.TraceCache()
+    for i, b in enumerate(bundles * 2):
+        k = frames.geometry[i % 7]
+        np.testing.assert_array_equal(tracer.occluded(frames, k, tau0[b], x0[b], d[b], 1e-6, s_hi[b], cache),
+                                      tracer.occluded(frames, k, tau0[b], x0[b], d[b], 1e-6, s_hi[b]))
 
 
 def test_segment_box_test_handles_axis_parallel_segments_on_faces():
@@ -239,7 +247,16 @@ def test_segment_box_test_handles_axis_parallel_segments_on_faces():
                        [0.5, 0.5, -1.0],    # straight through
                        [0.5, 0.5, -1.0]])   # too short to reach
     direction = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 3.0], [0.0, 0.0, 0.9]])
-    np.testing.assert_array_equal(_segments_meet_boxes(origin, direction, 1.0, lo, hi), [True, False, True, False])
+    lo, hi, origin, direction = lo.T, hi.T, origin.T, direction.T  # a row per axis
+    np.testing.assert_array_equal(_segments_meet_boxes(origin, direction, 1.0, lo, hi, direction == 0.0),
+                                  [True, False, True, False])
+    # from the origin (None): the boxes moved by -origin
+    np.testing.assert_array_equal(_segments_meet_boxes(None, direction, 1.0, lo - origin, hi - origin,
+                                                       direction == 0.0), [True, False, True, False])
+    # no component 0 (parallel None): the plain slab test
+    tilted = direction + 0.25
+    np.testing.assert_array_equal(_segments_meet_boxes(origin, tilted, 1.0, lo, hi, None),
+                                  _segments_meet_boxes(origin, tilted, 1.0, lo, hi, tilted == 0.0))
 
 
 def test_cone_and_disc_sample_angles_in_float32_change_images_by_under_a_millionth(monkeypatch):
