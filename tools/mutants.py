@@ -61,8 +61,8 @@ T_STEREO_EYES = ("tests/blender/test_blender_observer.py::"
 
 MUTANTS = (
     Mutant("visibility-by-rest-path", "hidden-surface order decided by the rest-frame path length s' instead of s",
-           (Patch(TRACER, "nearer = s < (best if rays is None else best[rays])",
-                  "nearer = t < (best if rays is None else best[rays])"),),
+           (Patch(TRACER, "nearer = s < (best if found is None else best[found if rays is None else rays[found]])",
+                  "nearer = rest < (best if found is None else best[found if rays is None else rays[found]])"),),
            (f"{T_RENDER}::test_visibility_is_decided_by_the_observer_path_length_not_the_rest_frame_one",)),
     Mutant("wigner", "a moving observer mapped into an object frame by one boost of the composed velocity "
                      "(drops the Wigner rotation)",

@@ -9,6 +9,8 @@ camera-space convention: forward -Z, left -X, up +Y).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from . import lens, rows
@@ -122,8 +124,21 @@ class CameraRays:
     def _perspective(self, u, v, grid):
         n = len(u) * len(v) if grid else len(u)
 
-        def on_plane(corner, across, up):  # corner + u across + v up at every ray
-            return np.add.outer(corner + up * v, across * u).ravel() if grid else (corner + up * v) + across * u
+        def on_plane(corner, across, up):  # (corner + v up) + u across at every ray
+            if grid:
+                return np.add.outer(corner + up * v, across * u).ravel()
+            # a zero term left out gives the same bits (u, v finite): corner + (+-0) is the corner
+            # when that is not 0, and a sum that is not -0 plus +-0 is itself
+            if up == 0.0 and corner != 0.0:
+                point = np.multiply(across, u)
+            else:
+                point = np.multiply(up, v)
+                if across != 0.0 or (corner == 0.0 and math.copysign(1.0, corner) < 0.0):
+                    point += corner
+                    point += np.multiply(across, u, out=np.empty(len(u)))
+                    return point
+            point += corner
+            return point
 
         # the image-plane points by axis (contiguous rows), scaled to unit length as they are
         # written into the directions' columns (one strided pass per axis)
@@ -138,8 +153,12 @@ class CameraRays:
             np.multiply(point, inverse, out=directions[:, axis])
         corner, across, up = self.plane
         # path length per unit of depth along the view axis: 1 / cosine to the axis (the plane is at z < 0)
-        per_depth = on_plane(corner[2], across[2], up[2])
-        per_depth *= inverse
+        if corner[2] != 0.0 and across[2] == 0.0 and up[2] == 0.0:
+            # the image plane at one depth (Blender's camera frame): on_plane would add zeros to the corner
+            per_depth = np.multiply(inverse, corner[2])
+        else:
+            per_depth = on_plane(corner[2], across[2], up[2])
+            per_depth *= inverse
         np.divide(-1.0, per_depth, out=per_depth)
         camera = self.camera
         return (np.broadcast_to(self.position, (n, 3)), directions, camera.clip_start * per_depth,

@@ -102,7 +102,7 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
         return Tile(x0, y0, x1, y1, kept)
     pixel = prepared.pixel_ids(rect)
     n = len(pixel)
-    xs = ys = None  # the pixels' coordinates, for jittered samples
+    xs = ys = starts = None  # the pixels' coordinates and their strata's starts, for jittered samples
     shader = prepared.shader
     if empty:
         centre, centre_hits = prepared.missing_rays(n), no_hits(n, read_only=True)
@@ -140,7 +140,9 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
         else:
             if xs is None:
                 xs, ys, _ = prepared.pixel_grid(rect)
-            px, py = sampling.stratified_positions(xs[part], ys[part], pixel[part], first, count, samples)
+                starts = sampling.strata_starts(pixel, samples)  # (per pixel: once for all its batches)
+            px, py = sampling.stratified_positions(xs[part], ys[part], pixel[part], first, count, samples,
+                                                   None if starts is None else starts[part])
             rays, observed = prepared.sample_rays(px, py, keys=(pix, smp, samples))
             hits = shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache)
         color, hit, hole = _sample(prepared, rays, hits, pix, smp, cache, observed)

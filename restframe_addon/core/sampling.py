@@ -99,11 +99,13 @@ def stratified_offsets(pixel: np.ndarray, sample: np.ndarray, count: int):
 
 
 def stratified_positions(xs: np.ndarray, ys: np.ndarray, pixel: np.ndarray, first: int, count: int,
-                         samples: int):
+                         samples: int, starts: np.ndarray | None = None):
     """Image positions of samples first .. first + count - 1 of ``samples`` per pixel (pixel ids
     ``pixel`` at integer coordinates xs, ys), pixel-major: ``xs + x, ys + y`` of
     :func:`stratified_offsets`, the same bits, with the work per pixel and per sample number
-    (the strata's start, each half of the hash) done once each, not once per sample."""
+    (the strata's start, each half of the hash) done once each, not once per sample.
+    ``starts``: the pixels' :func:`strata_starts`, where the caller keeps them across its batches
+    of samples (None: worked out here)."""
     if samples == 1:
         return np.repeat(xs + 0.5, count), np.repeat(ys + 0.5, count)
     side = int(np.ceil(np.sqrt(samples)))
@@ -112,13 +114,22 @@ def stratified_positions(xs: np.ndarray, ys: np.ndarray, pixel: np.ndarray, firs
     # :func:`strata` for each per-pixel start (cells x count): a pixel's strata are its start's row,
     # gathered per pixel (count numbers at once) instead of worked out per sample
     table = (np.arange(cells)[:, None] + steps) % cells
-    start = _strata_start(pixel, cells, 0)
+    start = strata_starts(pixel, samples) if starts is None else starts
     column = (table % side).astype(np.float64).take(start, axis=0).ravel()
     row = (table // side).astype(np.float64).take(start, axis=0).ravel()
     x, y = _jittered(_block_keys(pixel, first, count), column, row, side)
     x.reshape(len(pixel), count)[...] += xs[:, None]
     y.reshape(len(pixel), count)[...] += ys[:, None]
     return x, y
+
+
+def strata_starts(pixel: np.ndarray, samples: int) -> np.ndarray | None:
+    """Where each pixel's order of strata starts in :func:`stratified_positions` (None for one
+    sample: the pixel centre), to keep across a tile's batches of samples."""
+    if samples == 1:
+        return None
+    side = int(np.ceil(np.sqrt(samples)))
+    return _strata_start(pixel, side * side, 0)
 
 
 def _jittered(keys: np.ndarray, column: np.ndarray, row: np.ndarray, side: int):

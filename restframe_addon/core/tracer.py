@@ -78,8 +78,12 @@ def _clip_to_bounds(geometry, origin, d, t_lo, t_hi):
         for axis in range(3):
             np.copyto(inv, d[:, axis])  # (numpy divides a contiguous column 2.5x faster than a strided one)
             np.divide(1.0, inv, out=inv)
-            np.multiply(np.subtract(geometry.lo[axis] - pad, origin[..., axis], out=t_a), inv, out=t_a)
-            np.multiply(np.subtract(geometry.hi[axis] + pad, origin[..., axis], out=t_b), inv, out=t_b)
+            if origin.ndim == 1:  # one shared origin (camera rays): each face's distance is one number
+                np.multiply(inv, geometry.lo[axis] - pad - origin[axis], out=t_a)
+                np.multiply(inv, geometry.hi[axis] + pad - origin[axis], out=t_b)
+            else:
+                np.multiply(np.subtract(geometry.lo[axis] - pad, origin[..., axis], out=t_a), inv, out=t_a)
+                np.multiply(np.subtract(geometry.hi[axis] + pad, origin[..., axis], out=t_b), inv, out=t_b)
             # fmin/fmax ignore the NaN of 0 * inf (a ray in the plane of a slab face)
             np.fmax(t_lo if axis == 0 else enter, np.fmin(t_a, t_b, out=near), out=enter)
             np.fmin(t_hi if axis == 0 else leave, np.fmax(t_a, t_b, out=near), out=leave)
@@ -460,9 +464,17 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
             lo, hi = lo * w, hi * w
         lo, hi = _ray_range(frame, tau_k, origin, dk, lo, hi)
         t, prim, u, v = _query(frame, tau_k, origin, dk, lo, hi, occlusion=False)
-        s = t if w is None else t / w
-        nearer = s < (best if rays is None else best[rays])  # ties keep the earlier frame
-        if hits is None and rays is None:  # the first frame to see every ray: its hits as they are
+        first = hits is None and rays is None  # the first frame to see every ray: its hits as they are
+        # a later frame's hits are merged by their indices (only a hit can be nearer: a miss's s is
+        # inf), by masks over every ray where they are most of the bundle
+        found = None if first else np.flatnonzero(prim >= 0)
+        if rays is None and found is not None and len(found) > _MASKED_SHARE * n:
+            found = None
+        rest = t if found is None else rows.take(t, found)  # (path lengths in frame k of the rays compared)
+        s = rest if w is None else rest / (w if found is None else rows.take(w, found))
+        # ties keep the earlier frame
+        nearer = s < (best if found is None else best[found if rays is None else rays[found]])
+        if first:
             s = np.where(nearer, s, np.inf)
             # s_frame, w, d_frame and tau_frame shared (s, a broadcast 1, the rays' own arrays) until a
             # later frame writes into them
@@ -477,15 +489,20 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         if hits is None:
             hits, borrowed = no_hits(n), False
             best = best.copy()
-        if borrowed and (rays is None or nearer.any()):
+        if not nearer.any():
+            continue
+        if borrowed:
             hits, borrowed = _owned(hits), False
-        if rays is None:
+        if found is None:
             _update(hits, best, nearer, k, s, t, w, prim, u, v, dk, tau_k)
-        elif nearer.any():
-            keep = np.flatnonzero(nearer)
-            _update(hits, best, rays[keep], k, s[keep], t[keep], None if w is None else w[keep],
-                    prim[keep], u[keep], v[keep], rows.take(dk, keep), tau_k[keep])
+        else:
+            keep = found[nearer]  # (in this frame's rays)
+            _update(hits, best, keep if rays is None else rays[keep], k, s[nearer], rest[nearer],
+                    None if w is None else w[keep], prim[keep], u[keep], v[keep], rows.take(dk, keep), tau_k[keep])
     return no_hits(n) if hits is None else hits
+
+
+_MASKED_SHARE = 0.5  # hits of a later frame among all rays above which _nearest merges by masks, not indices
 
 
 def _owned(hits: Hits) -> Hits:
@@ -555,7 +572,7 @@ def _update(hits: Hits, best, where, k, s, t, w, prim, u, v, d_frame, tau_frame)
     hits.u[where] = u
     hits.v[where] = v
     hits.w[where] = 1.0 if w is None else w
-    hits.d_frame[where] = d_frame
+    rows.put(hits.d_frame, where, d_frame)
     hits.tau_frame[where] = tau_frame
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import inspect
 import sys
 import time
 from pathlib import Path
@@ -81,9 +82,13 @@ def _kept(value):
 
 
 def _replay(functions: dict, name: str, calls: list, cache) -> list:
-    """One side's results of the recorded calls of ``name``, with its own cache for the recording's."""
+    """One side's results of the recorded calls of ``name``, with its own cache for the recording's
+    (optional arguments a side's function does not take yet, worked-out data such as the strata's
+    starts, left out: it works them out itself)."""
     own = lambda value: cache if type(value).__name__ == "TraceCache" else value  # noqa: E731
-    return [functions[name](*map(own, args), **{k: own(v) for k, v in kwargs.items()}) for args, kwargs in calls]
+    func = functions[name]
+    taken = len(inspect.signature(func).parameters)
+    return [func(*map(own, args[:taken]), **{k: own(v) for k, v in kwargs.items()}) for args, kwargs in calls]
 
 
 def _bits(value) -> list:

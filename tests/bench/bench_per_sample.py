@@ -140,6 +140,8 @@ class Probe:
 STAGES = (  # (stage, where it is wrapped, attribute): what each stage of the breakdown holds
     ("camera rays", prepared_module.PreparedScene, "sample_rays"),
     ("camera rays", sampling, "stratified_offsets"),
+    ("camera rays", sampling, "stratified_positions"),  # (render_tile's jitter)
+    ("camera rays", sampling, "strata_starts"),
     ("hit bookkeeping", shading, "trace_nearest"),
     ("shadow-ray bookkeeping", shading, "occluded"),
     ("hit geometry", shading, "facing_normals"),

@@ -21,6 +21,13 @@ def test_stratified_positions_are_the_pixel_corner_plus_stratified_offsets_bit_f
     px, py = sampling.stratified_positions(xs, ys, pixel, first, count, samples)
     assert np.array_equal(px, np.repeat(xs, count) + ox)
     assert np.array_equal(py, np.repeat(ys, count) + oy)
+    # the strata's starts kept for a tile's pixels (render_tile's) and handed in for some of them
+    part = slice(100, 200)
+    starts = sampling.strata_starts(pixel, samples)
+    kept = sampling.stratified_positions(xs[part], ys[part], pixel[part], first, count, samples,
+                                         None if starts is None else starts[part])
+    rows = slice(100 * count, 200 * count)
+    assert np.array_equal(kept[0], px[rows]) and np.array_equal(kept[1], py[rows])
 
 
 @pytest.mark.parametrize("side", [2, 3, 5])
