@@ -177,6 +177,21 @@ def engine_streaming(blend, resolution, samples, tile_size) -> tuple[float, int]
     return stats.caller_cpu, len({share[0] for shares in stats.rendered.values() for share in shares})
 
 
+def streaming_for_tiles(measured):
+    """The engine's streaming CPU as a function of the tile count, fitted to F12s of one image at
+    two tile sizes, ``measured`` = ((seconds, tiles), (seconds, tiles)): a cost per tile (Blender's
+    begin_result / end_result) plus one for the image's pixels (foreach_set: the same pixels for
+    any tiling).  Where the fit is not positive (noise) the first F12's cost per tile is scaled
+    by the tiles, which counts its pixels again for every added tile (an upper bound)."""
+    (first, first_tiles), (second, second_tiles) = measured
+    if second_tiles != first_tiles:
+        per_tile = (second - first) / (second_tiles - first_tiles)
+        per_image = first - per_tile * first_tiles
+        if per_tile > 0 and per_image >= 0:
+            return lambda tiles: per_image + per_tile * tiles
+    return lambda tiles: first / first_tiles * tiles
+
+
 TWO_CORES_GOAL = 1.9  # two cores at least this many times one core (worker processes)
 PROJECTION_GOAL = 12.0  # the strict serial share projects at least this many times on 16 cores
 
@@ -196,6 +211,15 @@ def scene_report(sec: Section, name: str, spec, pools: dict, repeats: int, quick
         resolution, samples = (96, 54), 1
     streaming, streamed = engine_streaming(blend, resolution, samples, tile_size)  # warms the session pool
     core_scene, settings = export_blend(blend, resolution, samples, tile_size)
+    # the same image at half the tile size, for the cost per tile apart from the pixels' (the strict
+    # projection's renders on 8 / 16 workers have more, smaller tiles); min of two F12s each
+    halved = settings.tile_size // 2
+    sizes = [(tile_size, [(streaming, streamed)]), (halved, [])]
+    for size, runs in sizes[::-1] + sizes:
+        if len(runs) < 2:
+            runs.append(engine_streaming(blend, resolution, samples, size))
+    streaming, streamed = min(sizes[0][1])
+    streaming_for = streaming_for_tiles([min(runs) for _, runs in sizes])
     t0 = time.perf_counter()
     prepared = prepare(core_scene, settings)
     preparing = time.perf_counter() - t0
@@ -373,7 +397,7 @@ def scene_report(sec: Section, name: str, spec, pools: dict, repeats: int, quick
     for label, rebuilt in (("F12 cold, strict, with the tiles and shares of 8 / 16 workers", cold_wait),
                            ("F12 warm, strict, with the tiles and shares of 8 / 16 workers", warm_wait)):
         fixed = one.pickling + one.sending + rebuilt
-        serial = {cores: fixed + per_share * shares + streaming_per_tile * count
+        serial = {cores: fixed + per_share * shares + streaming_for(count)
                   for cores, (count, shares) in counts.items()}
         projections.append((f"{label} ({' / '.join(f'{t} tiles, {n} shares' for t, n in counts.values())})",
                             serial[8], serial[16], cpu_one))
@@ -388,7 +412,12 @@ def scene_report(sec: Section, name: str, spec, pools: dict, repeats: int, quick
                      f"{amdahl(serial16, work, 16):.1f}x"])
     sec.table(["serial share and Amdahl projection", "serial ms", "share", "8 cores", "16 cores"], rows)
     sec.add(f"- this process per share {per_share * 1e3:.3f} ms (the loop and the workers' messages), "
-            f"per tile {streaming_per_tile * 1e3:.3f} ms (the engine's streaming); with two workers: "
+            f"per tile {streaming_per_tile * 1e3:.3f} ms (the engine's streaming, at {streamed} tiles; for 8 / 16 "
+            f"workers' {' / '.join(str(count) for count, _ in counts.values())} tiles "
+            f"{' / '.join(f'{streaming_for(count) * 1e3:.1f}' for count, _ in counts.values())} ms, fitted to F12s "
+            f"at {settings.tile_size} and {halved} px tiles: "
+            f"{' and '.join(f'{min(runs)[0] * 1e3:.1f} ms for {min(runs)[1]} tiles' for _, runs in sizes)}); "
+            f"with two workers: "
             f"loop {two.loop_cpu * 1e3:.1f} ms, messages {two.receiving_cpu * 1e3:.1f} ms for {two.shares} shares")
     sec.add()
     sec.add(f"Shares dealt: {two.shares} for 2 workers, {len(workers.share_out(prepared.tiles(), 8))} for 8, "

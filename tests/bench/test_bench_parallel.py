@@ -3,7 +3,7 @@ and shares a render on N workers gets, and the heavy sphere's triangle count."""
 
 import pytest
 from bench_common import ball_scene, settings
-from bench_parallel import amdahl, tiles_and_shares
+from bench_parallel import amdahl, streaming_for_tiles, tiles_and_shares
 from bench_persistent import HEAVY_SEGMENTS, sphere_triangles
 
 from restframe_addon.core.prepared import prepare
@@ -30,6 +30,20 @@ def test_tiles_and_shares_are_those_of_a_render_on_that_many_workers():
     assert tiles_and_shares(prepared, 1) == (2, 2)
     assert tiles_and_shares(prepared, 8) == (8, 16)
     assert tiles_and_shares(prepared, 16) == (16, 16)
+
+
+def test_streaming_is_a_cost_per_tile_plus_the_images_pixels():
+    """12 tiles in 9 ms and 24 in 13 ms: 1/3 ms a tile and 5 ms for the pixels, so 20 tiles cost
+    5 + 20/3 ms, not 20 x 9/12 (which counts the pixels again for each added tile)."""
+    streaming = streaming_for_tiles([(9e-3, 12), (13e-3, 24)])
+    assert streaming(20) == pytest.approx(5e-3 + 20e-3 / 3)
+    assert streaming(12) == pytest.approx(9e-3)
+
+
+@pytest.mark.parametrize("measured", [[(9e-3, 12), (8e-3, 24)], [(9e-3, 12), (40e-3, 24)], [(9e-3, 12), (7e-3, 12)]])
+def test_streaming_without_a_positive_fit_scales_the_first_f12_by_its_tiles(measured):
+    """Fewer ms for more tiles, a negative cost for the pixels, or one tile count: the upper bound."""
+    assert streaming_for_tiles(measured)(20) == pytest.approx(9e-3 / 12 * 20)
 
 
 def test_the_heavy_sphere_is_the_issues_261k_triangles():
