@@ -341,16 +341,21 @@ class EnvironmentWorld:
         self._row_cdf = np.cumsum(row_weight) / total
         self._row_cdf[-1] = 1.0
         self._row_probability = row_weight / total
+        # the two tables sampling keeps, each (rows, columns) float64 and built in place (an
+        # 8192x4096 map: 256 MiB each): every row's column cdf (the start and the probability of
+        # a column follow from it) and the density per unit solid angle of each cell
+        column_cdf = np.cumsum(weight, axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
-            column_cdf = np.cumsum(weight, axis=1) / row_weight[:, None]
-        column_cdf = np.where(row_weight[:, None] > 0.0, column_cdf, np.arange(1, w + 1) / w)
+            column_cdf /= row_weight[:, None]
+        column_cdf[row_weight <= 0.0] = np.arange(1, w + 1) / w
         column_cdf[:, -1] = 1.0
-        # each row's cdf offset by its row number: one sorted table for every row's search
-        self._column_cdf = (column_cdf + np.arange(len(row_weight))[:, None]).ravel()
-        self._column_start = np.concatenate([np.zeros((len(row_weight), 1)), column_cdf[:, :-1]], axis=1)
-        self._column_probability = np.diff(np.concatenate([np.zeros((len(row_weight), 1)), column_cdf], axis=1),
-                                           axis=1)
-        self._cell_pdf = np.zeros_like(weight) if self.is_black else weight / total / cell_omega  # per unit solid angle
+        self._column_cdf = column_cdf.ravel()
+        if self.is_black:
+            weight[:] = 0.0  # the pdf is 0
+        else:
+            weight /= total
+            weight /= cell_omega
+        self._cell_pdf = weight
 
     def radiance(self, d):
         """Radiance (n, 3) arriving from backward world directions d."""
@@ -380,8 +385,10 @@ class EnvironmentWorld:
         row = np.minimum(np.searchsorted(self._row_cdf, u1, side="right"), rows_count - 1)
         row_start = np.where(row > 0, self._row_cdf[np.maximum(row - 1, 0)], 0.0)
         along_z = np.clip((u1 - row_start) / self._row_probability[row], 0.0, 1.0)
-        column = np.minimum(_search_within_rows(self._column_cdf, row, w, row + u2), w - 1)
-        along_phi = np.clip((u2 - self._column_start[row, column]) / self._column_probability[row, column], 0.0, 1.0)
+        column = np.minimum(_search_within_rows(self._column_cdf, row, w, u2), w - 1)
+        cell = row * w + column
+        column_start = np.where(column > 0, self._column_cdf[np.maximum(cell - 1, 0)], 0.0)
+        along_phi = np.clip((u2 - column_start) / (self._column_cdf[cell] - column_start), 0.0, 1.0)
         z = self._z_edges[row] + along_z * (self._z_edges[row + 1] - self._z_edges[row])
         u = self._u_offset + (column + along_phi) / w
         t = _polar(z, np.pi * (1.0 - 2.0 * u))

@@ -201,6 +201,28 @@ def test_environment_pdf_is_normalised_and_samples_follow_it(interpolation):
     assert chi2 < dof + 6 * math.sqrt(2 * dof), (chi2, dof)
 
 
+def test_the_cdf_inversion_picks_the_pixel_whose_interval_holds_the_random_numbers():
+    """A Closest map's cells are the pixels: u1 picks the row by the rows' cumulative luminance x
+    solid angle, u2 the column by the row's own, each by a plain float64 searchsorted here; the
+    sample lies in that pixel and carries its density, luminance / (total x solid angle)."""
+    image = test_image(sun_value=1e5)
+    h, w = image.shape[:2]
+    env = world.EnvironmentWorld(image, strength=0.7, interpolation="Closest")
+    rng = np.random.default_rng(21)
+    u1, u2 = rng.random(200_000), rng.random(200_000)
+    d, pdf = env.sample(u1, u2)
+    u, v = world.direction_to_equirectangular(d)
+    luminance = 0.7 * image @ world.LUMINANCE_RGB
+    omega = (2.0 * np.pi / w) * np.diff(-np.cos(np.pi * np.arange(h + 1) / h))
+    weight = luminance * omega[:, None]
+    row = np.searchsorted(np.cumsum(weight.sum(axis=1)) / weight.sum(), u1, side="right")
+    row_cdf = np.cumsum(weight, axis=1) / weight.sum(axis=1, keepdims=True)
+    column = np.array([np.searchsorted(row_cdf[r], x, side="right") for r, x in zip(row, u2)])
+    np.testing.assert_array_equal(np.floor(v * h).astype(int), row)
+    np.testing.assert_array_equal(np.floor(u * w).astype(int), column)
+    np.testing.assert_allclose(pdf, luminance[row, column] / weight.sum(), rtol=1e-12)
+
+
 def test_a_bright_sun_gives_no_fireflies():
     """radiance / pdf stays within 4x its mean (the integral) for a pixel 10^4 times the sky;
     uniform sphere sampling of the same world has a huge spread (the test can tell)."""
