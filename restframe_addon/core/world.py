@@ -83,13 +83,12 @@ def _polar(z, phi):
     return out
 
 
-def image_lookup(image, u, v, interpolation: str = "Linear", channels: int | None = None):
-    """Colours (n, C) of an (H, W, C) image (or its :class:`Texels`, made once) at (u, v), repeating
-    in both directions as Cycles' environment lookups: bilinear between pixel centres, or the
-    nearest pixel (Closest); ``channels``: only the first so many.  Gathers whole pixels (np.take
-    of rows) and blends one channel at a time (see :mod:`.rows`), in place: a fresh temporary of
-    every step costs more than the step (page faults)."""
-    texels = image if isinstance(image, Texels) else Texels(image)
+def image_lookup(texels: Texels, u, v, interpolation: str = "Linear", channels: int | None = None):
+    """Colours (n, C) of an (H, W, C) image, laid out once as its :class:`Texels`, at (u, v),
+    repeating in both directions as Cycles' environment lookups: bilinear between pixel centres,
+    or the nearest pixel (Closest); ``channels``: only the first so many.  Gathers whole pixels
+    (np.take of rows) and blends one channel at a time (see :mod:`.rows`), in place: a fresh
+    temporary of every step costs more than the step (page faults)."""
     h, w, pixels = texels.height, texels.width, texels.pixels
     stride = w + 1
     channels = texels.channels if channels is None else min(channels, texels.channels)

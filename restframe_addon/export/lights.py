@@ -8,10 +8,10 @@ import numpy as np
 
 from ..core.scene import Light, Velocity, WorldTexture
 from ..motion_query import fcurves
+from .camera import without_scale
 from .images import ImageMissing, image_texture
-from .nodes import output_node, upstream
-from .meshes import without_scale
 from .motion import MAX_SAMPLES, SUBFRAMES
+from .nodes import output_node, upstream
 
 
 def node_emission(data, name: str, warn: Callable[[str], None]) -> tuple[np.ndarray, float]:
