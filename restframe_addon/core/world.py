@@ -318,19 +318,24 @@ class EnvironmentWorld:
             v_edges = np.append((coarse_v[:-1, None] + np.diff(coarse_v)[:, None] * (np.arange(split) / split)).ravel(),
                                 1.0)
             self._u_offset = 0.5 / w
+            # (each map-sized array dropped once used: an 8192x4096 map's are 256 MiB each)
             corners = _refined_lattice(luminance, v_edges, split)
+            del luminance
             corner_rows = corners[:-1] + corners[1:]
-            cell_luminance = 0.25 * (corner_rows[:, :-1] + corner_rows[:, 1:])
+            del corners
+            weight = corner_rows[:, :-1] + corner_rows[:, 1:]
+            del corner_rows
+            weight *= 0.25  # the mean of the cell's corners
         else:
             v_edges = np.arange(h + 1) / h
-            cell_luminance = luminance
+            weight = luminance
             self._u_offset = 0.0
-        self._columns = cell_luminance.shape[1]
+        self._columns = weight.shape[1]
         self._z_edges = -np.cos(np.pi * v_edges)
         self._v_edges = v_edges
         w = self._columns
         cell_omega = (2.0 * np.pi / w) * np.diff(self._z_edges)[:, None]
-        weight = cell_luminance * cell_omega
+        weight *= cell_omega  # the cell's luminance x its solid angle
         total = float(weight.sum())
         self.is_black = not total > 0.0
         if self.is_black:
@@ -405,10 +410,22 @@ def _refined_lattice(values, v_edges, split: int):
     y0 = np.floor(y)
     fy = (y - y0)[:, None]
     y0 = y0.astype(np.int64)
-    along_v = (1.0 - fy) * values[y0 % h] + fy * values[(y0 + 1) % h]
+    along_v = _blend(values[y0 % h], values[(y0 + 1) % h], fy)
     j = np.arange(w * split + 1)
     x0, fx = j // split, (j % split) / split
-    return (1.0 - fx) * along_v[:, x0 % w] + fx * along_v[:, (x0 + 1) % w]
+    lower = along_v[:, x0 % w]
+    upper = along_v[:, (x0 + 1) % w]
+    del along_v
+    return _blend(lower, upper, fx)
+
+
+def _blend(lower, upper, fraction):
+    """``(1 - fraction) lower + fraction upper``, in place in ``lower`` and ``upper`` (fresh arrays
+    the size of a sampling map cost more in memory than the arithmetic)."""
+    lower *= 1.0 - fraction
+    upper *= fraction
+    lower += upper
+    return lower
 
 
 def _rotate(matrix, d):
