@@ -345,21 +345,17 @@ class EnvironmentWorld:
         self._row_cdf = np.cumsum(row_weight) / total
         self._row_cdf[-1] = 1.0
         self._row_probability = row_weight / total
-        # the two tables sampling keeps, each (rows, columns) float64 and built in place (an
-        # 8192x4096 map: 256 MiB each): every row's column cdf (the start and the probability of
-        # a column follow from it) and the density per unit solid angle of each cell
-        column_cdf = np.cumsum(weight, axis=1)
+        # a cell's density per unit solid angle: its row's probability / its solid angle x its
+        # column's probability in the row, the difference of the row's column cdf, which is what
+        # the sampler gives it (no table of densities: the cdf is the one (rows, columns) table,
+        # float64, built in place in the weights: an 8192x4096 map's is 256 MiB)
+        self._row_density = np.zeros(len(row_weight)) if self.is_black else self._row_probability / cell_omega[:, 0]
+        column_cdf = np.cumsum(weight, axis=1, out=weight)
         with np.errstate(invalid="ignore", divide="ignore"):
             column_cdf /= row_weight[:, None]
         column_cdf[row_weight <= 0.0] = np.arange(1, w + 1) / w
         column_cdf[:, -1] = 1.0
         self._column_cdf = column_cdf.ravel()
-        if self.is_black:
-            weight[:] = 0.0  # the pdf is 0
-        else:
-            weight /= total
-            weight /= cell_omega
-        self._cell_pdf = weight
 
     def radiance(self, d):
         """Radiance (n, 3) arriving from backward world directions d."""
@@ -373,10 +369,17 @@ class EnvironmentWorld:
         row = np.clip(np.searchsorted(self._v_edges, v, side="right") - 1, 0, len(self._v_edges) - 2)
         return row, column
 
+    def _column_span(self, row, column):
+        """The column cdf before and at each cell (row, column): the column's start in its row's
+        cdf and its probability there."""
+        cell = row * self._columns + column
+        start = np.where(column > 0, self._column_cdf[np.maximum(cell - 1, 0)], 0.0)
+        return start, self._column_cdf[cell] - start
+
     def pdf(self, d):
         """Density per unit solid angle of world directions d under :meth:`sample`."""
         row, column = self._cell(_rotate(self.mapping, d))
-        return self._cell_pdf[row, column]
+        return self._row_density[row] * self._column_span(row, column)[1]
 
     def sample(self, u1, u2):
         """Directions of S drawn by the image's luminance: (d (n, 3), pdf (n,) per unit solid angle).
@@ -390,13 +393,12 @@ class EnvironmentWorld:
         row_start = np.where(row > 0, self._row_cdf[np.maximum(row - 1, 0)], 0.0)
         along_z = np.clip((u1 - row_start) / self._row_probability[row], 0.0, 1.0)
         column = np.minimum(_search_within_rows(self._column_cdf, row, w, u2), w - 1)
-        cell = row * w + column
-        column_start = np.where(column > 0, self._column_cdf[np.maximum(cell - 1, 0)], 0.0)
-        along_phi = np.clip((u2 - column_start) / (self._column_cdf[cell] - column_start), 0.0, 1.0)
+        column_start, column_probability = self._column_span(row, column)
+        along_phi = np.clip((u2 - column_start) / column_probability, 0.0, 1.0)
         z = self._z_edges[row] + along_z * (self._z_edges[row + 1] - self._z_edges[row])
         u = self._u_offset + (column + along_phi) / w
         t = _polar(z, np.pi * (1.0 - 2.0 * u))
-        return _rotate(self._unmapping, t), self._cell_pdf[row, column]
+        return _rotate(self._unmapping, t), self._row_density[row] * column_probability
 
 
 def _refined_lattice(values, v_edges, split: int):
