@@ -102,6 +102,17 @@ def print_section(section: Section) -> None:
         print(f"- {goal.name}: {goal.target}, measured {goal.measured}, met: {goal.met}")
 
 
+def register_addon() -> None:
+    """Register the add-on (its properties, which a .blend's export reads) once per process: several
+    sections of one run need it, and registering a second time raises."""
+    import bpy
+
+    import restframe_addon
+
+    if not hasattr(bpy.types.Scene, "restframe"):
+        restframe_addon.register()
+
+
 def load() -> float:
     return os.getloadavg()[0]
 

@@ -40,6 +40,8 @@ SECTIONS = {
     "7": "bench_path_cycles",
     "8": "measure_lens",
     "9": "bench_per_sample",
+    "10": "bench_parallel",
+    "11": "bench_persistent",
 }
 
 
