@@ -17,9 +17,9 @@ from .nodes import output_node, upstream
 # Principled BSDF inputs the renderer does not model (docs/physics.md), with the value that turns
 # each off: set otherwise, or linked, the material is rendered without it and the render says so
 # (a map on the Coat Normal is warned about with the other bump maps; Coat Tint: principled_features)
-_NOT_MODELLED = (("Subsurface Weight", 0.0), ("Sheen Weight", 0.0), ("Anisotropic", 0.0),
-                 ("Specular Tint", (1.0, 1.0, 1.0)), ("Thin Film Thickness", 0.0), ("Diffuse Roughness", 0.0))
 _WHITE = (1.0, 1.0, 1.0)
+_NOT_MODELLED = (("Subsurface Weight", 0.0), ("Sheen Weight", 0.0), ("Anisotropic", 0.0), ("Specular Tint", _WHITE),
+                 ("Thin Film Thickness", 0.0), ("Diffuse Roughness", 0.0))
 
 # the lamp Ray Visibility bits whose closures a lamp's samples light all the same (Cycles: not lit)
 _LAMP_RAY_VISIBILITY = ((RAY_DIFFUSE, "Diffuse"), (RAY_GLOSSY, "Glossy"), (RAY_TRANSMISSION, "Transmission"))
