@@ -243,23 +243,36 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
         triangles = sum(len(mesh.triangles) for mesh in scene.meshes)
         tiles = render_tiles(prepared, self.should_stop,  # in worker processes or threads (Scene.restframe.parallelism)
                              warn=lambda message: self.report({'WARNING'}, f"RESTframe: {message}"))
+        layer, view_name, filled = view_layer.name, view or "", None
+        status = (f"RESTframe | {len(scene.meshes)} objects, {triangles} triangles | "
+                  f"{'' if view is None else f'View {view} | '}Tile ")
         for done, tile in enumerate(tiles, start=1):
             result = self.begin_result(tile.x0 - x_offset, tile.y0 - y_offset,
-                                       tile.x1 - tile.x0, tile.y1 - tile.y0, layer=view_layer.name, view=view or "")
-            for render_pass in result.layers[0].passes:
-                data = tile.passes.get(_CORE_PASS.get(render_pass.name, render_pass.name))
-                if data is not None and data.shape[2] == render_pass.channels:
-                    render_pass.rect.foreach_set(data.ravel())
+                                       tile.x1 - tile.x0, tile.y1 - tile.y0, layer=layer, view=view_name)
+            passes = result.layers[0].passes
+            if filled is None:  # every tile's result has the same passes: read their names once
+                filled = _filled_passes(passes, tile.passes)
+            for index, name in filled:
+                passes[index].rect.foreach_set(tile.passes[name].ravel())
             self.end_result(result)
             self._tiles_done = done
             self.update_progress(done / total)
-            self.update_stats("", f"RESTframe | {len(scene.meshes)} objects, {triangles} triangles | "
-                              f"{'' if view is None else f'View {view} | '}"
-                              f"Tile {done}/{total} | {time.monotonic() - started:.1f} s")
+            self.update_stats("", f"{status}{done}/{total} | {time.monotonic() - started:.1f} s")
         result = self.get_result()
         for field, value in observer_stamp(scene).items():
             result.stamp_data_add_field(field, value)
         return None if self.should_stop() else prepared
+
+
+def _filled_passes(render_passes, core_passes: dict) -> list[tuple[int, str]]:
+    """(index in a tile's result, core pass name) of each of Blender's passes that a tile of the
+    core fills: the core has it, with the same channels."""
+    filled = []
+    for index, render_pass in enumerate(render_passes):
+        name = _CORE_PASS.get(render_pass.name, render_pass.name)
+        if name in core_passes and core_passes[name].shape[2] == render_pass.channels:
+            filled.append((index, name))
+    return filled
 
 
 classes = (RestframeRenderEngine,)

@@ -167,9 +167,8 @@ def ggx_reflection(n, view, light, alpha, f0, f90, cos_l=None):
     cos_v = rows.dot(n, view)
     cos_l = rows.dot(n, light) if cos_l is None else cos_l
     single, cos_vh = ggx_single(cos_v, cos_l, rows.dot(view, light), alpha)
-    above = (cos_v > 0.0) & (cos_l > 0.0)
-    if not above.all():
-        np.copyto(single, 0.0, where=~above)
+    if not (len(cos_v) and cos_v.min() > 0.0 and cos_l.min() > 0.0):  # (a NaN's min fails too: masked)
+        np.copyto(single, 0.0, where=~((cos_v > 0.0) & (cos_l > 0.0)))
     return rows.scale(fresnel_schlick(cos_vh, f0, f90), single)
 
 

@@ -41,8 +41,8 @@ class RGBColour:
     def shift(self, lam, doppler):
         return lam
 
-    def base_color(self, mat, uv, lam):
-        return self.materials.base_color(mat, uv)
+    def base_color(self, mat, uv, lam, columns: bool = False):
+        return self.materials.base_color(mat, uv, columns)
 
     def emission(self, mat, lam):
         return np.take(self.materials.emission, mat, axis=0)
@@ -107,7 +107,8 @@ class SpectralColour:
         """Wavelengths in the emitting frame: observed lambda times D."""
         return lam * doppler[:, None]
 
-    def base_color(self, mat, uv, lam):
+    def base_color(self, mat, uv, lam, columns: bool = False):
+        """(``columns``: ignored, spectra are long rows)"""
         values = spectral.sigmoid_spectrum(self.base_coeffs[mat], lam)
         if uv is not None:
             for m, texture in enumerate(self.materials.textures):

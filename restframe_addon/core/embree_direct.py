@@ -96,7 +96,8 @@ def padded_vertices(vertices: np.ndarray, anchor) -> np.ndarray:
     """float64 vertices (n, 3) relative to ``anchor``, rounded to float32 once, in embree's
     layout (:func:`_padded`) from the start (no float32 (n, 3) copy in between)."""
     padded = np.empty((len(vertices), 4), dtype=np.float32)
-    np.subtract(vertices, anchor, out=padded[:, :3], casting="same_kind")
+    for axis in range(3):  # by column: the (n, 3) -> strided (n, 3 of 4) cast in one call is 5x slower
+        np.subtract(vertices[:, axis], anchor[axis], out=padded[:, axis], casting="same_kind")
     padded[:, 3] = 0.0
     return padded
 

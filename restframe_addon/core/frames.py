@@ -29,7 +29,7 @@ from embreex import rtcore, rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
 from . import embree_direct, motion, observer, rows, validation
-from .lorentz import Boost
+from .lorentz import Boost, events_of_boosts
 from .scene import RAY_ALL, REST, Scene, Velocity
 
 if TYPE_CHECKING:
@@ -338,23 +338,32 @@ class FrameSet:
         linear map I - c n n^T with 0 <= c < 1: each of its entries lies between its values at
         c = 0 and c = 1, which bounds the image box); a spinning body: the cube around its sphere.
         """
-        lines = self._world_lines
-        t, x = self.map(self.world, src).events(lines[..., 0], lines[..., 1:])
-        velocity = (x[:, 1] - x[:, 0]) / (t[:, 1] - t[:, 0])[:, None]
-        half = self._rest_half.copy()
-        speed = np.sqrt(np.einsum("ij,ij->i", velocity, velocity))
+        return tuple(a[0] for a in self.body_boxes_of([src]))
+
+    def body_boxes_of(self, sources) -> tuple:
+        """:meth:`body_boxes` of each frame of ``sources``, worked out at once (every source frame's
+        map of the world lines in one pass: a scene's many velocities cost about as much as one):
+        (t, x, velocity, half), each (len(sources), len(self.geometry), ...)."""
+        lines = self._world_lines  # in S (the world frame)
+        t, x = events_of_boosts([self.frames[src].boost for src in sources], lines[..., 0].ravel(),
+                                lines[..., 1:].reshape(-1, 3))
+        t, x = t.reshape(len(sources), -1, 2), x.reshape(len(sources), -1, 2, 3)  # (sources, geometry, 2 events)
+        velocity = (x[:, :, 1] - x[:, :, 0]) / (t[:, :, 1] - t[:, :, 0])[..., None]
+        half = np.repeat(self._rest_half[None], len(sources), axis=0)
+        speed = np.sqrt(np.einsum("sij,sij->si", velocity, velocity))
         moving = (speed > 0.0) & self._rigid
         if moving.any():
             # max(I, |I - n n^T|) has 1 on its diagonal (0 <= n_i^2 <= 1) and |n_i n_j| off it
             along = np.abs(velocity[moving] / speed[moving, None])
             weighted = along * half[moving]
             half[moving] += along * (weighted.sum(axis=1, keepdims=True) - weighted)
-        return t[:, 0], x[:, 0], velocity, half
+        return t[:, :, 0], x[:, :, 0], velocity, half
 
     def map(self, a: int, b: int) -> FrameMap:
         """The map from frame a's coordinates to frame b's (through S)."""
         fa, fb = self.frames[a].boost, self.frames[b].boost
-        return FrameMap([]) if fa.same_as(fb) else FrameMap([self._inverse[a], fb])
+        # (one frame's boost is one object: is tells it without same_as' comparison of directions)
+        return FrameMap([]) if fa is fb or fa.same_as(fb) else FrameMap([self._inverse[a], fb])
 
 
 @dataclass
@@ -504,7 +513,8 @@ def _add_clusters(geometries: list[Geometry], should_stop) -> None:
 
 
 def _mesh_part(mesh, boost: Boost, warnings: list[str], relative_to=None):
-    """Valid triangles of a mesh, placed in its shared frame (or relative to a pivot)."""
+    """Valid triangles of a mesh, placed in its shared frame (or relative to a pivot): the
+    vertices in a new array, the other arrays possibly views of the mesh's."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
     triangles = np.asarray(mesh.triangles, dtype=np.int64).reshape(-1, 3)
     if len(triangles) == 0:
@@ -558,18 +568,22 @@ def _embree_device():
 
 # Triangles per embree geometry, so that Esc is polled between pieces: with embreex's own
 # TriangleMesh, which copies a mesh into embree element by element while holding the GIL (1.6 s
-# for a million triangles in one piece), a piece of 2**14 triangles takes about 35 ms; handed
-# over directly (embree_direct) about 1 ms.  Embree still builds one BVH over all pieces of a
-# scene, so tracing is as fast as with one piece.
+# for a million triangles in one piece), a piece of 2**14 triangles takes about 35 ms.  Handed
+# over directly (embree_direct) a piece of 2**22 takes about as long (two memory copies), so
+# most meshes go in one piece: each query's hits of a mesh in pieces are renumbered (a gather
+# of every ray's geometry id, 0.17 ms per 65k rays).  Embree builds one BVH over all pieces of
+# a scene from the same triangles in the same order either way: the same hits.
 _PIECE_TRIANGLES = 2**14
+_DIRECT_PIECE_TRIANGLES = 2**22
 
 
 def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     """The parts' triangles in one embreex scene; None once ``should_stop()`` is true
-    (checked between pieces of ``_PIECE_TRIANGLES``; embree's BVH build, last, cannot be
-    interrupted)."""
+    (checked between pieces of ``_DIRECT_PIECE_TRIANGLES``, through embreex ``_PIECE_TRIANGLES``;
+    embree's BVH build, last, cannot be interrupted)."""
     offsets = np.cumsum([0] + [len(p["vertices"]) for p in parts[:-1]])
-    vertices = _joined([p["vertices"] for p in parts])
+    # (a lone part's vertices are its own: _mesh_part places them in a new array)
+    vertices = parts[0]["vertices"] if len(parts) == 1 else np.concatenate([p["vertices"] for p in parts])
     triangles = _joined([p["triangles"] + o if o else p["triangles"] for p, o in zip(parts, offsets)])
     normals = uvs = None
     if any(p["normals"] is not None for p in parts):
@@ -591,14 +605,15 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     scene = rtcore_scene.EmbreeScene(_embree_device())
     padded = embree_direct.padded_vertices(vertices, anchor)  # float32, rounded once
     local_vertices = padded[:, :3]
-    piece_start = np.arange(0, len(triangles), _PIECE_TRIANGLES, dtype=np.int32)
     shared = embree_direct.shared_vertices(_embree_device(), padded)
+    piece = _PIECE_TRIANGLES if shared is None else _DIRECT_PIECE_TRIANGLES
+    piece_start = np.arange(0, len(triangles), piece, dtype=np.int32)
     claimed_by = np.empty(len(vertices), dtype=np.intp)  # scratch for _attach_piece
     try:
         for start in piece_start:
             if should_stop():
                 return None
-            _attach_piece(scene, local_vertices, triangles[start:start + _PIECE_TRIANGLES], claimed_by, shared)
+            _attach_piece(scene, local_vertices, triangles[start:start + piece], claimed_by, shared)
     finally:
         if shared is not None:
             shared.release()

@@ -145,11 +145,11 @@ class Boost:
         if self.is_identity:
             return tau, x
         nx = x @ self.n
-        shift = self.gamma_minus_one * nx - self.gamma * self.b * tau
+        tau_new, shift = _boosted_time_and_shift(tau, nx, self.b, self.gamma, self.gamma_minus_one)
         x_new = np.empty(np.broadcast_shapes(x.shape, shift.shape + (3,)))
         for axis in range(3):  # one axis at a time: numpy is slow along a length-3 last axis
             x_new[..., axis] = x[..., axis] + shift * self.n[axis]
-        return self.gamma * (tau - self.b * nx), x_new
+        return tau_new, x_new
 
     def rays(self, d):
         """Map backward light-ray directions: unit d (..., 3) -> (d', w) with s' = w s, w = 1/D.
@@ -211,6 +211,24 @@ class Boost:
     def doppler(self, d):
         """Doppler factor D = 1/(gamma (1 + beta.d)) for backward directions d."""
         return 1.0 / self.rays(d)[1]
+
+
+def events_of_boosts(boosts, tau, x):
+    """:meth:`Boost.events` of each of ``boosts`` at once: events tau (e,), x (e, 3) -> (tau', x'),
+    (len(boosts), e) and (len(boosts), e, 3) -- the same formula with each boost's own numbers
+    (exact near c), n.x of every pair in one product (its rounding may differ by an ulp)."""
+    n = np.array([boost.n for boost in boosts])
+    b, gamma, gamma_minus_one = (np.array([[getattr(boost, name)] for boost in boosts])
+                                 for name in ("b", "gamma", "gamma_minus_one"))
+    nx = n @ np.asarray(x, dtype=np.float64).T  # (boosts, e)
+    tau_new, shift = _boosted_time_and_shift(np.asarray(tau, dtype=np.float64), nx, b, gamma, gamma_minus_one)
+    return tau_new, x + shift[:, :, None] * n[:, None, :]
+
+
+def _boosted_time_and_shift(tau, nx, b, gamma, gamma_minus_one):
+    """A boost's events once n.x is known (numbers or arrays): the boosted times, and how far
+    each event moves along n (x' = x + shift n)."""
+    return gamma * (tau - b * nx), gamma_minus_one * nx - gamma * b * tau
 
 
 def compose_velocities(u, v):

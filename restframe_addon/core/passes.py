@@ -57,6 +57,56 @@ def hit_times(hits: Hits, sel) -> np.ndarray:
     return hits.tau_frame[sel] - hits.s_frame[sel]
 
 
+# a frame with this many hits is worked on alone: joining its rows with other frames' would cost
+# more than the small steps it saves (those of ~4000 rows cost about what a step of one frame does)
+_OWN_BATCH = 4096
+# grouping the hits of more frames than this by one sort is cheaper than a pass over the rays per frame
+_SORTED_FRAMES = 3
+
+
+def frame_batches(hits: Hits, keep=None) -> list:
+    """The rays that hit (and ``keep``, a mask, where given) in batches to work on at once: each
+    frame with at least ``_OWN_BATCH`` hits alone, the others together, grouped by frame in
+    increasing order.  A batch is its rows (a slice while that is every ray, else indices) and
+    each of its frames' (k, rows of those).  What depends on the frame is worked out over each
+    frame's rows and the parts joined (:func:`joined_frames`), the rest once per batch."""
+    frame = hits.frame
+    hit_frames = frames_hit(hits).tolist()
+    if len(hit_frames) <= _SORTED_FRAMES:  # a few frames (one, the common case): a pass over the rays for each
+        kept = [(k, rows.selection(frame == k if keep is None else (frame == k) & keep)) for k in hit_frames]
+        hit_frames, frame_rows = [k for k, sel in kept if sel is not None], [sel for _, sel in kept if sel is not None]
+    else:  # one stable (radix) sort of the hits' frames
+        hit = rows.selection(frame >= 0 if keep is None else (frame >= 0) & keep)
+        if hit is None:
+            return []
+        of_hit = rows.take(frame, hit)
+        counts = np.bincount(of_hit, minlength=hit_frames[-1] + 1)
+        hit_frames = np.flatnonzero(counts).tolist()
+        by_frame = np.argsort(of_hit.astype(np.min_scalar_type(len(counts) - 1)), kind="stable")
+        order = by_frame if isinstance(hit, slice) else np.take(hit, by_frame)
+        frame_rows = np.split(order, np.cumsum(counts[hit_frames])[:-1])
+    if len(frame_rows) == 1:  # (a slice while it is every ray)
+        count = len(frame) if isinstance(frame_rows[0], slice) else len(frame_rows[0])
+        return [(frame_rows[0], [(hit_frames[0], slice(0, count))])]
+    batches = [(index, [(k, slice(0, len(index)))]) for k, index in zip(hit_frames, frame_rows)
+               if len(index) >= _OWN_BATCH]
+    together = [(k, index) for k, index in zip(hit_frames, frame_rows) if len(index) < _OWN_BATCH]
+    if together:
+        stops = np.cumsum([len(index) for _, index in together]).tolist()
+        batches.append((joined_frames([index for _, index in together]),
+                        [(k, slice(stop - len(index), stop)) for (k, index), stop in zip(together, stops)]))
+    return batches
+
+
+def joined_frames(parts):
+    """The frames' parts of one quantity, in the order of a :func:`frame_batches` batch, as one
+    array (one part as it is: a broadcast view stays one; a number, the same for every frame,
+    stays a number)."""
+    if len(parts) == 1 or np.ndim(parts[0]) == 0:
+        return parts[0]
+    return np.concatenate(parts)
+
+
 def surface_doppler(frame: RestFrame, prim, u, v, tau_hit, d_k) -> np.ndarray:
     """Doppler factor of the surface's own motion in its frame (1 but for spinning bodies:
     their points move with omega x r), for light leaving along backward directions d_k."""
@@ -75,22 +125,32 @@ def hit_doppler(frame: RestFrame, prim, u, v, tau_hit, d_k, w) -> np.ndarray:
     return surface_doppler(frame, prim, u, v, tau_hit, d_k) / w
 
 
-def facing_normals(frame: RestFrame, prim, u, v, d_k, tau_hit=None, cache: TraceCache | None = None):
-    """Position, geometric and shading normals turned toward the viewer, and whether the
-    back was hit, at hits of one frame (frame coordinates).  A shading normal turned away
-    from the viewer falls back to the geometric one.  Read-only for the caller: with flat
+def facing_normals(frames: FrameSet, segments, prim, u, v, d_k, tau_hit=None, cache: TraceCache | None = None):
+    """Position, geometric and shading normals turned toward the viewer, and whether the back
+    was hit, at hits of one or more frames (``segments``: (frame k, its rows); frame
+    coordinates): the geometry frame by frame, joined, turned at once.  A shading normal turned
+    away from the viewer falls back to the geometric one.  Read-only for the caller: with flat
     shading the two normals are one array.  ``cache``: the calling thread's (see hit_geometry)."""
-    position, ng, ns = hit_geometry(frame, prim, u, v, tau_hit, cache)
+    geometry = [hit_geometry(frames.frames[k], prim[s], u[s], v[s], None if tau_hit is None else tau_hit[s], cache)
+                for k, s in segments]
+    position, ng = (joined_frames([part[i] for part in geometry]) for i in range(2))
+    flat = all(part[2] is part[1] for part in geometry)  # (then the two normals are one array)
+    return (position, *_turned_to_viewer(ng, ng if flat else joined_frames([part[2] for part in geometry]), d_k))
+
+
+def _turned_to_viewer(ng, ns, d_k):
+    """Geometric and shading normals (hit_geometry's own arrays: turned in place) facing the
+    viewer, and whether the back was hit."""
     back = rows.dot(ng, d_k) > 0.0
-    for normals in (ng,) if ns is ng else (ng, ns):  # (hit_geometry's own arrays: turned in place)
+    for normals in (ng,) if ns is ng else (ng, ns):
         for axis in range(3):
             np.negative(normals[:, axis], out=normals[:, axis], where=back)
     if ns is ng:  # flat: the turned normal faces the viewer (or grazes it)
-        return position, ng, ng, back
+        return ng, ng, back
     away = rows.dot(ns, d_k) >= 0.0
     if away.any():
         ns[away] = rows.take(ng, away)
-    return position, ng, ns, back
+    return ng, ns, back
 
 
 def ray_doppler(frames: FrameSet, hits: Hits) -> np.ndarray:
@@ -129,12 +189,12 @@ def _emission_times(frames: FrameSet, light_speed: float, rays, hits: Hits, hit)
 
 
 def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
-                 shading_normals=None) -> dict[str, np.ndarray]:
+                 shading_normals=None, cache: TraceCache | None = None) -> dict[str, np.ndarray]:
     """The passes ``wanted`` (names besides Combined) of camera rays ``rays`` = (tau, x, d, ...)
     in the camera frame and their ``hits``, as (n, channels) float32 arrays (each value worked out
     in float64 and rounded once, as it is written).  ``shading_normals(k,
     prim, u, v, d_k, tau_hit)``: the Normal pass's normals at hits of frame k (normal maps applied,
-    as Cycles shows them; None: :func:`facing_normals`')."""
+    as Cycles shows them; None: :func:`facing_normals`'); ``cache``: the calling thread's)."""
     wanted = set(wanted)
     n = len(rays[2])
     hit = hits.frame >= 0
@@ -152,20 +212,34 @@ def pixel_passes(frames: FrameSet, light_speed: float, wanted, rays, hits: Hits,
         passes[name] = np.zeros((n, len(BY_NAME[name].channels)), dtype=np.float32)
     if not per_frame:
         return passes
-    for k in frames_hit(hits):
-        sel = rows.selection(hits.frame == k)  # (views, no gathers, where every ray hit this frame)
-        frame = frames.frames[int(k)]
-        tau_hit = hit_times(hits, sel)
-        prim, u, v = hits.prim[sel], hits.u[sel], hits.v[sel]
-        # the directions only where they matter: a spinning surface's Doppler factor, the normals
-        d_k = rows.take(hits.d_frame, sel) if frame.spin is not None or "Normal" in wanted else None
-        if "Doppler" in wanted:
-            passes["Doppler"][sel, 0] = hit_doppler(frame, prim, u, v, tau_hit, d_k, hits.w[sel])
-        if "Normal" in wanted:
-            passes["Normal"][sel] = (facing_normals(frame, prim, u, v, d_k, tau_hit)[2] if shading_normals is None
-                                     else shading_normals(int(k), prim, u, v, d_k, tau_hit))
-        if "IndexOB" in wanted:
-            passes["IndexOB"][sel, 0] = frame.geometry.tri_object_index[prim]
-        if "Object Time" in wanted:
-            passes["Object Time"][sel, 0] = frame.object_clock(tau_hit, prim) / light_speed
+    for order, segments in frame_batches(hits):  # several frames' hits at once, each pass written once
+        _frame_passes(frames, light_speed, wanted, hits, order, segments, shading_normals, cache, passes)
     return passes
+
+
+def _frame_passes(frames: FrameSet, light_speed: float, wanted, hits: Hits, order, segments, shading_normals, cache,
+                  passes) -> None:
+    """:func:`pixel_passes`' per-frame passes at the hits of one of :func:`frame_batches`' batches,
+    each frame's values worked out over its rows and written at once."""
+    tau_hit = hit_times(hits, order)
+    prim, u, v = rows.take(hits.prim, order), rows.take(hits.u, order), rows.take(hits.v, order)
+    parts = [(k, frames.frames[k], s) for k, s in segments]
+    # the directions only where they matter: a spinning surface's Doppler factor, the normals
+    spins = any(frame.spin is not None for _, frame, _ in parts)
+    d_k = rows.take(hits.d_frame, order) if spins or "Normal" in wanted else None
+    values = {}
+    if "Doppler" in wanted:
+        w = rows.take(hits.w, order)
+        values["Doppler"] = [hit_doppler(frame, prim[s], u[s], v[s], tau_hit[s], None if d_k is None else d_k[s], w[s])
+                             for _, frame, s in parts]
+    if "Normal" in wanted:
+        values["Normal"] = ([facing_normals(frames, segments, prim, u, v, d_k, tau_hit, cache)[2]]
+                            if shading_normals is None else
+                            [shading_normals(k, prim[s], u[s], v[s], d_k[s], tau_hit[s]) for k, _, s in parts])
+    if "IndexOB" in wanted:
+        values["IndexOB"] = [np.take(frame.geometry.tri_object_index, prim[s]) for _, frame, s in parts]
+    if "Object Time" in wanted:
+        values["Object Time"] = [frame.object_clock(tau_hit[s], prim[s]) / light_speed for _, frame, s in parts]
+    for name, frame_values in values.items():
+        joined = joined_frames(frame_values)
+        rows.put_selection(passes[name], order, joined.reshape(len(joined), -1))

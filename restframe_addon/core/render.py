@@ -45,30 +45,65 @@ class Tile:
     complete: bool = True  # False: stopped between sample batches (its Combined lacks samples)
 
 
+class UnseenTiles:
+    """The tiles of one render of a prepared scene that see nothing
+    (:meth:`~.prepared.PreparedScene.misses_everything`), each found once, and their pass arrays
+    by :func:`_unseen_key`, rendered once: every such tile of a shape has the same ones.  Shared
+    by the render's threads (a dict's get and set are atomic; two threads may find the same)."""
+
+    def __init__(self, prepared: PreparedScene):
+        self.prepared = prepared
+        self._found: dict[tuple, bool] = {}
+        self._passes: dict[tuple, dict] = {}
+
+    def sees_nothing(self, rect, cache: TraceCache) -> bool:
+        found = self._found.get(tuple(rect))
+        if found is None:
+            found = self._found[tuple(rect)] = self.prepared.misses_everything(rect, cache)
+        return found
+
+    def passes(self, key) -> dict | None:
+        """The pass arrays (read-only) of the tiles of ``key`` that see nothing, once one is rendered."""
+        kept = self._passes.get(key)
+        return None if kept is None else dict(kept)
+
+    def keep(self, key, passes: dict) -> None:
+        for values in passes.values():
+            values.flags.writeable = False  # shared by every tile of this shape that sees nothing
+        self._passes[key] = passes
+
+
 def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] = lambda: False,
-                cache: TraceCache | None = None, rows: tuple[int, int] | None = None) -> Tile:
+                cache: TraceCache | None = None, rows: tuple[int, int] | None = None,
+                unseen: UnseenTiles | None = None) -> Tile:
     """Render the pixels ``rect`` = (x0, y0, x1, y1) (x1, y1 exclusive) of a prepared scene.
 
     ``should_stop()`` is polled between sample batches of a long tile (the tile is then
     returned with ``complete`` False: never show it as finished); ``cache``: the calling thread's
     :class:`~.tracer.TraceCache` (None: one for this tile); ``rows`` = (y0, y1): only these rows
     of the tile (a share of it for another worker), in the whole tile's sample batches, so they
-    are the same bits as in the whole tile.
+    are the same bits as in the whole tile; ``unseen``: the render's :class:`UnseenTiles` (None:
+    this tile's own).  The pass arrays of a tile that sees nothing are read-only (shared).
     """
     cache = cache if cache is not None else TraceCache()
     settings, frames = prepared.settings, prepared.frames
     x0, y0, x1, y1 = rect
     tile_pixels, share = (x1 - x0) * (y1 - y0), None
+    unseen_key = _unseen_key(rect, rows)
     if rows is not None:
         share = slice((rows[0] - y0) * (x1 - x0), (rows[1] - y0) * (x1 - x0))
         y0, y1 = rows
         rect = x0, y0, x1, y1
     h, w = y1 - y0, x1 - x0
+    unseen = unseen if unseen is not None else UnseenTiles(prepared)
+    empty = unseen.sees_nothing(rect, cache)  # then no ray of the tile is made or traced
+    kept = unseen.passes(unseen_key) if empty else None
+    if kept is not None:
+        return Tile(x0, y0, x1, y1, kept)
     pixel = prepared.pixel_ids(rect)
     n = len(pixel)
     xs = ys = None  # the pixels' coordinates, for jittered samples
     shader = prepared.shader
-    empty = prepared.misses_everything(rect, cache)  # then no ray of the tile is made or traced
     if empty:
         centre, centre_hits = prepared.missing_rays(n), no_hits(n, read_only=True)
     else:
@@ -76,7 +111,7 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
         centre_hits = shader.trace(frames.camera, *centre, RAY_CAMERA, pixel, np.broadcast_to(np.int64(0), (n,)), 0,
                                    cache, for_passes=True)
     passes = pixel_passes(frames, prepared.scene.light_speed, prepared.passes, centre, centre_hits,
-                          shader.shading_normals if prepared.materials.normal_mapped else None)
+                          shader.shading_normals if prepared.materials.normal_mapped else None, cache)
     samples = max(int(settings.samples), 1)
     batches = list(_batches(tile_pixels, samples, prepared.colour.channels, share))
     # one batch of every pixel and sample: its colours are the sums (added to 0.0 below, as to the sums' zeros)
@@ -133,8 +168,21 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     passes["Combined"] = combined
     for name, total in denoising.items():
         passes[name] = total / samples
-    return Tile(x0, y0, x1, y1, {k: v.reshape(h, w, -1).astype(np.float32, copy=False) for k, v in passes.items()},
-                complete)
+    passes = {k: v.reshape(h, w, -1).astype(np.float32, copy=False) for k, v in passes.items()}
+    if empty and complete:
+        unseen.keep(unseen_key, passes)
+        passes = dict(passes)
+    return Tile(x0, y0, x1, y1, passes, complete)
+
+
+def _unseen_key(rect, rows: tuple[int, int] | None) -> tuple[int, int, int, int]:
+    """What the passes of a tile that sees nothing depend on: its shape and share of rows.  Its
+    camera rays are then one ray repeated (:meth:`~.prepared.PreparedScene.missing_rays`) and
+    its hits none, and nothing else the tile computes depends on where it is (a pixel's
+    wavelengths and random numbers come in only where rays are made or hit a surface)."""
+    x0, y0, x1, y1 = rect
+    first, last = rows if rows is not None else (y0, y1)
+    return x1 - x0, y1 - y0, first - y0, last - y0
 
 
 def _per_pixel(values, m: int, count: int):
@@ -229,13 +277,16 @@ def render_tiles(prepared: PreparedScene, should_stop: Callable[[], bool] = lamb
 
 
 def tiles_in_threads(prepared: PreparedScene, rects, workers: int, should_stop) -> Iterator[Tile]:
-    """Yield the tiles ``rects`` of the prepared scene as ``workers`` threads complete them."""
+    """Yield the tiles ``rects`` of the prepared scene as ``workers`` threads complete them:
+    those that see something first, so that the short ones that see nothing even out the
+    threads' ends."""
+    unseen = UnseenTiles(prepared)
     if workers == 1:
         cache = TraceCache()
         for rect in rects:
             if should_stop():
                 return
-            tile = render_tile(prepared, rect, should_stop, cache)
+            tile = render_tile(prepared, rect, should_stop, cache, unseen=unseen)
             if not tile.complete:
                 return
             yield tile
@@ -245,11 +296,11 @@ def tiles_in_threads(prepared: PreparedScene, rects, workers: int, should_stop) 
     def work(rect):
         if not hasattr(owned, "cache"):
             owned.cache = TraceCache()
-        return render_tile(prepared, rect, should_stop, owned.cache)
+        return render_tile(prepared, rect, should_stop, owned.cache, unseen=unseen)
 
     pool = ThreadPoolExecutor(max_workers=workers)
     pending = set()
-    queue = iter(rects)
+    queue = seen_first(unseen, rects, should_stop)
     try:
         while True:
             while len(pending) < 2 * workers and not should_stop():
@@ -267,6 +318,22 @@ def tiles_in_threads(prepared: PreparedScene, rects, workers: int, should_stop) 
     finally:
         # on Esc, return at once: tiles still running stop at their next sample batch
         pool.shutdown(wait=False, cancel_futures=True)
+
+
+def seen_first(unseen: UnseenTiles, rects, should_stop: Callable[[], bool] = lambda: False) -> Iterator[tuple]:
+    """The tiles ``rects`` that see something, then those that see nothing (in their order),
+    each found as it is reached (on the calling thread, with a trace cache of its own); none
+    more once ``should_stop()`` is true (a long run of tiles that see nothing is looked through
+    at 0.1 ms a tile)."""
+    cache, later = TraceCache(), []
+    for rect in rects:
+        if should_stop():
+            return
+        if unseen.sees_nothing(rect, cache):
+            later.append(rect)
+        else:
+            yield rect
+    yield from later
 
 
 def render_image(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bool] = lambda: False,

@@ -19,14 +19,23 @@ def take(a, index) -> np.ndarray:
     a view of them).
 
     numpy's fancy indexing of an (n, 3) array copies three elements at a time: ``take`` and
-    ``compress`` along the first axis do the same 3-4x faster (1-D arrays alike for masks).
+    ``compress`` along the first axis do the same 3-4x faster (1-D arrays alike for masks).  Of an
+    array with contiguous columns (``scale(..., columns=True)``), column by column into the same
+    layout (numpy would copy the whole array into rows first: 2.5x slower).
     """
     if isinstance(index, slice):
         return a[index]
     index = np.asarray(index)
-    if index.dtype == bool:
-        return np.compress(index, a, axis=0)
-    return np.take(a, index, axis=0)
+    mask = index.dtype == bool
+    if a.ndim == 2 and 1 < a.shape[1] <= 4 and not a.flags.c_contiguous and a.flags.f_contiguous:
+        out = np.empty((a.shape[1], np.count_nonzero(index) if mask else len(index)), dtype=a.dtype).T
+        for c in range(a.shape[1]):
+            if mask:
+                np.compress(index, a[:, c], out=out[:, c])
+            else:
+                np.take(a[:, c], index, out=out[:, c])
+        return out
+    return np.compress(index, a, axis=0) if mask else np.take(a, index, axis=0)
 
 
 def put(a, index, new) -> None:
@@ -38,6 +47,15 @@ def put(a, index, new) -> None:
         return
     row = np.dtype((np.void, a.shape[1] * a.itemsize))
     np.put(a.view(row)[:, 0], index, c_contiguous(new, a.dtype).view(row)[:, 0])
+
+
+def put_selection(a, sel, new) -> None:
+    """``a[sel] = new`` for rows ``sel`` (a slice or indices, as :func:`selection` gives) of an array
+    (``new`` may have contiguous columns)."""
+    if isinstance(sel, slice):
+        assign(a[sel], new)
+    else:
+        put(a, sel, new)
 
 
 def c_contiguous(a, dtype=None) -> np.ndarray:

@@ -31,7 +31,7 @@ from .bsdf import (dielectric_f0, fresnel_average_f82_tint, fresnel_average_prin
                    ggx_single_scattering)
 from .frames import FrameSet, clock_shift, shift_into_frame
 from .lorentz import RowBoosts
-from .passes import facing_normals, hit_doppler, hit_times
+from .passes import facing_normals, frame_batches, hit_doppler, hit_times, joined_frames
 from .scene import RAY_CAMERA, RAY_GLOSSY, RAY_TRANSMISSION, Light, Material, Scene
 from .tracer import Hits, TraceCache, frames_hit, occluded, trace_nearest
 from .world import Texels, image_lookup
@@ -123,11 +123,12 @@ class MaterialTable:
         they always are from the export, the array itself: see rows.clipped)."""
         return rows.clipped(index, 0, len(self.materials) - 1)
 
-    def base_color(self, index, uv):
-        """Base colour per hit, with image textures looked up (bilinear or closest, repeat) where present."""
+    def base_color(self, index, uv, columns: bool = False):
+        """Base colour per hit, with image textures looked up (bilinear or closest, repeat) where present
+        (``columns``: one textured material's into contiguous columns, see world.image_lookup)."""
         one = _only_material(index) if uv is not None else None
         if one is not None and self.textures[one] is not None:  # one textured material: no gathers
-            return self._texture_color(one, uv[:, 0], uv[:, 1])
+            return self._texture_color(one, uv[:, 0], uv[:, 1], columns)
         color = np.take(self.base, index, axis=0)
         if uv is None:
             return color
@@ -139,8 +140,9 @@ class MaterialTable:
                 color[sel] = self._texture_color(m, uv[sel, 0], uv[sel, 1])
         return color
 
-    def _texture_color(self, m, u, v):
-        return image_lookup(self.textures[m], u, v, "Closest" if self.closest[m] else "Linear", channels=3)
+    def _texture_color(self, m, u, v, columns: bool = False):
+        return image_lookup(self.textures[m], u, v, "Closest" if self.closest[m] else "Linear", channels=3,
+                            columns=columns)
 
     def opacity(self, index, uv):
         """Principled Alpha per hit (the alpha image looked up where there is one, UVs or not)."""
@@ -327,7 +329,8 @@ class LayeredLobes:
 
 
 class Shader:
-    """Traces and shades backward rays for one prepared scene (thread-safe: read-only state).
+    """Traces and shades backward rays for one prepared scene (thread-safe: read-only state but
+    for caches of values that do not depend on the rays).
 
     ``layered``: evaluate surfaces with :class:`LayeredLobes` (Path Tracing) instead of the
     direct-light integrator's plain sum of lobes.
@@ -344,6 +347,19 @@ class Shader:
         self.searchlight = searchlight
         # how far secondary and shadow rays start off a surface (RestFrame.surface_offset)
         self.epsilon = MappingProxyType({k: float(frames.surface_offsets[k]) for k in frames.geometry})
+        self._sharp_suns: dict = {}  # _sharp_sun's rows (the same whichever thread adds one)
+        # the material of every triangle of a frame whose triangles have one (a body of one
+        # material, the common case): its hits' material numbers are that number broadcast, not gathered
+        single = {}
+        for k in frames.geometry:
+            geometry = frames.frames[k].geometry
+            if id(geometry) not in single:
+                one = _only_material(materials.clamp(geometry.tri_material))
+                if one is not None:  # (one element, viewed n times by hit_materials)
+                    one = np.array([one], geometry.tri_material.dtype)
+                    one.flags.writeable = False
+                single[id(geometry)] = one
+        self._one_material = MappingProxyType({k: single[id(frames.frames[k].geometry)] for k in frames.geometry})
 
     # ------------------------------------------------------------------ helpers
     def searchlight_power(self, doppler, exponent: int):
@@ -398,31 +414,47 @@ class Shader:
         held = self.held_out(hits) if self.has_holdouts else None
         if held is not None:
             values[held] = 0.0
-        for k in frames_hit(hits):
-            sel = rows.selection(hits.frame == k if held is None else (hits.frame == k) & ~held)
-            if sel is None:
-                continue
-            frame = self.frames.frames[k]
-            prim = rows.take(hits.prim, sel)
-            emission_only = self._emission_only(depth)
-            if emission_only and self._dark(frame, prim):  # black whatever its Doppler factor (it is finite)
-                values[sel] = 0.0
-                continue
-            fmap = self.frames.map(src, int(k))
-            # the directions only where they matter: shading beyond emission, a spinning surface's Doppler factor
-            d_k = None if emission_only and frame.spin is None else rows.take(hits.d_frame, sel)
-            w = rows.take(hits.w, sel)
-            tau_hit = hit_times(hits, sel)
-            u, v = rows.take(hits.u, sel), rows.take(hits.v, sel)
-            if fmap.is_identity and frame.spin is None:  # at rest with the viewer: D = 1
-                _put(values, sel, self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, rows.take(pixel, sel),
-                                                      rows.take(sample, sel), _rows(lam, sel), cache))
-                continue
-            doppler = hit_doppler(frame, prim, u, v, tau_hit, d_k, w)
-            local = self._shade_surface(int(k), tau_hit, d_k, prim, u, v, depth, rows.take(pixel, sel),
-                                        rows.take(sample, sel), self.colour.shift(_rows(lam, sel), doppler), cache)
-            _put(values, sel, rows.scale(local, self.searchlight_power(doppler, 4)))
+        for order, segments in self._frame_batches(hits, held, depth, values):
+            self._shade_batch(src, hits, order, segments, depth, pixel, sample, lam, cache, values)
         return values, hits
+
+    def _frame_batches(self, hits: Hits, held, depth: int, values) -> list:
+        """:func:`~.passes.frame_batches` of the hits to shade: holdouts (``held``) left out, and
+        with emission alone the frames whose surfaces are dark (their values set to 0)."""
+        keep = None if held is None else ~held
+        batches = frame_batches(hits, keep)
+        if not self._emission_only(depth):
+            return batches
+        dark = [k for order, segments in batches for k, s in segments
+                if self._dark(self.frames.frames[k], rows.take(hits.prim, s if isinstance(order, slice) else order[s]))]
+        if not dark:
+            return batches
+        black = np.isin(hits.frame, dark)
+        values[black] = 0.0  # black whatever its Doppler factor (it is finite)
+        return frame_batches(hits, ~black if keep is None else keep & ~black)
+
+    def _shade_batch(self, src: int, hits: Hits, order, segments, depth: int, pixel, sample, lam, cache, values):
+        """Shade the hits ``order`` of the frames ``segments`` ((k, rows of order) each) together into
+        ``values``: :meth:`radiance` of one of :meth:`_frame_batches`' batches."""
+        emission_only = self._emission_only(depth)
+        prim = rows.take(hits.prim, order)
+        # the directions only where they matter: shading beyond emission, a spinning surface's Doppler factor
+        spins = any(self.frames.frames[k].spin is not None for k, _ in segments)
+        d_k = None if emission_only and not spins else rows.take(hits.d_frame, order)
+        tau_hit = hit_times(hits, order)
+        u, v = rows.take(hits.u, order), rows.take(hits.v, order)
+        pixel, sample, lam = rows.take(pixel, order), rows.take(sample, order), _rows(lam, order)
+        if not spins and all(self.frames.map(src, k).is_identity for k, _ in segments):  # at rest: D = 1
+            rows.put_selection(values, order, self._shade_surfaces(segments, tau_hit, d_k, prim, u, v, depth, pixel,
+                                                                   sample, lam, cache))
+            return
+        w = rows.take(hits.w, order)
+        # (a frame at rest with the viewer has w = 1: D = 1, and its hits are scaled by 1)
+        doppler = joined_frames([hit_doppler(self.frames.frames[k], prim[s], u[s], v[s], tau_hit[s],
+                                             None if d_k is None else d_k[s], w[s]) for k, s in segments])
+        local = self._shade_surfaces(segments, tau_hit, d_k, prim, u, v, depth, pixel, sample,
+                                     self.colour.shift(lam, doppler), cache)
+        rows.put_selection(values, order, rows.scale(local, self.searchlight_power(doppler, 4)))
 
     # ------------------------------------------------------------------ tracing
     def trace(self, src: int, tau0, x0, d, s_lo, s_hi, ray: int, pixel, sample, depth: int,
@@ -449,6 +481,14 @@ class Shader:
             return self.hit_opacity(hits) <= sampling.uniform(pixel[rays], sample[rays], dimension + layer)
         return see_through
 
+    def hit_materials(self, k: int, prim) -> np.ndarray:
+        """Material numbers (rows of the MaterialTable) of triangles ``prim`` of frame k (read-only:
+        one number broadcast where all the frame's triangles have it)."""
+        one = self._one_material.get(k)
+        if one is not None:  # (the view made directly: np.broadcast_to costs 5x as much)
+            return np.ndarray((len(prim),), one.dtype, one, strides=(0,))
+        return self.materials.clamp(np.take(self.frames.frames[k].geometry.tri_material, prim))
+
     def hit_opacity(self, hits: Hits) -> np.ndarray:
         """Principled Alpha at hits (every ray hit something)."""
         alpha = np.ones(len(hits.frame))
@@ -456,8 +496,8 @@ class Shader:
             sel = np.flatnonzero(hits.frame == k)
             frame = self.frames.frames[k]
             prim = hits.prim[sel]
-            material = self.materials.clamp(frame.geometry.tri_material[prim])
-            alpha[sel] = self.materials.opacity(material, hit_uv(frame, prim, hits.u[sel], hits.v[sel]))
+            uv = hit_uv(frame, prim, hits.u[sel], hits.v[sel])
+            alpha[sel] = self.materials.opacity(self.hit_materials(k, prim), uv)
         return alpha
 
     @property
@@ -474,7 +514,7 @@ class Shader:
             geometry = self.frames.frames[k].geometry
             sel = np.flatnonzero(hits.frame == k)
             prim = hits.prim[sel]
-            held[sel] = self.materials.holdout[self.materials.clamp(geometry.tri_material[prim])]
+            held[sel] = self.materials.holdout[self.hit_materials(k, prim)]
             if geometry.tri_holdout is not None:
                 held[sel] |= geometry.tri_holdout[prim]
         return held
@@ -482,31 +522,56 @@ class Shader:
     def surface_info(self, k: int, prim, u, v, d_k, tau_hit=None, cache: TraceCache | None = None):
         """Position, facing geometric and shading normals (normal maps applied), and material
         index at hits of frame k (``cache``: the calling thread's)."""
-        frame = self.frames.frames[k]
-        position, ng, ns, back = facing_normals(frame, prim, u, v, d_k, tau_hit, cache)
-        material = self.materials.clamp(np.take(frame.geometry.tri_material, prim))
-        if self.materials.normal_mapped and frame.geometry.corner_uvs is not None:
-            ns = self._normal_mapped(frame, prim, material, hit_uv(frame, prim, u, v), ng, ns, back, d_k,
-                                     np.zeros(len(prim)) if tau_hit is None else tau_hit)
+        return self.frames_surface_info([(k, slice(0, len(prim)))], prim, u, v, d_k, tau_hit, cache)
+
+    def frames_surface_info(self, segments, prim, u, v, d_k, tau_hit=None, cache: TraceCache | None = None):
+        """:meth:`surface_info` at hits of several frames (``segments``: (frame k, its rows))."""
+        position, ng, ns, back = facing_normals(self.frames, segments, prim, u, v, d_k, tau_hit, cache)
+        material = joined_frames([self.hit_materials(k, prim[s]) for k, s in segments])
+        if self.materials.normal_mapped:
+            own = False  # (ns may be ng, or the geometry's: copied before a normal map writes into it)
+            for k, s in segments:
+                frame = self.frames.frames[k]
+                if frame.geometry.corner_uvs is None:
+                    continue
+                plain = ns[s]
+                mapped = self._normal_mapped(frame, prim[s], material[s], hit_uv(frame, prim[s], u[s], v[s]), ng[s],
+                                             plain, back[s], d_k[s],
+                                             np.zeros(len(plain)) if tau_hit is None else tau_hit[s])
+                if mapped is not plain:
+                    if not own:
+                        ns, own = ns.copy(), True
+                    ns[s] = mapped
         return position, ng, ns, material, back
 
-    def _shade_surface(self, k, tau, d_k, prim, u, v, depth, pixel, sample, lam, cache):
-        frame = self.frames.frames[k]
+    def _shade_surfaces(self, segments, tau, d_k, prim, u, v, depth, pixel, sample, lam, cache):
+        """The values leaving hits toward their rays, in each hit's frame: the hits of several
+        frames in one array, ``segments`` = (frame k, its rows) in order; what depends on the frame
+        (the geometry, the lamps' light) worked out frame by frame, the rest once for all."""
+        mats = self.materials
         if self._emission_only(depth):  # no normals, texture or base colour needed
-            return self._emission(frame, tau, prim, self.materials.clamp(frame.geometry.tri_material[prim]), lam)
-        position, ng, ns, mat, back = self.surface_info(k, prim, u, v, d_k, tau, cache)
-        uv = hit_uv(frame, prim, u, v)
-        base = self.colour.base_color(mat, uv, lam)
+            mat = joined_frames([self.hit_materials(k, prim[s]) for k, s in segments])
+            return self._emission(segments, tau, prim, mat, lam)
+        position, ng, ns, mat, back = self.frames_surface_info(segments, prim, u, v, d_k, tau, cache)
+        uvs = [hit_uv(self.frames.frames[k], prim[s], u[s], v[s]) for k, s in segments]
+        if all(uv is None for uv in uvs) or all(uv is not None for uv in uvs):
+            base = self.colour.base_color(mat, None if uvs[0] is None else joined_frames(uvs), lam,
+                                          columns=True)  # (brdf scales it column by column)
+        else:  # frames with and without UVs
+            base = joined_frames([self.colour.base_color(mat[s], uv, _rows(lam, s))
+                                  for (_, s), uv in zip(segments, uvs)])
         one = _only_material(mat)
-        if self.lights and one is not None and not self.materials.emits[one]:  # the direct light alone
-            values = self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
+        if self.lights and one is not None and not mats.emits[one]:  # the direct light alone
+            values = self._direct(segments, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
         else:
-            values = self._emission(frame, tau, prim, mat, lam)
+            values = self._emission(segments, tau, prim, mat, lam)
             if self.lights:
-                values += self._direct(k, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
+                values += self._direct(segments, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam,
+                                       cache)
         if self._bounces(depth):
-            values += self._secondary(k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam,
-                                      cache)
+            for k, s in segments:
+                values[s] += self._secondary(k, tau[s], position[s], ng[s], ns[s], d_k[s], base[s], mat[s], back[s],
+                                             depth, pixel[s], sample[s], _rows(lam, s), cache)
         return values
 
     def _emission_only(self, depth: int) -> bool:
@@ -521,15 +586,16 @@ class Shader:
         """Whether none of these hits' surfaces emits (their emission is 0 at every wavelength)."""
         if self.materials.emission_curves:
             return False
-        mat = self.materials.clamp(frame.geometry.tri_material[prim])
+        mat = self.hit_materials(frame.index, prim)
         one = _only_material(mat)
         return not (self.materials.emits[one] if one is not None else self.materials.emits[mat].any())
 
-    def _emission(self, frame, tau, prim, mat, lam):
-        """The surfaces' own emission at hits of one frame (a new array)."""
+    def _emission(self, segments, tau, prim, mat, lam):
+        """The surfaces' own emission at hits of several frames (``segments``: (k, rows)), a new array."""
         values = np.array(self.colour.emission(mat, lam), dtype=np.float64)
         if self.materials.emission_curves:  # optical clocks: the emitter's own time at this event
-            values *= self.materials.emission_factor(mat, frame.object_clock(tau, prim))[:, None]
+            clock = joined_frames([self.frames.frames[k].object_clock(tau[s], prim[s]) for k, s in segments])
+            values *= self.materials.emission_factor(mat, clock)[:, None]
         return values
 
     def shading_normals(self, k: int, prim, u, v, d_k, tau_hit=None):
@@ -594,17 +660,20 @@ class Shader:
             value[r] += specular
         return value
 
-    def _direct(self, k, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache, lobes=None):
-        """The lamps' light reflected toward ``view`` (n, C): one shadow ray per lamp and hit.
-        A selection of hits is a slice while it is all of them (views, not gathers)."""
-        eps = self.epsilon[k]
+    def _direct(self, segments, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache,
+                lobes=None):
+        """The lamps' light reflected toward ``view`` (n, C): one shadow ray per lamp and hit, of
+        the hits of several frames (``segments``: (frame k, its rows), in order).  A selection of
+        hits is a slice while it is all of them (views, not gathers)."""
         total = None
         for index, light in enumerate(self.lights):
             dim = 1000 + 100 * depth + 4 * index
             xi1 = xi2 = None  # a point light or sharp sun needs no random numbers
             if light.sampled:
                 xi1, xi2 = sampling.uniforms(pixel, sample, (dim, dim + 1))
-            e_k, strength, doppler, s_max, clock = self._incident(light, k, tau, position, xi1, xi2)
+            incident = [self._incident(light, k, tau[s], position[s], None if xi1 is None else xi1[s],
+                                       None if xi2 is None else xi2[s]) for k, s in segments]
+            e_k, strength, doppler, s_max, clock = (joined_frames([part[i] for part in incident]) for i in range(5))
             cos_n = rows.dot(ns, e_k)
             lit = cos_n > 0.0
             if ns is not ng:  # (flat shading: one array, the same test)
@@ -615,12 +684,8 @@ class Shader:
             if sel is None:
                 continue
             e_sel = rows.take(e_k, sel)
-            tau_sel, pixel_sel, sample_sel = rows.take(tau, sel), rows.take(pixel, sel), rows.take(sample, sel)
-            origin = np.multiply(rows.take(ng, sel), eps)
-            origin += rows.take(position, sel)
-            reach = rows.take(s_max, sel) - 2.0 * eps if np.ndim(s_max) else s_max  # sunlight: unbounded
-            blocked = occluded(self.frames, k, tau_sel, origin, e_sel, eps, reach, cache,
-                               see_through=self.cutouts(pixel_sel, sample_sel, _cutout_dimension(depth, 8 + index)))
+            blocked = self._occluded(segments, sel, tau, position, ng, e_sel, [part[0] for part in incident],
+                                     s_max, pixel, sample, _cutout_dimension(depth, 8 + index), cache)
             weight = rows.take(strength, sel) * rows.take(cos_n, sel)
             shadowed = np.count_nonzero(blocked)
             if shadowed == len(blocked):
@@ -642,9 +707,36 @@ class Shader:
             elif isinstance(sel, slice):
                 total = f
             else:
-                total = np.zeros_like(base)
-                _put(total, sel, f)
-        return np.zeros_like(base) if total is None else total
+                total = np.zeros(base.shape)  # (rows, whatever base's layout: see rows.put)
+                rows.put_selection(total, sel, f)
+        return np.zeros(base.shape) if total is None else total
+
+    def _occluded(self, segments, sel, tau, position, ng, e_sel, e_frames, s_max, pixel, sample, dimension: int,
+                  cache):
+        """Whether the shadow rays of the hits ``sel`` (toward ``e_sel``, at most ``s_max`` long) are
+        blocked: asked of the tracer frame by frame (``segments``: (frame k, its rows); ``e_frames``:
+        each frame's directions, of which a sharp sun's one broadcast row stays one: the tracer sees
+        the rays are parallel), each from its frame's surface offset; ``dimension``: the sampler
+        dimension of their cut-out decisions."""
+        starts = [s.start for _, s in segments] + [segments[-1][1].stop]
+        bounds = starts if isinstance(sel, slice) else np.searchsorted(sel, starts).tolist()  # each frame's part
+        # each frame's surface offset a row of its rays (the same products as by the one number)
+        eps = np.array([self.epsilon[k] for k, _ in segments])
+        eps_rays = eps[0] if len(segments) == 1 else np.repeat(eps, np.diff(bounds))
+        origin = np.multiply(rows.take(ng, sel), eps_rays if np.ndim(eps_rays) == 0 else eps_rays[:, None])
+        origin += rows.take(position, sel)
+        reach = rows.take(s_max, sel) - 2.0 * eps_rays if np.ndim(s_max) else s_max  # sunlight: unbounded
+        tau_sel, pixel_sel, sample_sel = rows.take(tau, sel), rows.take(pixel, sel), rows.take(sample, sel)
+        parts = []
+        for (k, _), e_frame, start, stop in zip(segments, e_frames, bounds[:-1], bounds[1:]):
+            if stop == start:
+                continue
+            rays = slice(start, stop)
+            d = e_sel[rays] if e_frame.strides[0] else np.broadcast_to(e_frame[0], (stop - start, 3))
+            parts.append(occluded(self.frames, k, tau_sel[rays], origin[rays], d, self.epsilon[k],
+                                  reach[rays] if np.ndim(reach) else reach, cache,
+                                  see_through=self.cutouts(pixel_sel[rays], sample_sel[rays], dimension)))
+        return joined_frames(parts)
 
     def _incident(self, pl: PreparedLight, k, tau, position, xi1, xi2):
         """Light arriving at hit events of frame k from one light.
@@ -674,15 +766,11 @@ class Shader:
             if to_surface.is_identity:  # at rest with the surface: D = 1, so D^p = 1
                 one = np.broadcast_to(1.0, (n,))
                 return e_j, one, one, np.inf, clock
-            # a sharp sun, one broadcast direction for every hit: mapped once (a one-row view of
-            # the same broadcast rows, the same steps on the same numbers) and broadcast back
-            sharp = e_j.strides[0] == 0
-            e_k, doppler = to_surface.rays(e_j[:1] if sharp else e_j)
-            sun_strength = self.searchlight_power(doppler, 2)
-            if sharp:
+            if e_j.strides[0] == 0:  # a sharp sun, one direction for every hit: mapped once per frame
                 e_k, sun_strength, doppler = (np.broadcast_to(a, (n,) + a.shape[1:])
-                                              for a in (e_k, sun_strength, doppler))
-            return e_k, sun_strength, doppler, np.inf, clock
+                                              for a in self._sharp_sun(pl.frame, k, z_axis))
+                return e_k, sun_strength, doppler, np.inf, clock
+            return *self._sunlight(to_surface, e_j), np.inf, clock
         if light.trajectory is None:
             tau_j, x_j = self.frames.map(k, pl.frame).events(tau, position)
             sample = np.broadcast_to(pl.position, (n, 3))
@@ -718,6 +806,26 @@ class Shader:
         # the light left the lamp (its point ``sample``) r_rest before the hit, in the lamp's frame
         clock = None if pl.keyed is None else tau_j - r_rest + clock_zero
         return e_k, intensity * self.searchlight_power(doppler, 4) / np.maximum(r, 1e-300) ** 2, doppler, r, clock
+
+    def _sunlight(self, to_surface, e_j) -> tuple:
+        """Sunlight along directions e_j (toward the sun, in its frame) as a surface sees it
+        (``to_surface``: the map into its frame): the directions, the irradiance factor D^2, D."""
+        e_k, doppler = to_surface.rays(e_j)
+        sun_strength = self.searchlight_power(doppler, 2)
+        return e_k, sun_strength, doppler
+
+    def _sharp_sun(self, j: int, k: int, axis) -> tuple:
+        """A sharp sun's light in frame k from its frame j (emitting along -``axis``): its direction,
+        irradiance factor and D, one read-only row each, mapped once per (j, k, axis) and kept (the
+        same steps on the same numbers as for one hit's row: the same bits)."""
+        key = (j, k, tuple(axis))
+        found = self._sharp_suns.get(key)
+        if found is None:
+            found = self._sunlight(self.frames.map(j, k), np.array([axis], dtype=np.float64))
+            for a in found:
+                a.flags.writeable = False
+            self._sharp_suns[key] = found
+        return found
 
     def _momentary(self, pl: PreparedLight, k, tau, position):
         """An animated lamp seen from hit events of frame k, in its momentary rest frame at the
@@ -851,15 +959,6 @@ def _put_rows(values, mask, index, new):
         np.copyto(values[:, channel], new[0, channel], where=mask)
 
 
-def _put(a, sel, new):
-    """``a[sel] = new`` for rows ``sel`` (a slice or indices) of an array (see rows.put; ``new`` may
-    have contiguous columns)."""
-    if isinstance(sel, slice):
-        rows.assign(a[sel], new)
-    else:
-        rows.put(a, sel, new)
-
-
 def _spot_falloff(cos_angle, spot_size, blend):
     cos_half = np.cos(0.5 * spot_size)
     if blend <= 0.0:
@@ -903,9 +1002,9 @@ def _cone_sample(axis, half_angle, xi1, xi2):
     t1, t2 = _axis_basis(tuple(axis))
     cos_t = xi1 * (1.0 - np.cos(half_angle))  # in place from here: temporaries cost page faults
     np.subtract(1.0, cos_t, out=cos_t)
-    sin_t = cos_t * cos_t
+    sin_t = cos_t * cos_t  # (|cos_t| <= 1 for xi1 in [0, 1), so 1 - cos_t^2 >= 0: no clamp)
     np.subtract(1.0, sin_t, out=sin_t)
-    np.sqrt(np.maximum(sin_t, 0.0, out=sin_t), out=sin_t)
+    np.sqrt(sin_t, out=sin_t)
     cos_phi, sin_phi = unit_circle(xi2)
     cos_phi *= sin_t
     sin_phi *= sin_t
@@ -926,14 +1025,15 @@ def unit_circle(xi):
 
 def _combine(*weights_and_vectors):
     """Rows ``a t1 + b t2 (+ c t3)`` of (n,) weights and (n, 3) or (3,) vectors, summed in that order."""
-    pairs = list(zip(weights_and_vectors[::2], weights_and_vectors[1::2]))
-    out = np.empty((len(pairs[0][0]), 3))
+    (first_weight, first_vector), *middle, (last_weight, last_vector) = zip(weights_and_vectors[::2],
+                                                                             weights_and_vectors[1::2])
+    out = np.empty((len(first_weight), 3))
     column, term = np.empty(len(out)), np.empty(len(out))  # contiguous: twice as fast as out's columns
     for c in range(3):
-        np.multiply(pairs[0][0], pairs[0][1][..., c], out=column)
-        for weight, vector in pairs[1:]:
+        np.multiply(first_weight, first_vector[..., c], out=column)
+        for weight, vector in middle:
             column += np.multiply(weight, vector[..., c], out=term)
-        out[:, c] = column
+        np.add(column, np.multiply(last_weight, last_vector[..., c], out=term), out=out[:, c])  # the last sum: into out
     return out
 
 
@@ -943,18 +1043,22 @@ def _texels(image, colour: bool = False):
 
 def _only_material(mat):
     """The material number when every hit has the same one, else None."""
+    if len(mat) and mat.strides == (0,):  # one number broadcast (Shader.hit_materials)
+        return int(mat[0])
     if len(mat) and mat[0] == mat[-1] and bool((mat == mat[0]).all()):
         return int(mat[0])
     return None
 
 
 def _weighted_product(a, b, s):
-    """``a * b * s[:, None]`` for (n, C) a (overwritten) and b (often one row broadcast) and (n,) s,
-    column by column for few columns (see rows)."""
+    """``a * b * s[:, None]`` (a new row-major array, as the radiance it adds to) for (n, C) a
+    (overwritten) and b (often one row broadcast) and (n,) s, column by column for few columns
+    (see rows): the last product written into the rows (no copy of contiguous columns into rows after)."""
     if a.shape[1] > 4:
         return rows.scale(a * b, s)
+    out = np.empty(a.shape, np.result_type(a, b, s))
     for c in range(a.shape[1]):
         column = a[:, c]
         column *= b[:, c]
-        column *= s
-    return a
+        np.multiply(column, s, out=out[:, c])
+    return out

@@ -63,8 +63,17 @@ def _clip_to_bounds(geometry, origin, d, t_lo, t_hi):
     """
     pad = _padding(geometry)
     n = len(d)
-    enter, leave = np.empty(n), np.empty(n)
-    inv, t_a, t_b, near = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    enter, leave, t_a, t_b = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    inverse = _one_inverse(d)
+    if inverse is not None:  # parallel rays: per axis the sign of one number says which face is entered
+        for axis, (inv, lo, hi) in enumerate(zip(inverse, geometry.lo.tolist(), geometry.hi.tolist())):
+            np.multiply(np.subtract(lo - pad, origin[..., axis], out=t_a), inv, out=t_a)
+            np.multiply(np.subtract(hi + pad, origin[..., axis], out=t_b), inv, out=t_b)
+            near, far = (t_a, t_b) if inv[0] > 0.0 else (t_b, t_a)  # (fmin and fmax of the two, as below)
+            np.fmax(t_lo if axis == 0 else enter, near, out=enter)
+            np.fmin(t_hi if axis == 0 else leave, far, out=leave)
+        return enter, leave
+    inv, near = np.empty(n), np.empty(n)
     with np.errstate(divide="ignore", invalid="ignore"):
         for axis in range(3):
             np.copyto(inv, d[:, axis])  # (numpy divides a contiguous column 2.5x faster than a strided one)
@@ -77,9 +86,23 @@ def _clip_to_bounds(geometry, origin, d, t_lo, t_hi):
     return enter, leave
 
 
+def _one_inverse(d):
+    """For rays along one direction (a broadcast row, no component 0 and finite inverses): 1 / d per
+    axis, each a broadcast column (numpy multiplies by one faster than by a number); else None."""
+    if not (len(d) and _one_row(d)):
+        return None
+    components = d[0].tolist()
+    if not all(components):
+        return None
+    inverse = [1.0 / c for c in components]  # (the same division as numpy's: IEEE, correctly rounded)
+    if not all(map(math.isfinite, inverse)):
+        return None
+    return [np.ndarray((len(d),), np.float64, np.array(v), 0, (0,)) for v in inverse]
+
+
 def _padding(geometry) -> float:
     """How far float32 geometry may sit outside its float64 bounds."""
-    return _PAD * geometry.extent + 1e-14 * float(np.max(np.abs(geometry.anchor)))
+    return _PAD * geometry.extent + 1e-14 * max(map(abs, geometry.anchor.tolist()))
 
 
 def _query(frame: RestFrame, tau, origin, d, t_lo, t_hi, occlusion: bool):
@@ -268,18 +291,23 @@ def _ray_range(frame: RestFrame, tau, origin, d, s_lo, s_hi):
 class TraceCache:
     """What the tracer derives from a frame set and keeps for later bundles: the culling
     cones of frames seen from observation events (every tile of a perspective camera shares
-    its event), the body boxes per source frame and the triangle rows of small meshes
-    (:func:`hit_geometry`).
+    its event), the body boxes per source frame (and per set of candidate frames, :class:`_Boxes`),
+    a parallel bundle's direction mapped into each frame (a sharp sun's: the same for every
+    tile and sample) and the triangle rows of small meshes (:func:`hit_geometry`).
 
     Not thread-safe: each render thread (or tile) owns one and passes it explicitly; the
-    frame set itself stays read-only.
+    frame set itself stays read-only, and so is everything handed out from here.
     """
 
     _MAX_CONES = 4096  # many observation events (animations, secondary bundles): start afresh past this
+    _MAX_KEPT = 1024  # sets of candidate frames, directions mapped: start afresh past this
+    _BOXES_AT_ONCE = 64  # up to this many geometry frames, the body boxes seen from each are worked out at once
 
     def __init__(self):
         self._cones: dict = {}
-        self._body_boxes: dict[int, tuple] = {}
+        self._body_boxes: dict[int, _Boxes] = {}  # src -> every geometry frame's boxes
+        self._boxes: dict[tuple, _Boxes] = {}  # (src, some frames) -> theirs
+        self._directions: dict[tuple, tuple] = {}  # (src, k, direction's bytes) -> (mapped direction, s'/s)
         self._hit_tables: dict[int, tuple] = {}  # id(geometry) -> (geometry, its rows for hit_geometry)
 
     def cones(self, keys: list, compute) -> list:
@@ -294,10 +322,39 @@ class TraceCache:
                 self._cones[keys[i]] = cones
         return [self._cones[key] for key in keys]
 
-    def body_boxes(self, frames: FrameSet, src: int):
-        if src not in self._body_boxes:
-            self._body_boxes[src] = frames.body_boxes(src)
-        return self._body_boxes[src]
+    def boxes(self, frames: FrameSet, src: int, ks) -> "_Boxes":
+        """The :class:`_Boxes` of the frames ``ks`` seen from frame src.  The first request works out
+        those of every geometry frame seen from src and, up to ``_BOXES_AT_ONCE`` frames, from each
+        geometry frame too, in one pass (``FrameSet.body_boxes_of``: hit frames are where shadow and
+        secondary rays start)."""
+        every = self._body_boxes.get(src)
+        if every is None:
+            sources = [src]
+            if len(frames.geometry) <= self._BOXES_AT_ONCE:
+                sources += [k for k in frames.geometry if k != src and k not in self._body_boxes]
+            for k, boxes in zip(sources, _boxes_of_sources(*frames.body_boxes_of(sources))):
+                self._body_boxes[k] = boxes
+            every = self._body_boxes[src]
+        if ks is frames.geometry:
+            return every
+        key = (src, tuple(ks))
+        kept = self._boxes.get(key)
+        if kept is None:
+            if len(self._boxes) >= self._MAX_KEPT:
+                self._boxes.clear()
+            kept = self._boxes[key] = every.of(frames, ks)
+        return kept
+
+    def direction_in(self, frames: FrameSet, src: int, k: int, direction) -> tuple:
+        """(d', w) of one direction (3,) of frame src mapped into frame k (``FrameMap.rays``), read-only."""
+        key = (src, k, direction.tobytes())
+        kept = self._directions.get(key)
+        if kept is None:
+            if len(self._directions) >= self._MAX_KEPT:
+                self._directions.clear()
+            kept = self._directions[key] = _direction_in(frames, src, k, direction)
+            kept[0].flags.writeable = False
+        return kept
 
     def hit_table(self, geometry) -> tuple:
         """:func:`hit_geometry`'s rows of every triangle of ``geometry``, one (triangles, 4) table per
@@ -309,6 +366,12 @@ class TraceCache:
                 geometry, tuple(np.stack([corner[:, axis], e1[:, axis], e2[:, axis], normal[:, axis]], axis=1)
                                 for axis in range(3)))
         return kept[1]
+
+
+def _direction_in(frames: FrameSet, src: int, k: int, direction) -> tuple:
+    """(d', w): one direction (3,) of frame src mapped into frame k (``FrameMap.rays``), w a number."""
+    d_k, w = frames.map(src, k).rays(direction)
+    return d_k, float(w)
 
 
 def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None = None,
@@ -434,7 +497,17 @@ def _owned(hits: Hits) -> Hits:
 def _per_ray(value, n: int) -> np.ndarray:
     """A per-ray float64 array from an array or one number (read-only then)."""
     value = np.asarray(value, dtype=np.float64)
-    return value if value.shape == (n,) else np.broadcast_to(value, (n,))
+    if value.shape == (n,):
+        return value
+    return _rows_of_one(value, n) if value.ndim == 0 else np.broadcast_to(value, (n,))
+
+
+def _rows_of_one(row, n: int) -> np.ndarray:
+    """``np.broadcast_to(row, (n,) + row.shape)`` of a contiguous float64 row (or one number), read-only,
+    made directly: a sixth of the time, which counts for every bundle of a few rays."""
+    rows_of_one = np.ndarray((n,) + row.shape, np.float64, row, 0, (0,) + row.strides)
+    rows_of_one.flags.writeable = False
+    return rows_of_one
 
 
 def frames_hit(hits: Hits) -> np.ndarray:
@@ -881,8 +954,9 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         tau_k, origin, d_rays, lo, hi = _rows_of(rays, tau0, x0, d, s_lo, s_hi)
         tau_k, origin = fmap.events(tau_k, origin)
         if reach is not None and reach.direction is not None:  # parallel rays (sunlight): map one
-            dk, w = fmap.rays(reach.direction)
-            dk, w = np.broadcast_to(dk, (len(lo), 3)), float(w)
+            dk, w = (_direction_in(frames, src, k, reach.direction) if cache is None
+                     else cache.direction_in(frames, src, k, reach.direction))
+            dk = _rows_of_one(dk, len(lo))
         elif fmap.is_identity:
             dk, w = d_rays, None
         else:
@@ -951,32 +1025,102 @@ def _near_body(frames: FrameSet, src: int, k: int, cache, extent, tau0, x0, d, s
 
 def _body_box(frames: FrameSet, src: int, k: int, cache, extent):
     """(t, x, velocity, widened half-extents) of frame k's body box (:func:`_body_boxes`)."""
-    return tuple(a[0] for a in _body_boxes(frames, src, [k], cache, extent))
+    boxes, slot = _boxes(frames, src, frames.geometry, cache), frames.geometry_slot[k]
+    return boxes.t[slot], boxes.x[slot], boxes.velocity[slot], boxes.widened(extent)[slot]
 
 
 def _body_boxes(frames: FrameSet, src: int, ks, cache, extent):
     """(t, x, velocity, widened half-extents) of the body boxes (``FrameSet.body_boxes``) of the
     frames ``ks``, (len(ks),) and (len(ks), 3), for rays whose (largest |coordinate| of x0,
     largest |tau0|) is ``extent``."""
-    t_box, x_box, velocity, half = _boxes_of(frames, src, ks, cache)
-    # the rays meet the box where |s (d + v)| is about |x0 - X(tau0)|: coordinates up to this
-    x_max, tau_max = extent
-    scale = 1.0 + x_max + np.max(np.abs(x_box), axis=1) + np.max(np.abs(velocity), axis=1) * (tau_max + np.abs(t_box))
-    return t_box, x_box, velocity, _widened(half, scale[:, None])
+    boxes = _boxes(frames, src, ks, cache)
+    return boxes.t, boxes.x, boxes.velocity, boxes.widened(extent)
 
 
 def _boxes_of(frames: FrameSet, src: int, ks, cache: TraceCache | None):
     """(t, x, velocity, half-extents) of the body boxes (``FrameSet.body_boxes``) of the frames
     ``ks``, (len(ks),) and (len(ks), 3), from the thread's cache where it has them."""
+    boxes = _boxes(frames, src, ks, cache)
+    return boxes.t, boxes.x, boxes.velocity, boxes.half
+
+
+def _boxes(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> "_Boxes":
+    """The :class:`_Boxes` of the frames ``ks`` seen from frame src, the thread's kept ones where it has them."""
+    if cache is not None:
+        return cache.boxes(frames, src, ks)
     slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
-    boxes = frames.body_boxes(src) if cache is None else cache.body_boxes(frames, src)
-    return tuple(a[slots] for a in boxes)
+    return _boxes_of_sources(*(a[None, slots] for a in frames.body_boxes(src)))[0]
 
 
-def _widened(half, scale) -> np.ndarray:
-    """Half-extents (m, 3) of body boxes widened for rounding: float32 geometry, float64 arithmetic
-    on coordinates up to ``scale`` (one number, or one per box (m, 1))."""
-    return half * (1.0 + 2 * _PAD) + 2 * _PAD * half.max(axis=1, keepdims=True) + 1e-9 * scale
+_BOX_FIELDS = ("t", "x", "velocity", "half", "margin", "abs_t", "x_reach", "v_reach", "axes_t", "axes_x",
+               "axes_velocity", "axes_margin", "axes_half_speed")
+
+
+class _Boxes:
+    """Body boxes (``FrameSet.body_boxes``) of some frames seen from one source frame, (m,) and (m, 3)
+    arrays, with what the tests of every bundle derive from them alone (read-only: a thread keeps
+    them, :meth:`TraceCache.boxes`): the half-extents widened for float32 geometry (``margin``), the
+    largest |coordinate| of each centre and velocity, and the boxes a row per axis (``axes_*``,
+    (3, m): a bundle's slab test, :func:`_may_meet`, then takes the extremes of three rows, not of
+    m short ones).  Made by :func:`_boxes_of_sources`."""
+
+    __slots__ = _BOX_FIELDS + ("_parallel",)
+
+    def __init__(self, fields: dict):
+        for name, value in fields.items():
+            setattr(self, name, value)
+        self._parallel: dict[bytes, tuple] = {}
+
+    def of(self, frames: FrameSet, ks) -> "_Boxes":
+        """The boxes of the frames ``ks`` among these (which are every geometry frame's)."""
+        slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
+        return _boxes_of_sources(self.t[None, slots], self.x[None, slots], self.velocity[None, slots],
+                                 self.half[None, slots])[0]
+
+    def widened(self, extent) -> np.ndarray:
+        """Half-extents (m, 3) widened for rounding, for rays whose (largest |coordinate| of x0,
+        largest |tau0|) is ``extent``."""
+        # the rays meet the box where |s (d + v)| is about |x0 - X(tau0)|: coordinates up to this
+        x_max, tau_max = extent
+        scale = 1.0 + x_max + self.x_reach + self.v_reach * (tau_max + self.abs_t)
+        return self.margin + 1e-9 * scale[:, None]
+
+    def along(self, direction) -> tuple:
+        """(w, w == 0, whether any w is 0) for unbounded rays along ``direction`` (3,): each body's
+        centre sees them run along -w = -(direction + v); kept per direction (a sharp sun's)."""
+        key = direction.tobytes()
+        kept = self._parallel.get(key)
+        if kept is None:
+            if len(self._parallel) >= _MAX_DIRECTIONS:
+                self._parallel.clear()
+            w = -(direction[:, None] + self.axes_velocity)
+            parallel = w == 0.0
+            w.flags.writeable = parallel.flags.writeable = False
+            kept = self._parallel[key] = (w, parallel, bool(parallel.any()))
+        return kept
+
+
+_MAX_DIRECTIONS = 64  # parallel bundles' directions kept per source frame (a sharp sun's: one per sun)
+
+
+def _boxes_of_sources(t, x, velocity, half) -> list[_Boxes]:
+    """The :class:`_Boxes` of each source frame from the body boxes seen from each, (sources, m) and
+    (sources, m, 3) (``FrameSet.body_boxes_of``): what they derive worked out for all at once."""
+    derived = {"t": t, "x": x, "velocity": velocity, "half": half, "margin": _float32_margin(half),
+               "abs_t": np.abs(t), "x_reach": np.max(np.abs(x), axis=-1), "v_reach": np.max(np.abs(velocity), axis=-1),
+               "axes_t": t[:, None, :]}
+    for name in ("x", "velocity", "margin"):
+        derived["axes_" + name] = np.ascontiguousarray(np.swapaxes(derived[name], 1, 2))
+    derived["axes_half_speed"] = np.abs(derived["axes_velocity"]) * 0.5
+    for a in derived.values():
+        a.flags.writeable = False
+    return [_Boxes({name: a[i] for name, a in derived.items()}) for i in range(len(t))]
+
+
+def _float32_margin(half) -> np.ndarray:
+    """Half-extents (..., m, 3) of body boxes widened for float32 geometry (:meth:`_Boxes.widened`
+    adds the float64 arithmetic's share)."""
+    return half * (1.0 + 2 * _PAD) + 2 * _PAD * half.max(axis=-1, keepdims=True)
 
 
 @dataclass
@@ -996,9 +1140,16 @@ def _bundle_reach(tau0, x0, d, s_lo, s_hi) -> Reach | None:
     """The bundle's :class:`Reach`; None for unbounded rays in different directions."""
     if len(d) == 0:
         return None
-    bounded = bool(np.all(np.isfinite(s_hi)))
-    if not bounded and not (np.array_equal(d[-1], d[0]) and np.all(d == d[0])):  # (the ends first: no pass)
+    bounded = math.isfinite(s_hi[0]) if _one_row(s_hi) else bool(np.all(np.isfinite(s_hi)))
+    if not bounded and not (_one_row(d) or (np.array_equal(d[-1], d[0]) and np.all(d == d[0]))):  # (the ends first)
         return None
+    if not bounded and _one_row(s_lo):
+        # parallel rays from one path length: each axis' start is x0 + one number, and rounding is
+        # monotonic, so its least (greatest) is that of the least (greatest) x0: the same bits
+        s_start, step = float(s_lo[0]), float(s_lo[0]) * d[0]
+        lo = np.array([float(x0[:, axis].min()) for axis in range(3)]) + step
+        hi = np.array([float(x0[:, axis].max()) for axis in range(3)]) + step
+        return Reach(lo, hi, float(tau0.min()) - s_start, float(tau0.max()) - s_start, np.array(d[0]))
     lo, hi = np.empty(3), np.empty(3)
     ends = np.empty(len(d))
     for axis in range(3):  # one axis at a time: numpy is slow along a length-3 last axis
@@ -1014,6 +1165,11 @@ def _bundle_reach(tau0, x0, d, s_lo, s_hi) -> Reach | None:
                  None if bounded else np.array(d[0]))
 
 
+def _one_row(values) -> bool:
+    """Whether ``values`` is one row broadcast to every ray (``_per_ray`` of one number, a shared direction)."""
+    return values.strides[0] == 0
+
+
 def _may_meet(frames: FrameSet, src: int, ks, reach: Reach, cache: TraceCache | None) -> np.ndarray:
     """Which of the frames ``ks`` have a body that can come within reach of the bundle (a mask)?
 
@@ -1023,32 +1179,41 @@ def _may_meet(frames: FrameSet, src: int, ks, reach: Reach, cache: TraceCache | 
     Unbounded parallel rays: relative to a body a ray starting at p at time t runs from
     p - X(t) along w = d + v, so it can meet the body only if the ray from the body's centre
     along -w meets the box of relative starts widened by the body's half-extents.
-    All frames at once: a slab test per frame, vectorised.
+    All frames at once: a slab test per frame, vectorised (a row per axis, :class:`_Boxes`).
     """
-    t_a, x_a, velocity, half = _boxes_of(frames, src, ks, cache)
-    scale = 1.0 + float(np.max(np.abs(reach.hi))) + float(np.max(np.abs(reach.lo)))
-    widen = _widened(half, scale)
+    boxes = _boxes(frames, src, ks, cache)
+    lo, hi = reach.lo[:, None], reach.hi[:, None]
+    scale = 1.0 + max(map(abs, reach.hi.tolist())) + max(map(abs, reach.lo.tolist()))
+    widen = boxes.axes_margin + 1e-9 * scale
     if reach.direction is None:
-        start = x_a + velocity * (reach.earliest - t_a)[:, None]
-        return _segments_meet_boxes(start, velocity * (reach.latest - reach.earliest), 1.0,
-                                    reach.lo - widen, reach.hi + widen)
+        start = boxes.axes_x + boxes.axes_velocity * (reach.earliest - boxes.axes_t)
+        direction = boxes.axes_velocity * (reach.latest - reach.earliest)
+        return _segments_meet_boxes(start, direction, 1.0, lo - widen, hi + widen, direction == 0.0)
     middle = 0.5 * (reach.earliest + reach.latest)
-    centre = x_a + velocity * (middle - t_a)[:, None]
-    drift = np.abs(velocity) * 0.5 * (reach.latest - reach.earliest)  # how far each body moves about X(middle)
-    return _segments_meet_boxes(np.zeros_like(centre), -(reach.direction + velocity), np.inf,
-                                reach.lo - centre - drift - widen, reach.hi - centre + drift + widen)
+    centre = boxes.axes_x + boxes.axes_velocity * (middle - boxes.axes_t)
+    drift = boxes.axes_half_speed * (reach.latest - reach.earliest)  # how far each body moves about X(middle)
+    w, parallel, any_parallel = boxes.along(reach.direction)
+    return _segments_meet_boxes(None, w, np.inf, lo - centre - drift - widen, hi - centre + drift + widen,
+                                parallel if any_parallel else None)
 
 
-def _segments_meet_boxes(origin, direction, t_max: float, lo, hi) -> np.ndarray:
-    """Whether each origin + t direction, 0 <= t <= t_max, meets its box [lo, hi] ((m, 3) arrays;
-    all axes at once: m is the number of frames, small, so the calls are what costs)."""
-    parallel = direction == 0.0  # inside the slab for every t, or never
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_a = np.where(parallel, -np.inf, (lo - origin) / direction)
-        t_b = np.where(parallel, np.inf, (hi - origin) / direction)
-    enter = np.maximum(np.minimum(t_a, t_b).max(axis=1), 0.0)
-    leave = np.minimum(np.maximum(t_a, t_b).min(axis=1), t_max)
-    leave[(parallel & ((origin < lo) | (origin > hi))).any(axis=1)] = -np.inf
+def _segments_meet_boxes(origin, direction, t_max: float, lo, hi, parallel) -> np.ndarray:
+    """Whether each origin + t direction, 0 <= t <= t_max, meets its box [lo, hi]: (3, m) arrays, a
+    row per axis, m boxes (few: the calls are what costs); ``origin`` None: 0.  ``parallel``:
+    ``direction == 0`` (inside the slab for every t, or never), None where no component is 0."""
+    if origin is not None:
+        lo, hi = lo - origin, hi - origin
+    if parallel is None:
+        t_a, t_b = lo / direction, hi / direction
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_a = np.where(parallel, -np.inf, lo / direction)
+            t_b = np.where(parallel, np.inf, hi / direction)
+    near, far = np.minimum(t_a, t_b), np.maximum(t_a, t_b)
+    enter = np.maximum(np.maximum(np.maximum(near[0], near[1]), near[2]), 0.0)
+    leave = np.minimum(np.minimum(np.minimum(far[0], far[1]), far[2]), t_max)
+    if parallel is not None:
+        leave[(parallel & ((lo > 0.0) | (hi < 0.0))).any(axis=0)] = -np.inf
     return enter <= leave
 
 

@@ -17,7 +17,8 @@ every worker reads for itself, at once, so no worker waits for the scene to pass
 pipes of the others (a new scene replaces the old one there; the same one rendered again is
 not sent again).  The engine does that before it prepares the scene (:func:`build_ahead`), so
 the workers build it while this process does, and the render sends them only what the
-pre-passes measured.  It then deals work two shares at a time per worker.  A share
+pre-passes measured.  It then deals work two shares at a time per worker (one in the
+render's tail, so that none waits behind a long share while the others run dry).  A share
 is a whole tile or, towards the end of a render with several workers, a band of a tile's
 rows (:func:`share_out`), so the workers finish together however unevenly the cost is spread
 over the image; the caller gets whole tiles, as from threads.  A worker writes each share's
@@ -73,6 +74,11 @@ _ONE_BLAS_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NU
 
 _TILES_IN_FLIGHT = 2  # shares per worker: one rendering, one waiting, so a worker never idles between them
 _SHARES_PER_WORKER = 4  # guided dealing: a share is about this fraction of a worker's part of what is left
+# the tail of a render: with at most this many shares a worker left to deal, each worker holds one
+# share at a time (none is tied up waiting behind a long one while others run dry) while shares
+# take at least _TAIL_SECONDS (the round trip to deal the next, 0.3-1 ms, is then a few percent)
+_TAIL_SHARES = 4
+_TAIL_SECONDS = 0.02
 _MIN_SHARE_PIXELS = 8192  # smaller bands cost more than they win: a render_tile call costs 0.2-3.5 ms whatever its size
 _WORKER_MEMORY = 400 << 20  # bytes a worker needs besides its scene (interpreter, numpy, embree, tile batches)
 _SCENE_MEMORY_FACTOR = 6  # a worker's rebuilt scene (frames, BVHs, caches) against its pickled size
@@ -84,6 +90,8 @@ _BATCH = 0.04
 _WATCHDOG = 0.2  # seconds between a worker's checks that its parent lives
 # where a render's results image is made: shared memory first (Linux), else the temporary folder
 _RESULTS_FOLDERS = ("/dev/shm", tempfile.gettempdir())
+_ALIGN = 64  # bytes: where each array of a scene's file starts (as numpy aligns its own)
+_IN_BAND_BYTES = 1 << 16  # smaller arrays are copied into the scene's pickle (a write and padding each would cost more)
 _FRAME = struct.Struct("<Q")  # a worker's message on its pipe: the length of its pickle, then the pickle
 # Windows cannot wait on pipes with select: a reader thread per worker reads its pipe there
 _READER_THREADS = sys.platform == "win32"
@@ -152,21 +160,49 @@ def share_out(rects, workers: int) -> list[tuple[int, tuple[int, int] | None]]:
     return shares
 
 
-def _piece(band: Tile | None, results: _ResultsImage, tile_index: int, rect, rows) -> Tile:
-    """A share's band of rows: as it came (``band``) or, None, its rows in the results image."""
-    if band is not None:
-        return band
-    x0, y0, x1, y1 = rect
-    top, bottom = (y0, y1) if rows is None else rows
-    return Tile(x0, top, x1, bottom, {name: region[top - y0:bottom - y0]
-                                      for name, region in results.passes(tile_index, rect).items()})
+class _Pickled:
+    """A value pickled for a file, its arrays out of band (pickle protocol 5): their bytes go
+    from their place into the file, not first into the pickle (moving_sphere's 5.6 MB scene:
+    0.4-0.5 ms to pickle instead of 3.9-4.1, on the loaded VM), and a reader's arrays are views
+    of the one buffer it reads the file into, each at a multiple of ``_ALIGN`` bytes."""
 
+    _HEAD = struct.Struct("<QQ")  # the pickle's size, the number of arrays (then each array's size)
 
-def _joined(rect, pieces: list[Tile]) -> Tile:
-    """A tile from its bands of rows (bottom first)."""
-    if len(pieces) == 1:
-        return pieces[0]
-    return Tile(*rect, {name: np.concatenate([piece.passes[name] for piece in pieces]) for name in pieces[0].passes})
+    def __init__(self, value):
+        buffers = []  # the large arrays' (a false answer: out of band); small ones stay in the pickle
+        self.pickle = pickle.dumps(value, protocol=5, buffer_callback=lambda buffer: (
+            buffer.raw().nbytes < _IN_BAND_BYTES or buffers.append(buffer)))
+        self.arrays = [buffer.raw() for buffer in buffers]
+
+    def write(self, file) -> int:
+        """Write it into the ``file`` open for writing; the bytes written."""
+        sizes = [array.nbytes for array in self.arrays]
+        file.write(self._HEAD.pack(len(self.pickle), len(sizes)) + struct.pack(f"<{len(sizes)}Q", *sizes))
+        file.write(self.pickle)
+        offset = self._HEAD.size + 8 * len(sizes) + len(self.pickle)
+        for array in self.arrays:
+            padding = -offset % _ALIGN
+            file.write(bytes(padding))
+            file.write(array)
+            offset += padding + array.nbytes
+        return offset
+
+    @classmethod
+    def read(cls, path: str):
+        """The value in the file ``path`` (written by :meth:`write`)."""
+        with open(path, "rb") as file:
+            size = os.fstat(file.fileno()).st_size
+            data = np.empty(size + _ALIGN, np.uint8)
+            data = data[-data.ctypes.data % _ALIGN:][:size]
+            file.readinto(memoryview(data))
+        pickled, count = cls._HEAD.unpack_from(data)
+        offset = cls._HEAD.size + 8 * count
+        buffers, start = [], offset + pickled
+        for size in struct.unpack_from(f"<{count}Q", data, cls._HEAD.size):
+            start += -start % _ALIGN
+            buffers.append(data[start:start + size])
+            start += size
+        return pickle.loads(data[offset:offset + pickled], buffers=buffers)
 
 
 def _pass_regions(image: np.ndarray, start: int, layout: dict[str, int], rect) -> dict[str, np.ndarray]:
@@ -187,23 +223,25 @@ class _ResultsImage:
     passes through a pipe or a pickle, and a tile's bands are whole in place, not joined.
 
     The tiles this process hands out are views of the mapping (it lives while they do); the
-    file itself is removed when the render ends (a worker maps it only while it writes a share)."""
+    file itself is removed when the render ends (a worker maps it only while it writes a share).
+    Without room for the file (``path`` None) the workers send their shares' passes through their
+    pipes and this process copies them into place, in a tile of its own memory made when its
+    first band comes (and handed out with the tile): a tile is assembled one way either way."""
 
-    def __init__(self, path: str, mapped: mmap.mmap, layout: dict[str, int], offsets: list[int]):
+    def __init__(self, path: str | None, mapped: mmap.mmap | None, layout: dict[str, int], offsets: list[int]):
         self.path, self.layout, self.offsets = path, layout, offsets  # offsets: each tile's first value
-        self.values = np.frombuffer(mapped, np.float32)
+        self.values = None if mapped is None else np.frombuffer(mapped, np.float32)
+        self._own: dict[int, dict[str, np.ndarray]] = {}  # without a file: tile index -> its passes here
 
     @classmethod
-    def create(cls, rects, layout: dict[str, int]) -> "_ResultsImage | None":
-        """The results image of tiles ``rects``; None where no folder has room for it (the results
-        then come through the pipes)."""
+    def create(cls, rects, layout: dict[str, int]) -> "_ResultsImage":
+        """The results image of tiles ``rects``: in a file where a folder has room for it, else
+        in this process's memory (the results then come through the pipes)."""
         per_pixel = sum(layout.values())
         offsets = list(itertools.accumulate(((x1 - x0) * (y1 - y0) * per_pixel for x0, y0, x1, y1 in rects),
                                             initial=0))
-        size = 4 * offsets.pop()
-        if size == 0:
-            return None
-        for folder in _RESULTS_FOLDERS:
+        size = 4 * offsets[-1]
+        for folder in _RESULTS_FOLDERS if size else ():
             try:  # room for it twice over: a full tmpfs would kill the worker writing to it (SIGBUS)
                 if not os.path.isdir(folder) or shutil.disk_usage(folder).free < 2 * size:
                     continue
@@ -219,10 +257,32 @@ class _ResultsImage:
                 continue
             os.close(descriptor)
             return cls(path, mapped, layout, offsets)
-        return None
+        return cls(None, None, layout, offsets)
+
+    def place(self, tile_index: int) -> tuple | None:
+        """Where a worker writes a share of the tile (None: into no file, it sends the passes)."""
+        return None if self.path is None else (self.path, self.offsets[tile_index], self.layout)
 
     def passes(self, tile_index: int, rect) -> dict[str, np.ndarray]:
-        return _pass_regions(self.values, self.offsets[tile_index], self.layout, rect)
+        """The tile's pass arrays (h, w, channels): views of the image."""
+        if self.values is not None:
+            return _pass_regions(self.values, self.offsets[tile_index], self.layout, rect)
+        if tile_index not in self._own:
+            values = np.empty(self.offsets[tile_index + 1] - self.offsets[tile_index], np.float32)
+            self._own[tile_index] = _pass_regions(values, 0, self.layout, rect)
+        return self._own[tile_index]
+
+    def put(self, tile_index: int, rect, rows, passes: dict):
+        """Copy a share's passes that came through a pipe into their tile's place."""
+        top = 0 if rows is None else rows[0] - rect[1]
+        for name, region in self.passes(tile_index, rect).items():
+            region[top:top + len(passes[name])] = passes[name]
+
+    def tile(self, tile_index: int, rect) -> Tile:
+        """The whole tile, once every share of it is in (handed out: this image no longer holds it)."""
+        passes = self.passes(tile_index, rect)
+        self._own.pop(tile_index, None)
+        return Tile(*rect, passes)
 
 
 def _write_share(place, rect, rows, passes: dict) -> bool:
@@ -301,6 +361,7 @@ class _Worker:
         self.measured = None  # (scene id, measurements) it was last sent
         self.dealt: dict[int, tuple] = {}  # share id -> (tile index, rows), of the current render
         self.receiving_cpu = 0.0  # CPU seconds spent reading and unpickling its messages
+        self.posted: list[bytes] = []  # pickled messages for its next write
         self.send(boot)
         self._inbox = inbox
         inbox.add(self)
@@ -309,16 +370,24 @@ class _Worker:
     def pid(self) -> int:
         return self.process.pid
 
+    def post(self, message):
+        """Queue ``message`` for the next :meth:`send` (one write for several: each write costs
+        both processes a system call, and the worker a wake-up)."""
+        self.posted.append(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
+
     def send(self, *messages) -> bool:
-        """Pickle ``messages`` to the worker (in one write); False once it is gone."""
-        if not self.alive:
-            return False
+        """Pickle ``messages`` to the worker, after those posted, in one write; False once it is gone."""
+        for message in messages:
+            self.post(message)
+        if not self.alive or not self.posted:
+            self.posted.clear()
+            return self.alive
         try:
-            for message in messages:
-                self.process.stdin.write(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
+            self.process.stdin.write(b"".join(self.posted))
             self.process.stdin.flush()
         except (OSError, ValueError):
             self.alive = False
+        self.posted.clear()
         return self.alive
 
     def close(self, wait: float = 1.0):
@@ -397,44 +466,54 @@ class _Inbox:
     def _read_ready(self, key):
         """Read what ``key``'s pipe holds (select said it would not block) and take its whole messages."""
         worker, pending = key.data
-        cpu = time.thread_time()
-        try:
-            data = os.read(key.fd, 1 << 20)
-        except OSError:
-            data = b""
-        if not data:  # EOF: the worker is gone
+        if not self._read_chunk(worker, key.fd, pending, self._read.append):  # EOF: the worker is gone
             self._selector.unregister(key.fd)
             self._read.append((worker, ("dead",)))
-            return
-        pending += data
-        start = 0
-        while len(pending) - start >= _FRAME.size:
-            (size,) = _FRAME.unpack_from(pending, start)
-            if len(pending) - start - _FRAME.size < size:
-                break
-            start += _FRAME.size
-            self._read.append((worker, pickle.loads(memoryview(pending)[start:start + size])))
-            start += size
-        del pending[:start]
-        worker.receiving_cpu += time.thread_time() - cpu
 
     def _read_thread(self, worker: _Worker):
-        stream = worker.process.stdout
-        while True:
-            try:
-                cpu = time.thread_time()
-                (size,) = _FRAME.unpack(stream.read(_FRAME.size))
-                message = pickle.loads(stream.read(size))
-                worker.receiving_cpu += time.thread_time() - cpu
-            except Exception:  # EOF, a broken pipe or a truncated pickle: the worker is gone
-                self._queue.put((worker, ("dead",)))
-                return
-            self._queue.put((worker, message))
+        fd, pending = worker.process.stdout.fileno(), bytearray()
+        try:
+            while self._read_chunk(worker, fd, pending, self._queue.put):
+                pass
+        except Exception:  # a message that does not unpickle: the worker cannot be trusted
+            pass
+        self._queue.put((worker, ("dead",)))  # EOF or a broken pipe: the worker is gone
+
+    @staticmethod
+    def _read_chunk(worker: _Worker, fd: int, pending: bytearray, take) -> bool:
+        """One read of ``worker``'s pipe (blocking until it holds something) into ``pending``;
+        ``take((worker, message))`` for each message it completes.  False at its end of file."""
+        cpu = time.thread_time()
+        try:
+            data = os.read(fd, 1 << 20)
+        except OSError:
+            data = b""
+        if data:
+            pending += data
+            for message in _messages(pending):
+                take((worker, message))
+        worker.receiving_cpu += time.thread_time() - cpu
+        return bool(data)
 
     def remove(self, worker: _Worker):
         """Stop reading ``worker``'s pipe (it is being closed; its reader thread ends at its EOF)."""
         if self._selector is not None and worker.process.stdout.fileno() in self._selector.get_map():
             self._selector.unregister(worker.process.stdout.fileno())
+
+
+def _messages(pending: bytearray) -> list:
+    """The whole messages at the start of ``pending`` (framed by :data:`_FRAME`), which loses
+    them: what is left is the start of the next message.  The one place that reads the framing."""
+    messages, start = [], 0
+    while len(pending) - start >= _FRAME.size:
+        (size,) = _FRAME.unpack_from(pending, start)
+        if len(pending) - start - _FRAME.size < size:
+            break
+        start += _FRAME.size
+        messages.append(pickle.loads(memoryview(pending)[start:start + size]))
+        start += size
+    del pending[:start]
+    return messages
 
 
 class _Pace:
@@ -456,10 +535,12 @@ class _Pace:
             self._pixels.append((x1 - x0) * ((y1 - y0) if rows is None else rows[1] - rows[0]))
         self._shares_finished, self._pixels_finished, self._seconds_finished = 0, 0, 0.0  # wall seconds
 
-    def finished(self, pixels: int, seconds: float):
+    def finished(self, share: int, seconds: float) -> int:
+        """Count a share finished after ``seconds``; its pixels."""
         self._shares_finished += 1
-        self._pixels_finished += pixels
+        self._pixels_finished += self._pixels[share]
         self._seconds_finished += seconds
+        return self._pixels[share]
 
     def _share_seconds(self) -> float | None:
         """Wall seconds a finished share took on average (None: none finished yet)."""
@@ -470,22 +551,34 @@ class _Pace:
         per_pixel = self._seconds_finished / max(self._pixels_finished, 1)
         return per_pixel * sum(self._pixels[share] for share in shares)
 
-    def wants(self, worker: _Worker, todo, workers: int) -> bool:
-        """Whether ``worker`` is to be dealt another share."""
-        if len(worker.dealt) < _TILES_IN_FLIGHT:
-            return True
-        return self._batching(todo, workers) and self.seconds(worker.dealt) < 2 * _BATCH
+    def wants(self, worker: _Worker, batching: bool, tail: bool = False) -> bool:
+        """Whether ``worker`` is to be dealt another share (``batching``: :meth:`batching`; ``tail``:
+        :meth:`tail`; decided once a round)."""
+        if tail:
+            return not worker.dealt
+        return len(worker.dealt) < _TILES_IN_FLIGHT or (batching and self.seconds(worker.dealt) < 2 * _BATCH)
 
-    def pause(self, workers) -> float:
+    def tail(self, todo, workers: int) -> bool:
+        """Whether the render is in its tail: few shares left to deal (``_TAIL_SHARES`` a worker),
+        long ones (``_TAIL_SECONDS``), and someone to balance with.  Simulated with moving_sphere's
+        measured band costs (tests/bench/sim_shares.py), a worker then holding one share instead
+        of two evens out the workers' ends: 16 workers 0.76-0.77 -> 0.84-0.86 of the ideal, 8 workers
+        0.85-0.88 -> 0.91-0.92, 2 workers 0.98-0.99 as before."""
+        share_seconds = self._share_seconds()
+        return (workers > 1 and share_seconds is not None and share_seconds >= _TAIL_SECONDS
+                and len(todo) <= _TAIL_SHARES * workers)
+
+    def pause(self, workers, todo=()) -> float:
         """Seconds the loop may sleep before it handles what came: 0 (wait for each message) unless
         shares come faster than one a ``_BATCH``; then at most ``_BATCH`` and half the work a
-        worker holds, so that none runs dry and the last shares are handled soon after they end."""
+        worker holds, so that none runs dry and the last shares are handled soon after they end.
+        0 in the tail (a worker waits for its next share)."""
         share_seconds = self._share_seconds()
-        if share_seconds is None or share_seconds >= len(workers) * _BATCH:
+        if share_seconds is None or share_seconds >= len(workers) * _BATCH or self.tail(todo, len(workers)):
             return 0.0
         return min(_BATCH, min(self.seconds(worker.dealt) for worker in workers) / 2)
 
-    def _batching(self, todo, workers: int) -> bool:
+    def batching(self, todo, workers: int) -> bool:
         """Whether a worker may hold work for 2 ``_BATCH``: shares come faster than one a batch and
         enough is left a worker that none waits at the end for another's queue."""
         share_seconds = self._share_seconds()
@@ -548,7 +641,12 @@ class WorkerPool:
             self._start(0)  # raises where no worker can start: then nothing is pickled
             stats = RenderStats(time.monotonic())
             scene_id = self._scene_id(scene, settings, stats)
-            self._send_scene(self._start(worker_count(count, self._scene_bytes, available_memory())), scene_id, stats)
+            ahead = self._start(worker_count(count, self._scene_bytes, available_memory()))
+            self._send_scene(ahead, scene_id, stats)
+            sending = time.thread_time()
+            for worker in ahead:  # now: they build while this process prepares
+                worker.send()
+            stats.sending += time.thread_time() - sending
             self._ahead = (scene_id, stats.pickling, stats.sending)
         except WorkersUnavailable:
             pass
@@ -581,8 +679,7 @@ class WorkerPool:
         stats.workers, stats.shares = len(workers), len(shares)
         todo = collections.deque(enumerate(shares))  # (share id, (tile index, rows))
         pace = _Pace(shares, rects)
-        bands = collections.Counter(tile for tile, _ in shares)  # shares per tile
-        pieces: dict[int, dict[int, Tile]] = {}  # tile index -> {share id: its band} of tiles not yet whole
+        bands = collections.Counter(tile for tile, _ in shares)  # shares of each tile not yet in
         done = set()  # tiles yielded
         try:
             while len(done) < len(rects):
@@ -598,7 +695,7 @@ class WorkerPool:
                     yield from tiles_in_threads(prepared, [rect for index, rect in enumerate(rects)
                                                            if index not in done], count, should_stop)
                     return
-                pause = pace.pause(workers)
+                pause = pace.pause(workers, todo)
                 if pause > 0:
                     time.sleep(pause)
                 messages = self._inbox.take(0.0 if pause > 0 else _POLL)
@@ -611,18 +708,12 @@ class WorkerPool:
                     received = self._receive(worker, message, job, todo, scene_id, stats, pace)
                     if received is None:
                         continue
-                    share, tile_index, piece = received
-                    got = pieces.setdefault(tile_index, {})
-                    got[share] = piece
-                    if len(got) < bands[tile_index]:
-                        continue
-                    if all(piece is None for piece in got.values()):  # every band written in place
-                        tile = Tile(*rects[tile_index], results.passes(tile_index, rects[tile_index]))
-                    else:
-                        tile = _joined(rects[tile_index], [_piece(got[key], results, tile_index, rects[tile_index],
-                                                                  shares[key][1]) for key in sorted(got)])
-                    del pieces[tile_index]
-                    finished.append((tile_index, tile))
+                    tile_index, rows, passes = received
+                    if passes is not None:  # it came through the pipe
+                        results.put(tile_index, rects[tile_index], rows, passes)
+                    bands[tile_index] -= 1
+                    if bands[tile_index] == 0:
+                        finished.append((tile_index, results.tile(tile_index, rects[tile_index])))
                 for tile_index, tile in finished:
                     if should_stop():  # Esc: not another tile, even one finished in the same round
                         return
@@ -637,7 +728,7 @@ class WorkerPool:
             if len(done) < len(rects):  # Esc, an error, or the caller stopped iterating: free the workers at once
                 for worker in workers:
                     worker.send(("cancel", job))
-            if results is not None and not _remove(results.path):  # mapped here while the tiles live
+            if results.path is not None and not _remove(results.path):  # mapped here while the tiles live
                 self._unremoved.append(results.path)  # Windows: removed once they are gone
             stats.receiving_cpu = sum(worker.receiving_cpu - before for worker, before in receiving.items())
             stats.loop_cpu += (time.thread_time() - cpu - stats.polling_cpu
@@ -645,22 +736,19 @@ class WorkerPool:
             stats.ended = time.monotonic()
 
     def _send_scene(self, workers, scene_id: int, stats: RenderStats, measurements=None):
-        """Send the scene ``scene_id`` to the workers that do not hold it, and the pre-passes'
+        """Post the scene ``scene_id`` to the workers that do not hold it, and the pre-passes'
         ``measurements`` of its prepared scene (None: not yet, :meth:`build_ahead`) to those
-        that do not have them."""
+        that do not have them: written with their first shares (a worker that dies before
+        gets none again: it is not dealt any)."""
         sending = time.thread_time()
         measured = None if measurements is None else (scene_id, measurements)
         for worker in workers:
-            messages = []
             if worker.scene_id != scene_id:
-                worker.measured = None
-                messages.append(("scene", scene_id, self._scene_file))
+                worker.post(("scene", scene_id, self._scene_file))
+                worker.scene_id, worker.measured = scene_id, None
             if measured is not None and worker.measured != measured:
-                messages.append(("measured", *measured))
-            if messages:
-                sent = worker.send(*messages)
-                worker.scene_id = scene_id if sent else None
-                worker.measured = measured if sent else None
+                worker.post(("measured", *measured))
+                worker.measured = measured
         stats.sending += time.thread_time() - sending
 
     def _scene_id(self, scene: Scene, settings: RenderSettings, stats: RenderStats) -> int:
@@ -671,16 +759,15 @@ class WorkerPool:
         if (self._sent_scene is None or self._sent_scene[0]() is not scene
                 or self._sent_scene[1] != settings_pickle):
             pickling = time.thread_time()
-            payload = pickle.dumps((scene, settings), protocol=pickle.HIGHEST_PROTOCOL)
+            pickled = _Pickled((scene, settings))
             stats.pickling = time.thread_time() - pickling
             writing = time.thread_time()
             self._forget_scene()
             descriptor, self._scene_file = tempfile.mkstemp(prefix=f"restframe-scene-{os.getpid()}-", suffix=".pickle")
             self._scene_file_removal = weakref.finalize(self, _remove, self._scene_file)
             with open(descriptor, "wb") as scene_file:
-                scene_file.write(payload)
+                self._scene_bytes = pickled.write(scene_file)
             stats.sending = time.thread_time() - writing
-            self._scene_bytes = len(payload)
             self._sent_scene = (weakref.ref(scene), settings_pickle, next(self._scene_ids))
         return self._sent_scene[2]
 
@@ -709,19 +796,19 @@ class WorkerPool:
         """Deal every worker the shares it wants (``pace``: at least ``_TILES_IN_FLIGHT``), one
         share per worker in turn (so the first round reaches every worker); each share names its
         tile's place in the ``results`` image (None: no image, the passes come back in the message)."""
-        dealt = True
+        tail = pace.tail(todo, len(workers))
+        batching, dealt = not tail and pace.batching(todo, len(workers)), True
         while todo and dealt:
             dealt = False
             for worker in workers:
-                if todo and worker.alive and pace.wants(worker, todo, len(workers)):
+                if todo and worker.alive and pace.wants(worker, batching, tail):
                     share, (tile_index, rows) = todo.popleft()
-                    place = None if results is None else (results.path, results.offsets[tile_index], results.layout)
-                    if worker.send(("tile", job, scene_id, share, rects[tile_index], rows, place)):
-                        worker.dealt[share] = (tile_index, rows)
-                        dealt = True
-                    else:
-                        todo.appendleft((share, (tile_index, rows)))
-                        self._lost(worker, todo)
+                    worker.post(("tile", job, scene_id, share, rects[tile_index], rows, results.place(tile_index)))
+                    worker.dealt[share] = (tile_index, rows)
+                    dealt = True
+        for worker in workers:  # one write a worker for all it was dealt (and what was posted before)
+            if worker.posted and worker.alive and not worker.send():
+                self._lost(worker, todo)
 
     def _lost(self, worker: _Worker, todo):
         """A worker ended: its shares go back to the front of the queue."""
@@ -737,8 +824,8 @@ class WorkerPool:
                 worker.process.kill()
 
     def _receive(self, worker: _Worker, message, job: int, todo, scene_id: int, stats: RenderStats, pace: _Pace):
-        """Handle one message of a worker; (share id, tile index, band) when it is a finished
-        share of this render (band None: written into the results image)."""
+        """Handle one message of a worker; (tile index, rows, passes) when it is a finished share
+        of this render (passes None: written into the results image)."""
         kind = message[0]
         if kind == "dead":
             if worker.alive or worker.dealt:
@@ -751,25 +838,24 @@ class WorkerPool:
         elif kind == "error" and message[1] == job:
             raise message[2]
         elif kind == "tile" and message[1] == job:
-            _, _, share, tile, written, (started, ended, cpu) = message
+            _, _, share, complete, passes, (started, ended, cpu) = message
             unit = worker.dealt.pop(share, None)
-            if unit is not None and tile.complete:
-                pixels = (tile.x1 - tile.x0) * (tile.y1 - tile.y0)
+            if unit is not None and complete:
+                pixels = pace.finished(share, ended - started)
                 stats.rendered.setdefault(worker.pid, []).append((unit[0], pixels, started, ended, cpu))
-                pace.finished(pixels, ended - started)
-                stats.in_place += written
-                return share, unit[0], None if written else tile
+                stats.in_place += passes is None
+                return (*unit, passes)
             if unit is not None:  # cut short although this render goes on: deal it again
                 todo.appendleft((share, unit))
         return None  # a message of an earlier render
 
     def status(self, timeout: float = 60.0) -> dict[int, dict]:
         """Each live worker's answer once it has dealt with everything sent before (when no render
-        runs): {pid: {"modules": its sys.modules names, "late_tiles": tiles of earlier renders
-        that arrived since the last status (complete or cut short by Esc)}}."""
+        runs): {pid: {"modules": its sys.modules names, "late_shares": whether each share of an
+        earlier render that arrived since the last status was complete (False: cut short by Esc)}}."""
         with self._busy:
             token = next(self._tokens)
-            waiting = {worker: {"late_tiles": []} for worker in self._workers if worker.send(("status", token))}
+            waiting = {worker: {"late_shares": []} for worker in self._workers if worker.send(("status", token))}
             deadline = time.monotonic() + timeout
             while any("modules" not in answer for answer in waiting.values()) and time.monotonic() < deadline:
                 try:
@@ -781,7 +867,7 @@ class WorkerPool:
                 if message[0] == "status" and message[1] == token:
                     waiting[worker]["modules"] = message[2]
                 elif message[0] == "tile":
-                    waiting[worker]["late_tiles"].append(message[3])
+                    waiting[worker]["late_shares"].append(message[3])
                 elif message[0] == "dead":
                     worker.alive = False
                     waiting.pop(worker)
@@ -901,8 +987,7 @@ def serve(commands, results, parent_pid: int):
                 scene_id = message[1]
                 started, cpu = time.monotonic(), time.thread_time()
                 try:
-                    with open(message[2], "rb") as pickled:
-                        built = build_unmeasured(*pickle.loads(pickled.read()), geometry)
+                    built = build_unmeasured(*_Pickled.read(message[2]), geometry)
                     cache = TraceCache()
                 except Exception as error:
                     built = _picklable(error)
@@ -925,10 +1010,10 @@ def serve(commands, results, parent_pid: int):
                 except Exception as error:
                     send(("error", job, _picklable(error)))
                     continue
-                written = tile.complete and place is not None and _write_share(place, rect, rows, tile.passes)
-                if written:
-                    tile.passes = {}
-                send(("tile", job, share, tile, written, (started, time.monotonic(), time.thread_time() - cpu)))
+                # the passes come back through the pipe only when complete and not written in place
+                piped = tile.complete and not (place is not None and _write_share(place, rect, rows, tile.passes))
+                send(("tile", job, share, tile.complete, tile.passes if piped else None,
+                      (started, time.monotonic(), time.thread_time() - cpu)))
             elif kind == "status":
                 send(("status", message[1], sorted(sys.modules)))
 

@@ -83,16 +83,19 @@ def _polar(z, phi):
     return out
 
 
-def image_lookup(texels: Texels, u, v, interpolation: str = "Linear", channels: int | None = None):
+def image_lookup(texels: Texels, u, v, interpolation: str = "Linear", channels: int | None = None,
+                 columns: bool = False):
     """Colours (n, C) of an (H, W, C) image, laid out once as its :class:`Texels`, at (u, v),
     repeating in both directions as Cycles' environment lookups: bilinear between pixel centres,
-    or the nearest pixel (Closest); ``channels``: only the first so many.  Gathers whole pixels
-    (np.take of rows) and blends one channel at a time (see :mod:`.rows`), in place: a fresh
-    temporary of every step costs more than the step (page faults)."""
+    or the nearest pixel (Closest); ``channels``: only the first so many; ``columns``: into an
+    array whose columns are contiguous (written 2.5x faster, for more work column by column).
+    Gathers whole pixels (np.take of rows) and blends one channel at a time (see :mod:`.rows`), in
+    place: a fresh temporary of every step costs more than the step (page faults)."""
     h, w, pixels = texels.height, texels.width, texels.pixels
     stride = w + 1
     channels = texels.channels if channels is None else min(channels, texels.channels)
-    out = np.empty((len(u), channels), dtype=np.result_type(pixels, np.float64))
+    out = np.empty((channels, len(u)) if columns else (len(u), channels), np.result_type(pixels, np.float64))
+    out = out.T if columns else out
     if interpolation == "Closest":
         index = _wrap(np.floor(v * h).astype(np.int64), h) * stride + _wrap(np.floor(u * w).astype(np.int64), w)
         found = np.take(pixels, index, axis=0, mode="clip")

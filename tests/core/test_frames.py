@@ -20,6 +20,12 @@ CELLS = 40  # the grid has CELLS x CELLS unit squares, two triangles each (3200)
 PIECE = 64  # triangles per embree geometry in these tests: 50 pieces
 
 
+def in_pieces(monkeypatch):
+    """Meshes handed to embree in pieces of ``PIECE`` triangles, directly and through embreex."""
+    monkeypatch.setattr(frames, "_PIECE_TRIANGLES", PIECE)
+    monkeypatch.setattr(frames, "_DIRECT_PIECE_TRIANGLES", PIECE)
+
+
 def grid(cells=CELLS):
     """A flat grid on z = 0 with unit cells from (0, 0): the triangles of cell (i, j) are
     2 (j cells + i) and the one after, [a, b, c] below its diagonal and [a, c, d] above."""
@@ -40,7 +46,7 @@ def grid_scene(mesh=None, **mesh_options):
 
 @pytest.mark.parametrize("shuffled", [False, True], ids=["grid order", "shuffled"])
 def test_a_mesh_in_many_pieces_traces_the_analytic_triangle_and_barycentrics(monkeypatch, shuffled):
-    monkeypatch.setattr(frames, "_PIECE_TRIANGLES", PIECE)
+    in_pieces(monkeypatch)
     vertices, triangles = grid()
     order = np.arange(len(triangles))  # order[k]: the grid triangle stored k-th
     if shuffled:  # each piece then uses vertices from all over the mesh
@@ -74,7 +80,7 @@ def test_a_mesh_in_many_pieces_traces_the_analytic_triangle_and_barycentrics(mon
 
 
 def test_a_mesh_in_many_pieces_occludes_where_it_is(monkeypatch):
-    monkeypatch.setattr(frames, "_PIECE_TRIANGLES", PIECE)
+    in_pieces(monkeypatch)
     frame_set = build_frames(grid_scene())
     x = np.linspace(-4.5, CELLS + 4.5, 200)
     x0 = np.column_stack([x, np.full_like(x, CELLS - 0.3), np.ones_like(x)])  # over the last pieces
@@ -124,7 +130,7 @@ def straight_line(velocity=(0.3, 0.0, 0.0)):
 @pytest.mark.parametrize("motion", [{}, {"angular_velocity": (0.0, 0.0, 1.0)}, {"trajectory": straight_line()}],
                          ids=["inertial", "spinning", "animated"])
 def test_esc_during_the_build_stops_after_the_piece_in_hand(monkeypatch, motion):
-    monkeypatch.setattr(frames, "_PIECE_TRIANGLES", PIECE)
+    in_pieces(monkeypatch)
     built = []
 
     def counted_piece(scene, vertices, triangles, *args):
@@ -166,12 +172,17 @@ def shuffled_sphere():
 
 def test_triangles_handed_to_embree_directly_hit_exactly_as_through_embreex(monkeypatch):
     """The direct route (one memory copy per buffer) fills embree's buffers as embreex's own
-    TriangleMesh does: every hit, its triangle and barycentrics are the same."""
+    TriangleMesh does: every hit, its triangle and barycentrics are the same, whether the mesh
+    goes in one piece (the direct route's own) or in many."""
     monkeypatch.setattr(frames, "_PIECE_TRIANGLES", PIECE)
     scene = grid_scene(shuffled_sphere())
     meshes = []
     monkeypatch.setattr(frames, "TriangleMesh", lambda *args: meshes.append(TriangleMesh(*args)))
-    direct = sphere_hits(build_frames(scene))
+    whole = build_frames(scene)
+    assert len(whole.frames[whole.world].geometry.piece_start) == 1
+    direct = sphere_hits(whole)
+    monkeypatch.setattr(frames, "_DIRECT_PIECE_TRIANGLES", PIECE)
+    direct_in_pieces = sphere_hits(build_frames(scene))
     assert not meshes and embree_direct._library  # proved and used on this platform
     monkeypatch.setattr(embree_direct, "shared_vertices", lambda *args: None)
     through_embreex = sphere_hits(build_frames(scene))
@@ -179,6 +190,7 @@ def test_triangles_handed_to_embree_directly_hit_exactly_as_through_embreex(monk
     assert np.count_nonzero(direct.frame >= 0) > 1000
     for name in ("frame", "prim", "s", "u", "v"):
         np.testing.assert_array_equal(getattr(direct, name), getattr(through_embreex, name), err_msg=name)
+        np.testing.assert_array_equal(getattr(direct, name), getattr(direct_in_pieces, name), err_msg=name)
 
 
 def test_without_a_proved_embree_library_the_build_goes_through_embreex(monkeypatch):
@@ -244,7 +256,8 @@ def test_culling_clusters_hold_every_triangle_and_match_the_plain_computation(me
 def test_body_boxes_hold_each_body_at_every_time_of_every_frame():
     """Every vertex of every body, at many times of its own frame, mapped into each frame (bodies
     moving along an axis, obliquely, near c, and a spinning one): inside its body box there,
-    which moves uniformly (plain numpy here: the box's centre at the vertex event's time)."""
+    which moves uniformly (plain numpy here: the box's centre at the vertex event's time); the
+    boxes of every source frame worked out at once are those of each on its own, to rounding."""
     meshes = [Mesh("oblique", *uv_sphere((1.0, 2.0, 0.5), 0.7, 8, 4), velocity=Velocity((0.5, -0.4, 0.3)), pivot=(1.0, 2.0, 0.5)),
               Mesh("along", *uv_sphere((-3.0, 0.0, 0.0), 1.0, 8, 4), velocity=Velocity((0.9, 0.0, 0.0))),
               Mesh("fast", *uv_sphere((0.0, 4.0, 1.0), 0.5, 8, 4), velocity=Velocity((0.0, 0.6, -0.79))),
@@ -253,8 +266,14 @@ def test_body_boxes_hold_each_body_at_every_time_of_every_frame():
               Mesh("still", *uv_sphere((4.0, 0.0, 0.0), 0.5, 8, 4))]
     frame_set = build_frames(Scene(camera=grid_scene().camera, meshes=meshes))
     times = np.linspace(-20.0, 20.0, 9)
-    for src in range(len(frame_set.frames)):
-        t_box, x_box, velocity, half = frame_set.body_boxes(src)
+    sources = list(range(len(frame_set.frames)))
+    stacked = frame_set.body_boxes_of(sources)  # every source frame's boxes in one pass
+    together = [tuple(a[i] for a in stacked) for i in range(len(sources))]
+    each = [frame_set.body_boxes(src) for src in sources]
+    for both in zip(together, each):
+        for a, b in zip(*both):
+            np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-14)
+    for src, (t_box, x_box, velocity, half) in zip(sources + sources, together + each):
         for slot, k in enumerate(frame_set.geometry):
             frame = frame_set.frames[k]
             used = frame.geometry.vertices[np.unique(frame.geometry.triangles)]
@@ -310,7 +329,7 @@ def test_culling_by_clusters_never_hides_a_hit(monkeypatch, cones):
     """Camera rays through several moving bodies (one in many pieces): the hits with the
     culling (body boxes, and the clusters' cones where they pay or for every frame) are the
     hits without it, and the culling did skip rays."""
-    monkeypatch.setattr(frames, "_PIECE_TRIANGLES", PIECE)
+    in_pieces(monkeypatch)
     meshes = [Mesh("big", *shuffled_sphere(), velocity=Velocity((0.5, 0.2, 0.0)))]
     for i, beta in enumerate((-0.3, 0.35, 0.1)):
         centre = (2.5 * (i - 1), 1.5, 0.8 * (i - 1))

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from restframe_addon.core.frames import FrameMap
-from restframe_addon.core.lorentz import Boost, compose_velocities
+from restframe_addon.core.lorentz import Boost, compose_velocities, events_of_boosts
 
 mp.mp.dps = 60
 
@@ -278,3 +278,18 @@ def test_a_velocity_is_worked_out_once_and_its_boost_shared_read_only():
     for name in ("lamp", "cube"):
         with pytest.raises(ValueError, match=name):
             Boost.from_velocity((0.8, 0.7, 0.0), name=name)
+
+
+def test_events_of_many_boosts_at_once_are_each_boosts_own():
+    """events_of_boosts (every source frame's body boxes in one pass) gives each boost's own events,
+    to rounding, at rest, obliquely and at gamma = 1e6 (each boost's exact numbers, no 1 - b^2)."""
+    rng = np.random.default_rng(3)
+    tau, x = rng.uniform(-50.0, 50.0, 20), rng.uniform(-50.0, 50.0, (20, 3))
+    boosts = [Boost.identity(), Boost.from_velocity((0.5, -0.4, 0.3)), Boost.from_velocity(AXIS, lorentz_factor=1e6),
+              Boost.from_velocity((0.0, 0.6, -0.79))]
+    t_all, x_all = events_of_boosts(boosts, tau, x)
+    for boost, t_one, x_one in zip(boosts, t_all, x_all):
+        t_ref, x_ref = boost.events(tau, x)
+        scale = boost.gamma * 100.0  # |coordinates| after the boost, at most
+        np.testing.assert_allclose(t_one, t_ref, rtol=0, atol=1e-15 * scale)
+        np.testing.assert_allclose(x_one, x_ref, rtol=0, atol=1e-15 * scale)

@@ -67,3 +67,33 @@ def test_rays_grazing_the_body_are_kept():
     assert near.all()
     far = tracer._near_body(frame_set, frame_set.world, k, None, extent, tau0, x0 + 50.0, d, s_lo, s_hi)
     assert not far.any()
+
+
+def test_parallel_rays_clip_and_reach_bit_for_bit_as_rays_of_their_own():
+    """A bundle along one broadcast direction (a sharp sun's) takes shortcuts: one inverse per axis
+    for the bounds' slab test, its reach from the extremes of x0.  Both must give exactly the
+    numbers of the same rays as contiguous rows of their own, whatever the signs of the direction;
+    a direction with a 0 component takes the general test."""
+    frame_set = frames()
+    geometry = next(frame_set.frames[k].geometry for k in frame_set.geometry if k != frame_set.world)
+    rng = np.random.default_rng(7)
+    n = 300
+    x0 = 0.5 * (geometry.lo + geometry.hi) + rng.uniform(-3.0, 3.0, (n, 3))
+    tau0 = rng.uniform(-3.0, 3.0, n)
+    t_lo, t_hi = tracer._per_ray(1e-4, n), tracer._per_ray(np.inf, n)
+    # (the last: a subnormal component, whose inverse overflows)
+    for direction, shortcut in (([0.3, -0.2, 0.9], True), ([-0.6, 0.5, -0.1], True), ([0.0, -0.6, 0.8], False),
+                                ([-1e-310, 0.6, 0.8], False)):
+        direction = np.array(direction) / np.linalg.norm(direction)
+        one, own = np.broadcast_to(direction, (n, 3)), np.tile(direction, (n, 1))
+        assert (tracer._one_inverse(one) is not None) == shortcut
+        with np.errstate(over="ignore"):  # (the general test's 1 / d overflows for the subnormal component)
+            enter, leave = tracer._clip_to_bounds(geometry, x0, one, t_lo, t_hi)
+            plain = tracer._clip_to_bounds(geometry, x0, own, np.full(n, 1e-4), np.full(n, np.inf))
+        np.testing.assert_array_equal(enter, plain[0])
+        np.testing.assert_array_equal(leave, plain[1])
+        assert 0 < np.count_nonzero(enter <= leave) < n  # rays both into and past the bounds
+        fast = tracer._bundle_reach(tau0, x0, one, t_lo, t_hi)
+        plain = tracer._bundle_reach(tau0, x0, own, np.full(n, 1e-4), np.full(n, np.inf))
+        for field in ("lo", "hi", "earliest", "latest", "direction"):
+            np.testing.assert_array_equal(getattr(fast, field), getattr(plain, field))

@@ -522,3 +522,43 @@ def test_tiles_that_see_nothing_are_not_traced_and_render_the_same(monkeypatch, 
     assert 0.02 < (full["Depth"] < 1e9).mean() < 0.5
     for name in full:
         np.testing.assert_array_equal(quick[name], full[name], err_msg=name)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_tiles_that_see_nothing_are_rendered_once_per_shape(threads):
+    """The tiles of a render that see nothing share one set of read-only pass arrays per shape
+    (rendered once), each the very bits of that tile rendered alone."""
+    from restframe_addon.core.prepared import prepare
+    from restframe_addon.core.render import render_tile, render_tiles
+
+    prepared = prepare(lone_ball_off_centre(), settings((44, 40), tile_size=8, threads=threads,
+                                                        passes=("Depth", "Doppler", "Emission Time", "Object Time")))
+    tiles = list(render_tiles(prepared))
+    unseen = [tile for tile in tiles if prepared.misses_everything((tile.x0, tile.y0, tile.x1, tile.y1))]
+    shapes = {(t.x1 - t.x0, t.y1 - t.y0) for t in unseen}
+    assert len(shapes) == 2 and len(unseen) > 10 and len(unseen) < len(tiles)  # 8x8 tiles and the 4x8 ones at the edge
+    arrays = {id(values) for tile in unseen for values in tile.passes.values()}
+    assert len(arrays) <= threads * len(shapes) * len(unseen[0].passes)
+    for tile in tiles:
+        alone = render_tile(prepared, (tile.x0, tile.y0, tile.x1, tile.y1))
+        assert tile.passes.keys() == alone.passes.keys()
+        for name, values in alone.passes.items():
+            np.testing.assert_array_equal(tile.passes[name], values, err_msg=name)
+            assert tile.passes[name].dtype == values.dtype
+    assert not any(values.flags.writeable for tile in unseen for values in tile.passes.values())
+
+
+def test_tiles_that_see_something_are_dealt_first():
+    """The render threads take the tiles that see something first, then the short ones that see
+    nothing (which even out the threads' ends), each tile once."""
+    from restframe_addon.core.prepared import prepare
+    from restframe_addon.core.render import UnseenTiles, seen_first, tiles_in_threads
+
+    prepared = prepare(lone_ball_off_centre(), settings((44, 40), tile_size=8, threads=2))
+    rects = prepared.tiles()
+    empty = [prepared.misses_everything(rect) for rect in rects]
+    assert 0 < sum(empty) < len(rects) and empty[0] and not all(empty[:len(rects) - sum(empty)])  # not so already
+    order = list(seen_first(UnseenTiles(prepared), rects))
+    assert order == [r for r, e in zip(rects, empty) if not e] + [r for r, e in zip(rects, empty) if e]
+    tiles = list(tiles_in_threads(prepared, rects, 2, lambda: False))
+    assert sorted((t.x0, t.y0, t.x1, t.y1) for t in tiles) == sorted(rects)

@@ -223,6 +223,14 @@ def test_culled_shadow_rays_block_exactly_as_unculled_ones(monkeypatch, sun):
     np.testing.assert_array_equal(culled, full)
     assert 0 < np.count_nonzero(full) < n
     assert queried.count(False) > 0
+    # bundles from several source frames through one thread's TraceCache (every source's body boxes
+    # worked out at once, a sun direction's maps kept: the second round reads them) and without one
+    monkeypatch.setattr(tracer, "_may_meet", original)
+    cache = tracer.TraceCache()
+    for i, b in enumerate(bundles * 2):
+        k = frames.geometry[i % 7]
+        np.testing.assert_array_equal(tracer.occluded(frames, k, tau0[b], x0[b], d[b], 1e-6, s_hi[b], cache),
+                                      tracer.occluded(frames, k, tau0[b], x0[b], d[b], 1e-6, s_hi[b]))
 
 
 def test_segment_box_test_handles_axis_parallel_segments_on_faces():
@@ -234,7 +242,16 @@ def test_segment_box_test_handles_axis_parallel_segments_on_faces():
                        [0.5, 0.5, -1.0],    # straight through
                        [0.5, 0.5, -1.0]])   # too short to reach
     direction = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 3.0], [0.0, 0.0, 0.9]])
-    np.testing.assert_array_equal(_segments_meet_boxes(origin, direction, 1.0, lo, hi), [True, False, True, False])
+    lo, hi, origin, direction = lo.T, hi.T, origin.T, direction.T  # a row per axis
+    np.testing.assert_array_equal(_segments_meet_boxes(origin, direction, 1.0, lo, hi, direction == 0.0),
+                                  [True, False, True, False])
+    # from the origin (None): the boxes moved by -origin
+    np.testing.assert_array_equal(_segments_meet_boxes(None, direction, 1.0, lo - origin, hi - origin,
+                                                       direction == 0.0), [True, False, True, False])
+    # no component 0 (parallel None): the plain slab test
+    tilted = direction + 0.25
+    np.testing.assert_array_equal(_segments_meet_boxes(origin, tilted, 1.0, lo, hi, None),
+                                  _segments_meet_boxes(origin, tilted, 1.0, lo, hi, tilted == 0.0))
 
 
 def test_cone_and_disc_sample_angles_in_float32_change_images_by_under_a_millionth(monkeypatch):
@@ -344,8 +361,51 @@ def test_one_material_shades_bit_for_bit_as_gathered_per_hit():
         assert np.any(value > diffuse * (1.0 + 1e-9)) == (m < 2)  # the glossy ones have their GGX lobe
 
 
+def test_hit_materials_are_the_clamped_triangle_materials_broadcast_for_one_material_bodies():
+    """Shader.hit_materials gives every hit its triangle's material number, clamped to the table (as
+    a gather of tri_material would): one number broadcast (no gather) for a body whose triangles
+    all have one, even an out-of-range one; gathered for a body of two materials."""
+    from restframe_addon.core.prepared import prepare
+    from restframe_addon.core.shading import _only_material
+
+    meshes = [Mesh("two", *quad((0, 0, 0), (10.0, 10.0)), material_indices=np.array([0, 1])),
+              Mesh("one", *quad((0, 0, 1.0), (2.0, 2.0)), material_indices=np.array([7, 7]),
+                   velocity=Velocity((0.3, 0.0, 0.0)))]
+    scene = Scene(camera=look_at_camera((0.0, -3.0, 2.0), (0, 0, 0)), meshes=meshes,
+                  materials=[Material("a"), Material("b", base_color=(0.2, 0.4, 0.6))],
+                  lights=[Light("lamp", "POINT", (0, 0, 2.0), power=100.0)], world_color=BLACK)
+    shader = prepare(scene, settings()).shader
+    broadcast = []
+    for k in shader.frames.geometry:
+        geometry = shader.frames.frames[k].geometry
+        prim = np.arange(len(geometry.tri_material)).repeat(3)
+        got = shader.hit_materials(k, prim)
+        np.testing.assert_array_equal(got, np.clip(geometry.tri_material[prim], 0, 1))
+        broadcast.append(got.strides == (0,))
+        assert _only_material(got) == (1 if broadcast[-1] else None)
+    assert sorted(broadcast) == [False, True]
+
+
 def rows_normalized(a):
     return a / np.linalg.norm(a, axis=1, keepdims=True)
+
+
+def test_rows_take_gathers_rows_as_fancy_indexing_does_in_either_layout():
+    """rows.take gives ``a[index]`` for indices, masks and slices, of row-major and of column-major
+    arrays (these column by column, into contiguous columns), of (n, 3) and (n, 16) rows."""
+    from restframe_addon.core import rows
+
+    rng = np.random.default_rng(5)
+    for columns in (3, 16):
+        rows_major = rng.random((500, columns))
+        for a in (rows_major, np.asfortranarray(rows_major)):
+            for index in (rng.choice(500, 200, replace=False), rng.random(500) < 0.3, np.arange(0),
+                          np.zeros(500, dtype=bool), slice(10, 90)):
+                taken = rows.take(a, index)
+                np.testing.assert_array_equal(taken, rows_major[index])
+                assert taken.shape == rows_major[index].shape
+            if a.flags.f_contiguous and columns <= 4:
+                assert rows.take(a, np.arange(7)).flags.f_contiguous  # the caller's layout kept
 
 
 def test_rows_put_assigns_rows_as_fancy_indexing_does():
@@ -366,3 +426,55 @@ def test_rows_put_assigns_rows_as_fancy_indexing_does():
                 np.testing.assert_array_equal(target, expected)
                 rows.assign(target[:200], new)
                 np.testing.assert_array_equal(target[:200], new)
+
+
+@pytest.mark.parametrize("mode", ["OFF", "SPECTRAL"])
+def test_every_frames_hits_shaded_together_give_each_frames_own_bits(mode):
+    """The shader and the passes work on every frame's hits at once (what depends on the frame
+    worked out frame by frame and joined, the rest once, the values scattered back): each ray's
+    values must be exactly those of shading the rays of its frame alone.  A floor at rest with
+    the camera, boxes at three velocities (one spinning), a glossy, a mirror and a diffuse material, a sharp
+    sun and a soft point lamp; the Doppler, Normal, IndexOB and Object Time passes likewise."""
+    from shapes import box
+
+    from restframe_addon.core.passes import DEFAULT_PASSES, pixel_passes
+    from restframe_addon.core.prepared import prepare
+    from restframe_addon.core.scene import RAY_CAMERA
+    from restframe_addon.core.tracer import TraceCache, frames_hit
+
+    materials = [Material("grey", base_color=(0.6, 0.5, 0.4)),
+                 Material("glossy", base_color=(0.2, 0.7, 0.3), roughness=0.4),
+                 Material("mirror", base_color=(0.9, 0.9, 0.9), roughness=0.0, metallic=1.0)]
+    meshes = [Mesh("floor", *quad((0, 0, 0), (40.0, 40.0)))]
+    for i, (beta, spin) in enumerate((((0.3, 0.0, 0.0), None), ((-0.5, 0.1, 0.0), (0.0, 0.0, 0.4)),
+                                      ((0.2, 0.4, 0.0), None))):
+        centre = (-3.0 + 3.0 * i, 2.0, 1.0)
+        v, t = box(centre, (1.5, 1.5, 2.0))
+        meshes.append(Mesh(f"box{i}", v, t, velocity=Velocity(beta), pivot=centre, angular_velocity=spin,
+                           material_indices=np.full(len(t), i), object_index=i + 1))
+    lights = [Light("sun", "SUN", (0, 0, 10.0), matrix=rotation_x(math.radians(40)), power=2.0),
+              Light("lamp", "POINT", (1.0, -2.0, 4.0), power=800.0, radius=0.3)]
+    scene = Scene(camera=look_at_camera((0.0, -9.0, 5.0), (0.0, 2.0, 0.5), fov_half_tan=0.6), meshes=meshes,
+                  lights=lights, materials=materials, world_color=(0.05, 0.1, 0.2))
+    res = (32, 24)
+    prepared = prepare(scene, settings(res, doppler_mode=mode, spectral_samples=8, passes=tuple(DEFAULT_PASSES)))
+    shader, camera, rect = prepared.shader, prepared.frames.camera, (0, 0, *res)
+    rays = prepared.centre_rays(rect)
+    pixel = prepared.pixel_ids(rect)
+    sample = np.zeros_like(pixel)
+    lam = prepared.colour.camera_wavelengths(pixel, sample)
+    hits = shader.trace(camera, *rays, RAY_CAMERA, pixel, sample, 0, TraceCache())
+    values, _ = shader.radiance(camera, *rays, 0, pixel, sample, lam, hits, TraceCache())
+    passes = pixel_passes(prepared.frames, scene.light_speed, DEFAULT_PASSES, rays, hits, None, TraceCache())
+    frames = frames_hit(hits)
+    assert len(frames) == 4  # the floor (at rest with the camera) and the three boxes (one spinning)
+    assert any(prepared.frames.frames[k].spin is not None for k in frames)
+    for k in frames:
+        mine = np.flatnonzero(hits.frame == k)
+        part = tuple(np.take(a, mine, axis=0) if np.ndim(a) else a for a in rays)
+        alone, _ = shader.radiance(camera, *part, 0, pixel[mine], sample[mine], None if lam is None else lam[mine],
+                                   hits.take(mine), TraceCache())
+        assert np.array_equal(values[mine], alone)
+        alone_passes = pixel_passes(prepared.frames, scene.light_speed, DEFAULT_PASSES, part, hits.take(mine))
+        for name in ("Doppler", "Normal", "IndexOB", "Object Time"):
+            assert np.array_equal(passes[name][mine], alone_passes[name]), name

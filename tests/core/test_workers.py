@@ -5,7 +5,9 @@ with their parent."""
 
 import dataclasses
 import glob
+import io
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -81,9 +83,9 @@ def test_esc_stops_the_tile_a_worker_renders_and_the_tiles_it_holds(pool):
     tiles = list(pool.render(prepared, lambda: polls.append(1) or len(polls) > 20, 1))
     answers = pool.status()
     answer = answers.pop(pool.pids[0])  # the one worker used
-    assert all(other["late_tiles"] == [] for other in answers.values())
-    assert len(tiles) + len(answer["late_tiles"]) <= 2  # dealt before Esc: two; the second never started
-    assert len(answer["late_tiles"]) <= 1 and not any(tile.complete for tile in answer["late_tiles"])
+    assert all(other["late_shares"] == [] for other in answers.values())
+    assert len(tiles) + len(answer["late_shares"]) <= 2  # dealt before Esc: two; the second never started
+    assert len(answer["late_shares"]) <= 1 and not any(answer["late_shares"])  # cut short
     small = prepare(busy_scene(), settings(tile_size=8))
     assert_same_passes(assemble(small, pool.render(small, lambda: False, 1)), in_threads(small))
 
@@ -279,7 +281,8 @@ def test_the_shares_cover_every_row_of_every_tile_once_in_tile_order(workers_cou
     if workers_count == 1:
         assert shares == [(index, None) for index in range(len(rects))]  # one worker: whole tiles
     else:  # guided: whole tiles first, smaller bands towards the end, none below the minimum (but a tile's last rows)
-        assert (shares[0] == (0, None)) == (workers_count == 2) and len(shares) >= 4 * workers_count
+        assert (shares[0] == (0, None)) == (workers_count == 2)
+        assert len(shares) >= workers._SHARES_PER_WORKER * workers_count
         assert max(pixels[-3:]) <= 960 * 540 / (workers_count * workers._SHARES_PER_WORKER)
         assert min(pixels) >= min(workers._MIN_SHARE_PIXELS, 192 * 28) / 2
 
@@ -376,23 +379,29 @@ def test_without_room_for_a_results_image_the_results_come_through_the_pipes(poo
     assert pool.last_stats.in_place == 0 and pool.last_stats.shares > len(prepared.tiles())
 
 
-def test_bands_in_place_and_through_the_pipe_join_into_one_tile():
-    """A tile whose bands came back both ways (a worker could not map the image) is whole."""
-    rect, layout = (2, 4, 5, 8), {"Combined": 4, "Depth": 1}
-    results = workers._ResultsImage.create([(0, 0, 2, 2), rect], layout)
+def test_bands_in_place_and_through_the_pipe_make_one_tile():
+    """A tile whose bands came back both ways (a worker could not map the image) is whole, in
+    the image; without a file the bands that came through the pipes are whole too."""
+    rects, rect, layout = [(0, 0, 2, 2), (2, 4, 5, 8)], (2, 4, 5, 8), {"Combined": 4, "Depth": 1}
+    whole = {name: np.arange(12 * channels, dtype=np.float32).reshape(4, 3, channels) + 100 * channels
+             for name, channels in layout.items()}
+    results = workers._ResultsImage.create(rects, layout)
     try:
-        whole = {name: np.arange(12 * channels, dtype=np.float32).reshape(4, 3, channels) + 100 * channels
-                 for name, channels in layout.items()}
-        in_place = workers._write_share((results.path, results.offsets[1], layout), rect, (4, 6),
+        in_place = workers._write_share(results.place(1), rect, (4, 6),
                                         {name: value[:2] for name, value in whole.items()})
-        piped = render_module.Tile(2, 6, 5, 8, {name: value[2:] for name, value in whole.items()})
-        pieces = [workers._piece(None, results, 1, rect, (4, 6)), workers._piece(piped, results, 1, rect, (6, 8))]
-        joined = workers._joined(rect, pieces)
+        results.put(1, rect, (6, 8), {name: value[2:] for name, value in whole.items()})
+        tile = results.tile(1, rect)
     finally:
         workers._remove(results.path)
-    assert in_place and (joined.x0, joined.y0, joined.x1, joined.y1) == rect
-    assert all(np.array_equal(joined.passes[name], whole[name]) for name in layout)
-    assert not workers._write_share((results.path, results.offsets[1], layout), rect, None, whole)  # file gone
+    assert in_place and (tile.x0, tile.y0, tile.x1, tile.y1) == rect
+    assert all(np.array_equal(tile.passes[name], whole[name]) for name in layout)
+    assert not workers._write_share(results.place(1), rect, None, whole)  # file gone
+    own = workers._ResultsImage(None, None, layout, results.offsets)  # no room for a file
+    assert own.place(1) is None
+    for rows in ((6, 8), (4, 6)):
+        own.put(1, rect, rows, {name: value[rows[0] - 4:rows[1] - 4] for name, value in whole.items()})
+    tile = own.tile(1, rect)
+    assert all(np.array_equal(tile.passes[name], whole[name]) for name in layout) and own._own == {}
 
 
 @pytest.mark.parametrize("mode", MODES, ids=["rgb", "spectral", "factor", "transparent"])
@@ -487,20 +496,22 @@ def test_short_shares_are_dealt_for_a_batch_and_the_loop_sleeps_half_of_it():
     pace = workers._Pace(shares, rects)
     todo = list(enumerate(shares))[4:]
     worker = _Dealt(0, 1)
-    assert pace.wants(_Dealt(0), todo, 2) and not pace.wants(worker, todo, 2)  # no share finished yet: two
+    batching = pace.batching(todo, 2)
+    assert pace.wants(_Dealt(0), batching) and not pace.wants(worker, batching)  # none finished yet: two
     assert pace.pause([worker]) == 0
-    pace.finished(1000, 0.25 * workers._BATCH)  # a share takes a quarter of a batch
-    assert pace.wants(_Dealt(0, 1, 2, 3, 4, 5, 6), todo, 2)  # 7 shares: 1.75 batches of work
-    assert not pace.wants(_Dealt(*range(8)), todo, 2)  # 8: 2 batches
+    assert pace.finished(0, 0.25 * workers._BATCH) == 1000  # a share takes a quarter of a batch
+    assert pace.batching(todo, 2)
+    assert pace.wants(_Dealt(0, 1, 2, 3, 4, 5, 6), True)  # 7 shares: 1.75 batches of work
+    assert not pace.wants(_Dealt(*range(8)), True)  # 8: 2 batches
     assert pace.pause([_Dealt(*range(8)), _Dealt(*range(8, 16))]) == workers._BATCH
     assert pace.pause([_Dealt(*range(8)), _Dealt(8, 9)]) == pytest.approx(0.25 * workers._BATCH)  # half of 2 shares
     assert pace.pause([_Dealt(*range(8)), _Dealt()]) == 0  # a worker with nothing: wait for the first message
     end = todo[-8:]  # 2 batches of work left: 1 a worker, so no more than two shares each
-    assert not pace.wants(_Dealt(0, 1), end, 2)
-    assert pace.wants(_Dealt(0, 1), end, 1)  # one worker: nobody to wait for at the end
+    assert not pace.batching(end, 2) and not pace.wants(_Dealt(0, 1), pace.batching(end, 2))
+    assert pace.batching(end, 1) and pace.wants(_Dealt(0, 1), pace.batching(end, 1))  # one worker: nobody to wait for
     slow = workers._Pace(shares, rects)
-    slow.finished(1000, 3 * workers._BATCH)  # a share takes 1.5 batches a worker
-    assert not slow.wants(_Dealt(0, 1), todo, 2) and slow.pause([_Dealt(0, 1), _Dealt(2, 3)]) == 0
+    slow.finished(0, 3 * workers._BATCH)  # a share takes 1.5 batches a worker
+    assert not slow.batching(todo, 2) and slow.pause([_Dealt(0, 1), _Dealt(2, 3)]) == 0
 
 
 def test_short_shares_render_the_same_bits_in_batches_with_fewer_wake_ups(pool, monkeypatch):
@@ -527,3 +538,69 @@ def test_short_shares_render_the_same_bits_in_batches_with_fewer_wake_ups(pool, 
     shares = pool.last_stats.shares
     assert shares == len(prepared.tiles()) == 30
     assert len([count for count in takes if count]) < shares and max(held) > workers._TILES_IN_FLIGHT, (takes, held)
+
+
+def test_in_the_tail_of_long_shares_a_worker_holds_one_share_and_the_loop_does_not_sleep():
+    rects = [(0, y, 100, y + 10) for y in range(0, 1000, 10)]  # 100 tiles of 1000 pixels
+    shares = [(tile, None) for tile in range(len(rects))]
+    pace = workers._Pace(shares, rects)
+    todo = list(enumerate(shares))
+    assert not pace.tail(todo[-2:], 2)  # nothing finished yet: no estimate
+    pace.finished(0, workers._TAIL_SECONDS)
+    tail = todo[-workers._TAIL_SHARES * 2:]
+    assert not pace.tail(todo[-workers._TAIL_SHARES * 2 - 1:], 2) and pace.tail(tail, 2)
+    assert not pace.tail(tail, 1)  # one worker: nobody to balance with
+    assert pace.wants(_Dealt(), False, True) and not pace.wants(_Dealt(0), False, True)
+    assert pace.wants(_Dealt(0), False, False)  # before the tail: two each
+    short = workers._Pace(shares, rects)
+    short.finished(0, workers._TAIL_SECONDS / 2)  # short shares: a round trip would weigh, no tail
+    assert not short.tail(tail, 2) and short.pause([_Dealt(1, 2), _Dealt(3, 4)], tail) > 0
+    assert pace.pause([_Dealt(1), _Dealt(3)], tail) == 0
+
+
+def test_a_workers_messages_of_a_round_go_in_one_write(pool):
+    """The measurements of a scene built ahead and a worker's first shares: one write (each
+    costs both processes a system call, and the worker a wake-up)."""
+
+    class Recorded:
+        def __init__(self, stream):
+            self.stream, self.writes = stream, []
+
+        def write(self, data):
+            stream = io.BytesIO(data)
+            self.writes.append([pickle.load(stream)[0] for _ in iter(lambda: stream.tell() < len(data), False)])
+            return self.stream.write(data)
+
+        def __getattr__(self, name):
+            return getattr(self.stream, name)
+
+    scene, render_settings = busy_scene(), settings(tile_size=6)
+    pool.build_ahead(scene, render_settings, 2)
+    prepared = prepare(scene, render_settings)
+    for worker in pool._workers:
+        worker.process.stdin = Recorded(worker.process.stdin)
+    try:
+        assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
+        assert [worker.process.stdin.writes[0] for worker in pool._workers] == [["measured", "tile", "tile"]] * 2
+    finally:
+        for worker in pool._workers:
+            worker.process.stdin = worker.process.stdin.stream
+
+
+def test_a_pickled_scene_file_gives_back_aligned_writable_arrays(tmp_path):
+    """Its arrays out of band: each read back as a view of the file's one buffer, aligned, writable."""
+    large = workers._IN_BAND_BYTES // 8
+    value = {"a": np.arange(large, dtype=np.float64), "b": np.arange(12, dtype=np.int32).reshape(3, 4)[:, 1:],
+             "f": np.asfortranarray(np.arange(2.0 * large).reshape(2, large)), "text": "x", "empty": np.zeros(0),
+             "small": np.arange(5.0)}
+    pickled = workers._Pickled(value)
+    assert len(pickled.arrays) == 2  # the large ones out of band: not in the pickle
+    with open(tmp_path / "scene", "wb") as file:
+        size = pickled.write(file)
+    assert size == os.path.getsize(tmp_path / "scene")
+    back = workers._Pickled.read(str(tmp_path / "scene"))
+    assert back.keys() == value.keys() and back["text"] == "x"
+    for name in ("a", "b", "f", "empty", "small"):
+        assert np.array_equal(back[name], value[name]) and back[name].dtype == value[name].dtype
+    for name in ("a", "f"):
+        assert back[name].flags.writeable and back[name].ctypes.data % workers._ALIGN == 0
