@@ -83,14 +83,14 @@ def _polar(z, phi):
     return out
 
 
-def image_lookup(image, u, v, interpolation: str = "Linear", channels: int | None = None, columns: bool = False):
-    """Colours (n, C) of an (H, W, C) image (or its :class:`Texels`, made once) at (u, v), repeating
-    in both directions as Cycles' environment lookups: bilinear between pixel centres, or the
-    nearest pixel (Closest); ``channels``: only the first so many; ``columns``: into an array
-    whose columns are contiguous (written 2.5x faster, for more work column by column).  Gathers
-    whole pixels (np.take of rows) and blends one channel at a time (see :mod:`.rows`), in place:
-    a fresh temporary of every step costs more than the step (page faults)."""
-    texels = image if isinstance(image, Texels) else Texels(image)
+def image_lookup(texels: Texels, u, v, interpolation: str = "Linear", channels: int | None = None,
+                 columns: bool = False):
+    """Colours (n, C) of an (H, W, C) image, laid out once as its :class:`Texels`, at (u, v),
+    repeating in both directions as Cycles' environment lookups: bilinear between pixel centres,
+    or the nearest pixel (Closest); ``channels``: only the first so many; ``columns``: into an
+    array whose columns are contiguous (written 2.5x faster, for more work column by column).
+    Gathers whole pixels (np.take of rows) and blends one channel at a time (see :mod:`.rows`), in
+    place: a fresh temporary of every step costs more than the step (page faults)."""
     h, w, pixels = texels.height, texels.width, texels.pixels
     stride = w + 1
     channels = texels.channels if channels is None else min(channels, texels.channels)
@@ -321,19 +321,24 @@ class EnvironmentWorld:
             v_edges = np.append((coarse_v[:-1, None] + np.diff(coarse_v)[:, None] * (np.arange(split) / split)).ravel(),
                                 1.0)
             self._u_offset = 0.5 / w
+            # (each map-sized array dropped once used: an 8192x4096 map's are 256 MiB each)
             corners = _refined_lattice(luminance, v_edges, split)
+            del luminance
             corner_rows = corners[:-1] + corners[1:]
-            cell_luminance = 0.25 * (corner_rows[:, :-1] + corner_rows[:, 1:])
+            del corners
+            weight = corner_rows[:, :-1] + corner_rows[:, 1:]
+            del corner_rows
+            weight *= 0.25  # the mean of the cell's corners
         else:
             v_edges = np.arange(h + 1) / h
-            cell_luminance = luminance
+            weight = luminance
             self._u_offset = 0.0
-        self._columns = cell_luminance.shape[1]
+        self._columns = weight.shape[1]
         self._z_edges = -np.cos(np.pi * v_edges)
         self._v_edges = v_edges
         w = self._columns
         cell_omega = (2.0 * np.pi / w) * np.diff(self._z_edges)[:, None]
-        weight = cell_luminance * cell_omega
+        weight *= cell_omega  # the cell's luminance x its solid angle
         total = float(weight.sum())
         self.is_black = not total > 0.0
         if self.is_black:
@@ -343,16 +348,17 @@ class EnvironmentWorld:
         self._row_cdf = np.cumsum(row_weight) / total
         self._row_cdf[-1] = 1.0
         self._row_probability = row_weight / total
+        # a cell's density per unit solid angle: its row's probability / its solid angle x its
+        # column's probability in the row, the difference of the row's column cdf, which is what
+        # the sampler gives it (no table of densities: the cdf is the one (rows, columns) table,
+        # float64, built in place in the weights: an 8192x4096 map's is 256 MiB)
+        self._row_density = np.zeros(len(row_weight)) if self.is_black else self._row_probability / cell_omega[:, 0]
+        column_cdf = np.cumsum(weight, axis=1, out=weight)
         with np.errstate(invalid="ignore", divide="ignore"):
-            column_cdf = np.cumsum(weight, axis=1) / row_weight[:, None]
-        column_cdf = np.where(row_weight[:, None] > 0.0, column_cdf, np.arange(1, w + 1) / w)
+            column_cdf /= row_weight[:, None]
+        column_cdf[row_weight <= 0.0] = np.arange(1, w + 1) / w
         column_cdf[:, -1] = 1.0
-        # each row's cdf offset by its row number: one sorted table for every row's search
-        self._column_cdf = (column_cdf + np.arange(len(row_weight))[:, None]).ravel()
-        self._column_start = np.concatenate([np.zeros((len(row_weight), 1)), column_cdf[:, :-1]], axis=1)
-        self._column_probability = np.diff(np.concatenate([np.zeros((len(row_weight), 1)), column_cdf], axis=1),
-                                           axis=1)
-        self._cell_pdf = np.zeros_like(weight) if self.is_black else weight / total / cell_omega  # per unit solid angle
+        self._column_cdf = column_cdf.ravel()
 
     def radiance(self, d):
         """Radiance (n, 3) arriving from backward world directions d."""
@@ -366,10 +372,17 @@ class EnvironmentWorld:
         row = np.clip(np.searchsorted(self._v_edges, v, side="right") - 1, 0, len(self._v_edges) - 2)
         return row, column
 
+    def _column_span(self, row, column):
+        """The column cdf before and at each cell (row, column): the column's start in its row's
+        cdf and its probability there."""
+        cell = row * self._columns + column
+        start = np.where(column > 0, self._column_cdf[np.maximum(cell - 1, 0)], 0.0)
+        return start, self._column_cdf[cell] - start
+
     def pdf(self, d):
         """Density per unit solid angle of world directions d under :meth:`sample`."""
         row, column = self._cell(_rotate(self.mapping, d))
-        return self._cell_pdf[row, column]
+        return self._row_density[row] * self._column_span(row, column)[1]
 
     def sample(self, u1, u2):
         """Directions of S drawn by the image's luminance: (d (n, 3), pdf (n,) per unit solid angle).
@@ -382,12 +395,13 @@ class EnvironmentWorld:
         row = np.minimum(np.searchsorted(self._row_cdf, u1, side="right"), rows_count - 1)
         row_start = np.where(row > 0, self._row_cdf[np.maximum(row - 1, 0)], 0.0)
         along_z = np.clip((u1 - row_start) / self._row_probability[row], 0.0, 1.0)
-        column = np.minimum(_search_within_rows(self._column_cdf, row, w, row + u2), w - 1)
-        along_phi = np.clip((u2 - self._column_start[row, column]) / self._column_probability[row, column], 0.0, 1.0)
+        column = np.minimum(_search_within_rows(self._column_cdf, row, w, u2), w - 1)
+        column_start, column_probability = self._column_span(row, column)
+        along_phi = np.clip((u2 - column_start) / column_probability, 0.0, 1.0)
         z = self._z_edges[row] + along_z * (self._z_edges[row + 1] - self._z_edges[row])
         u = self._u_offset + (column + along_phi) / w
         t = _polar(z, np.pi * (1.0 - 2.0 * u))
-        return _rotate(self._unmapping, t), self._cell_pdf[row, column]
+        return _rotate(self._unmapping, t), self._row_density[row] * column_probability
 
 
 def _refined_lattice(values, v_edges, split: int):
@@ -401,10 +415,22 @@ def _refined_lattice(values, v_edges, split: int):
     y0 = np.floor(y)
     fy = (y - y0)[:, None]
     y0 = y0.astype(np.int64)
-    along_v = (1.0 - fy) * values[y0 % h] + fy * values[(y0 + 1) % h]
+    along_v = _blend(values[y0 % h], values[(y0 + 1) % h], fy)
     j = np.arange(w * split + 1)
     x0, fx = j // split, (j % split) / split
-    return (1.0 - fx) * along_v[:, x0 % w] + fx * along_v[:, (x0 + 1) % w]
+    lower = along_v[:, x0 % w]
+    upper = along_v[:, (x0 + 1) % w]
+    del along_v
+    return _blend(lower, upper, fx)
+
+
+def _blend(lower, upper, fraction):
+    """``(1 - fraction) lower + fraction upper``, in place in ``lower`` and ``upper`` (fresh arrays
+    the size of a sampling map cost more in memory than the arithmetic)."""
+    lower *= 1.0 - fraction
+    upper *= fraction
+    lower += upper
+    return lower
 
 
 def _rotate(matrix, d):

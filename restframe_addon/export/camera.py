@@ -12,11 +12,20 @@ from ..core.lorentz import Boost
 from ..core.scene import Camera, Velocity
 from ..motion_query import assembly_root, location_curves, motion_source
 from .errors import ExportError
-from .meshes import without_scale
 from .motion import object_velocity, point_trajectory, shutter_frames
 
 
 _PANORAMAS = {"EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID"}
+
+
+def without_scale(matrix) -> tuple[np.ndarray, np.ndarray]:
+    """A world matrix (4x4) with its axes made unit length, as Cycles takes a camera's or lamp's,
+    and the axes' lengths (the scale); an axis scaled to zero comes out NaN: the caller decides."""
+    matrix = np.array(matrix, dtype=np.float64)
+    scale = np.linalg.norm(matrix[:3, :3], axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        matrix[:3, :3] /= scale
+    return matrix, scale
 
 
 def _fitted_sensor(cam, aspect: float) -> tuple[float, float]:

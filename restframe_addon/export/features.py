@@ -1,14 +1,28 @@
 """Blender features a scene may use that RESTframe does not render yet, one question each.
 
-Each ``uses_*`` function says whether an object (or material, or scene) uses one feature, so
-the exporter can warn once per render and feature, naming the objects, and so a later
-implementation can ask the same question to switch the feature on.  ``UNSUPPORTED`` holds
-the warning text of each feature, in one place.
+Each ``uses_*`` function (and :func:`lamp_features`, :func:`principled_features`) says whether
+an object, lamp or material uses one feature, so the exporter can warn once per render and
+feature, naming the objects (materials as ``Material 'name'``), and so a later implementation
+can ask the same question to switch the feature on.  ``UNSUPPORTED`` holds the warning text of
+each feature, in one place.
 """
 
 from __future__ import annotations
 
-from .materials import output_node, upstream
+import math
+
+from ..core.scene import RAY_DIFFUSE, RAY_GLOSSY, RAY_TRANSMISSION
+from .nodes import output_node, upstream
+
+# Principled BSDF inputs the renderer does not model (docs/physics.md), with the value that turns
+# each off: set otherwise, or linked, the material is rendered without it and the render says so
+# (a map on the Coat Normal is warned about with the other bump maps; Coat Tint: principled_features)
+_WHITE = (1.0, 1.0, 1.0)
+_NOT_MODELLED = (("Subsurface Weight", 0.0), ("Sheen Weight", 0.0), ("Anisotropic", 0.0), ("Specular Tint", _WHITE),
+                 ("Thin Film Thickness", 0.0), ("Diffuse Roughness", 0.0))
+
+# the lamp Ray Visibility bits whose closures a lamp's samples light all the same (Cycles: not lit)
+_LAMP_RAY_VISIBILITY = ((RAY_DIFFUSE, "Diffuse"), (RAY_GLOSSY, "Glossy"), (RAY_TRANSMISSION, "Transmission"))
 
 # feature -> what RESTframe does instead (the warning's second half)
 UNSUPPORTED = {
@@ -17,6 +31,14 @@ UNSUPPORTED = {
     "volume": "volumes are not supported: volume shaders and Volume objects are left out "
               "(a volume-only material renders black)",
     "hair": "hair strands (particle hair, Curves objects) are not supported: left out",
+    "lamp cast shadow off": "Cast Shadow off on a lamp is not supported yet: the lamp casts shadows",
+    **{f"lamp {label.lower()} off": f"Ray Visibility {label} off on a lamp is not supported for its light yet: the "
+                                    f"lamp lights {label.lower()} surfaces through its samples (only bounce rays miss it)"
+       for _, label in _LAMP_RAY_VISIBILITY},
+    "area lamp spread": "an area lamp's Spread below 180 degrees is not supported yet: the lamp shines over the "
+                        "whole half-space",
+    **{f"Principled {name}": f"Principled {name} is not supported yet: rendered without" for name, _ in _NOT_MODELLED},
+    "Principled Coat Tint": "Principled Coat Tint is not supported: the coat is clear",
 }
 
 
@@ -57,6 +79,37 @@ def uses_hair(obj) -> bool:
         return True
     return any(system.settings.type == 'HAIR' and system.settings.render_type == 'PATH'
                for system in getattr(obj, "particle_systems", ()))
+
+
+def _is_on(socket, off) -> bool:
+    """Whether a Principled input is linked or set away from the value that turns it off."""
+    if upstream(socket) is not None:
+        return True
+    value = socket.default_value
+    return any(float(v) != o for v, o in zip(value[:3], off)) if isinstance(off, tuple) else float(value) != off
+
+
+def principled_features(node) -> list[str]:
+    """The Principled BSDF inputs (keys of ``UNSUPPORTED``) of a Principled node that are set or
+    linked but not modelled; Coat Tint only on a coat (its Coat Weight's value above 0)."""
+    inputs = node.inputs
+    found = [f"Principled {name}" for name, off in _NOT_MODELLED if name in inputs and _is_on(inputs[name], off)]
+    if float(inputs["Coat Weight"].default_value) > 0.0 and _is_on(inputs["Coat Tint"], _WHITE):
+        found.append("Principled Coat Tint")
+    return found
+
+
+def lamp_features(lamp, visibility: int) -> list[str]:
+    """The unsupported features (keys of ``UNSUPPORTED``) of a lamp object whose light the rays
+    in ``visibility`` (RAY_* bits, export.scene.ray_visibility) see: settings its light is
+    rendered without."""
+    data, found = lamp.data, []
+    if not getattr(data, "use_shadow", True):
+        found.append("lamp cast shadow off")
+    found += [f"lamp {label.lower()} off" for bit, label in _LAMP_RAY_VISIBILITY if not visibility & bit]
+    if data.type == 'AREA' and float(getattr(data, "spread", math.pi)) < math.pi - 1e-6:
+        found.append("area lamp spread")
+    return found
 
 
 def object_features(obj) -> list[str]:

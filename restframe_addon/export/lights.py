@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
-import math
 from typing import Callable
 
 import numpy as np
 
 from ..core.scene import Light, Velocity, WorldTexture
 from ..motion_query import fcurves
+from .camera import without_scale
 from .images import ImageMissing, image_texture
-from .materials import output_node, upstream
-from .meshes import without_scale
 from .motion import MAX_SAMPLES, SUBFRAMES
+from .nodes import output_node, upstream
 
 
 def node_emission(data, name: str, warn: Callable[[str], None]) -> tuple[np.ndarray, float]:
@@ -35,25 +34,6 @@ def node_emission(data, name: str, warn: Callable[[str], None]) -> tuple[np.ndar
     if upstream(color) is not None or upstream(strength) is not None:
         warn(f"Light '{name}': links into its Emission node are not supported, using their values")
     return np.asarray(color.default_value[:3], dtype=np.float64), float(strength.default_value)
-
-
-# a lamp's Ray Visibility (Cycles: which closures it lights) the renderer does not apply to its light
-_LIT_BY_VISIBILITY = (("visible_diffuse", "Diffuse"), ("visible_glossy", "Glossy"),
-                      ("visible_transmission", "Transmission"))
-
-
-def _lamp_settings_not_rendered(obj) -> list[str]:
-    """What of a lamp's settings the render leaves out (each said once per lamp), not silently."""
-    data, found = obj.data, []
-    if not getattr(data, "use_shadow", True):
-        found.append("Cast Shadow off is not supported yet: it casts shadows")
-    off = [label for name, label in _LIT_BY_VISIBILITY if not getattr(obj, name, True)]
-    if off:
-        found.append(f"Ray Visibility {', '.join(off)} off is not supported for its light yet: it lights those "
-                     "surfaces through its samples (only bounce rays miss it)")
-    if data.type == 'AREA' and float(getattr(data, "spread", math.pi)) < math.pi - 1e-6:
-        found.append("a Spread below 180 degrees is not supported yet: it shines over the whole half-space")
-    return found
 
 
 def _area_size_y(data) -> float:
@@ -89,8 +69,6 @@ def export_light(obj, matrix: np.ndarray, velocity: Velocity, pivot, warn: Calla
     )
     if scene is not None:
         light.power_curve, light.color_curve = keyed_output(data, scene, tint, strength)
-    for message in _lamp_settings_not_rendered(obj):
-        warn(f"Light '{obj.name}': {message}")
     if flattened and data.type != 'POINT':
         warn(f"Light '{obj.name}': scaled to zero along an axis, it gives no light")
         light.power, light.power_curve = 0.0, None

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 from typing import Callable
 
-import bpy
 import numpy as np
 
 from ..core.scene import Material
 from ..motion_query import fcurves
 from .images import ImageMissing, image_texture
 from .motion import MAX_SAMPLES, SUBFRAMES
-from .nodes import upstream, upstream_link
+from .features import FeatureReport, principled_features
+from .nodes import output_node, upstream, upstream_link
 from .surface_maps import principled_alpha, principled_normal_map
 
 IDENTITY_UV = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # (2, 3) affine map of (u, v, 1)
@@ -42,36 +42,15 @@ def mapping_affine(kind: str, location, rotation, scale) -> np.ndarray:
     return np.column_stack([linear[:2, :2], offset[:2]])
 
 
-def output_node(id_data):
-    """The active output node a path tracer uses, or None when nodes are off or missing."""
-    tree = id_data.node_tree
-    # use_nodes is always on from 5.0 (and deprecated there)
-    if tree is None or (bpy.app.version < (5, 0, 0) and not id_data.use_nodes):
-        return None
-    return tree.get_output_node('CYCLES')
-
-
-# Principled BSDF inputs the renderer does not model (docs/physics.md), with the value that turns
-# each off: set otherwise, or linked, the material is rendered without it and the render says so
-# (a map on the Coat Normal is warned about with the other bump maps, export.features)
-_NOT_MODELLED = (("Subsurface Weight", 0.0), ("Sheen Weight", 0.0), ("Anisotropic", 0.0),
-                 ("Specular Tint", (1.0, 1.0, 1.0)), ("Thin Film Thickness", 0.0), ("Diffuse Roughness", 0.0))
-
-
-def _is_on(socket, off) -> bool:
-    """Whether a Principled input is linked or set away from the value that turns it off."""
-    if upstream(socket) is not None:
-        return True
-    value = socket.default_value
-    return any(float(v) != o for v, o in zip(value[:3], off)) if isinstance(off, tuple) else float(value) != off
-
-
 class MaterialExporter:
     """Principled BSDF (and a few simple shaders) -> core Materials, each read once."""
 
-    def __init__(self, warn: Callable[[str], None], scene=None):
+    def __init__(self, warn: Callable[[str], None], scene=None, unsupported: FeatureReport | None = None):
+        """``unsupported`` collects the Principled inputs a material uses that are not modelled
+        (warned about with the scene's other unsupported features)."""
         self.warn = warn
         self.scene = scene
+        self.unsupported = FeatureReport() if unsupported is None else unsupported
         self.materials: list[Material] = [Material(name="Default")]
         self._index: dict[int, int] = {}
         # material index -> (2, 3) affine map of its texture's UVs (Mapping node, UDIM layout)
@@ -146,11 +125,7 @@ class MaterialExporter:
         out.coat_weight = self._value(mat, inputs["Coat Weight"])
         out.coat_roughness = self._value(mat, inputs["Coat Roughness"])
         out.coat_ior = self._value(mat, inputs["Coat IOR"])
-        if out.coat_weight > 0.0 and _is_on(inputs["Coat Tint"], (1.0, 1.0, 1.0)):
-            self.warn(f"Material '{mat.name}': Coat Tint is not supported, the coat is clear")
-        ignored = [name for name, off in _NOT_MODELLED if name in inputs and _is_on(inputs[name], off)]
-        if ignored:
-            self.warn(f"Material '{mat.name}': Principled {', '.join(ignored)} not supported yet, rendered without")
+        self.unsupported.add(f"Material '{mat.name}'", principled_features(node))
         out.emission = self._emission(mat, inputs["Emission Color"], inputs["Emission Strength"], out)
         out.alpha, out.alpha_texture = principled_alpha(mat, node, self.warn)
         out.normal_texture, out.normal_strength = principled_normal_map(

@@ -94,16 +94,6 @@ def _reads_uvs(material) -> bool:
     return any(t is not None for t in (material.base_color_texture, material.alpha_texture, material.normal_texture))
 
 
-def without_scale(matrix) -> tuple[np.ndarray, np.ndarray]:
-    """A world matrix (4x4) with its axes made unit length, as Cycles takes a camera's or lamp's,
-    and the axes' lengths (the scale); an axis scaled to zero comes out NaN: the caller decides."""
-    matrix = np.array(matrix, dtype=np.float64)
-    scale = np.linalg.norm(matrix[:3, :3], axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        matrix[:3, :3] /= scale
-    return matrix, scale
-
-
 def place(data: MeshData, matrix: np.ndarray):
     """World-space vertices and normals for one instance transform."""
     linear, offset = matrix[:3, :3], matrix[:3, 3]

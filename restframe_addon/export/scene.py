@@ -19,7 +19,7 @@ from ..core.scene import (RAY_ALL, RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_SHAD
 from ..motion_query import assembly_root, has_animated_location, observation_time
 from .camera import export_camera, render_views
 from .errors import ExportCancelled, ExportError
-from .features import FeatureReport, object_features
+from .features import FeatureReport, lamp_features, object_features
 from .lights import export_light, world_color, world_texture
 from .materials import MaterialExporter
 from .meshes import MeshData, place, read_mesh
@@ -132,7 +132,6 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
     if render_views(scene) and camera.kind == 'PANO':
         warn_once(f"{camera_object.name}: a panoramic camera's stereo views are rendered as two panoramas from the "
                   "eyes' positions (spherical stereo, the eyes turning with the view direction, is not supported)")
-    materials = MaterialExporter(warn_once, scene)
     bodies: list[tuple[int | None, dict]] = []  # (assembly key of an animated body, Mesh fields) per mesh
     lights: list[Light] = []
     cache: dict[tuple, MeshData | None] = {}
@@ -141,6 +140,7 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
     jumping: set[str] = set()
     camera_position = tuple(camera_object.matrix_world.translation)
     unsupported = FeatureReport()
+    materials = MaterialExporter(warn_once, scene, unsupported)
     features_seen: set[int] = set()  # original objects already asked (instances share theirs)
     # instanced instancers with a velocity -> (object, pivot); Blender lists them before their instances
     moving_instancers: dict = {}
@@ -183,6 +183,7 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
                                               should_stop=should_stop, warn=warn_once)
             light = export_light(obj, matrix, velocity, pivot, warn_once, scene=scene, trajectory=trajectory)
             light.visibility = ray_visibility(inst, view_layer)  # which rays see a lamp with an extent
+            unsupported.add(name, lamp_features(obj, light.visibility))
             lights.append(light)
             continue
         body = None

@@ -15,13 +15,12 @@ grow), so compare the 11-velocity render across checkouts and run the command mo
 from __future__ import annotations
 
 import argparse
-import json
 import resource
 import sys
 import time
 from pathlib import Path
 
-from ab_servers import ask_each_in_turn
+from ab_servers import answer_requests, ask_each_in_turn
 
 HERE = Path(__file__).resolve()
 VELOCITIES = {"1": [0.5] * 11, "11": [0.05 + 0.08 * i for i in range(11)]}
@@ -57,14 +56,15 @@ def serve(repo: str) -> None:
     scenes = {k: bars_scene(v) for k, v in VELOCITIES.items()}
     for scene in scenes.values():
         render_image(scene, s)
-    print("ready", flush=True)
-    for line in sys.stdin:
+
+    def answer(velocities):
         queried[0], shadow[0] = 0, 0.0
         faults, t0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt, time.process_time()
-        render_image(scenes[line.strip()], s)
+        render_image(scenes[velocities], s)
         cpu = time.process_time() - t0
-        print(json.dumps([cpu, queried[0], resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults, shadow[0]]),
-              flush=True)
+        return [cpu, queried[0], resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults, shadow[0]]
+
+    answer_requests(answer)
 
 
 def main() -> int:

@@ -1,7 +1,8 @@
 """Before/after in one process for the culling clusters (``frames._clusters``): the base
-checkout's ``frames.py`` and this one's, loaded as two modules, timed in turns on a random
-132-triangle mesh (a row of the 11x11 bars) and a 261k-triangle one, CPU microseconds (min of
-the rounds); checks that both give the same clusters bit for bit.
+checkout's ``frames.py`` and this one's, loaded as two modules, timed in turns (alternating the
+order, ``bench_common.cpu_interleaved``) on a random 132-triangle mesh (a row of the 11x11 bars)
+and a 261k-triangle one, CPU microseconds (min of the rounds); checks that both give the same
+clusters bit for bit.
 
     git worktree add /tmp/base origin/main
     tools/dev.sh tests/bench/ab_clusters.py /tmp/base --rounds 15
@@ -12,10 +13,11 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
+
+from bench_common import cpu_interleaved
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -42,14 +44,12 @@ def main() -> None:
     rng = np.random.default_rng(1)
     meshes = {"132 triangles": (rng.normal(size=(80, 3)), rng.integers(0, 80, size=(132, 3)), 100),
               "261k triangles": (rng.normal(size=(150_000, 3)), rng.integers(0, 150_000, size=(261_000, 3)), 1)}
-    best = {(label, mesh): np.inf for label in modules for mesh in meshes}
-    for _ in range(args.rounds):
-        for label, module in modules.items():
-            for mesh, (vertices, triangles, calls) in meshes.items():
-                start = time.process_time()
-                for _ in range(calls):
-                    module._clusters(vertices, triangles)
-                best[label, mesh] = min(best[label, mesh], (time.process_time() - start) / calls * 1e6)
+    def calling(module, vertices, triangles, calls):
+        return lambda: [module._clusters(vertices, triangles) for _ in range(calls)]
+
+    seconds = cpu_interleaved({(label, mesh): calling(module, *meshes[mesh]) for label, module in modules.items()
+                               for mesh in meshes}, args.rounds)
+    best = {(label, mesh): seconds[label, mesh] / meshes[mesh][2] * 1e6 for label, mesh in seconds}
     same = all(np.array_equal(modules["before"]._clusters(v, t), modules["after"]._clusters(v, t))
                for v, t, _ in meshes.values())
     print("| | " + " | ".join(meshes) + " |\n|---|" + "---|" * len(meshes))

@@ -19,12 +19,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 import time
 from pathlib import Path
 
-from ab_servers import ask_in_turn
+from ab_servers import answer_requests, ask_in_turn
 
 HERE = Path(__file__).resolve()
 SCENES = {"moving_sphere": ("moving_sphere.blend", (960, 540), 8), "bars": ("bars_sideways.blend", None, None),
@@ -64,8 +63,8 @@ def serve(repo: str, scene: str, stages: bool) -> None:
         if attr in owner.__dict__:  # (an older checkout may lack it)
             setattr(owner, attr, _timed(owner.__dict__[attr], LABELS.get(attr, attr), totals))
     list(render_tiles(prep, threads=1))
-    print("ready", flush=True)
-    for _ in sys.stdin:
+
+    def answer(_request):
         totals.clear()
         t0 = time.process_time()
         list(render_tiles(prep, threads=1))
@@ -75,7 +74,9 @@ def serve(repo: str, scene: str, stages: bool) -> None:
             prepared.prepare(core_scene, settings)
             totals["prepare"] = time.process_time() - t0
             totals["F12"] = totals["render"] + totals["prepare"]
-        print(json.dumps(totals), flush=True)
+        return totals
+
+    answer_requests(answer)
 
 
 def _timed(func, name, totals):

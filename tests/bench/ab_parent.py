@@ -14,14 +14,13 @@ each costs this VM 60-250 us of CPU, docs/speed.md).  Milliseconds, min of the r
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import resource
 import sys
 import time
 from pathlib import Path
 
-from ab_servers import ask_in_turn
+from ab_servers import answer_requests, ask_in_turn
 
 HERE = Path(__file__).resolve()
 SCENES = {"bars": ("bars_sideways.blend", None, None, 64), "moving_sphere": ("moving_sphere.blend", (960, 540), 8, None)}
@@ -48,15 +47,17 @@ def serve(repo: str, scene_name: str, workers_count: int) -> None:
     scene.render.threads_mode, scene.render.threads = 'FIXED', workers_count
     for _ in range(2):  # the workers started and warm
         bpy.ops.render.render(write_still=False)
-    print("ready", file=answers, flush=True)
-    for _ in sys.stdin:
+
+    def answer(_request):
         usage, cpu = resource.getrusage(resource.RUSAGE_SELF), time.process_time()
         bpy.ops.render.render(write_still=False)
         stats, after = workers.pool().last_stats, resource.getrusage(resource.RUSAGE_SELF)
-        answer = {field: getattr(stats, field) * 1e3 for field in FIELDS}
-        answer.update(process_cpu=(time.process_time() - cpu) * 1e3, wakeups=after.ru_nvcsw - usage.ru_nvcsw,
-                      shares=stats.shares)
-        print(json.dumps(answer), file=answers, flush=True)
+        out = {field: getattr(stats, field) * 1e3 for field in FIELDS}
+        out.update(process_cpu=(time.process_time() - cpu) * 1e3, wakeups=after.ru_nvcsw - usage.ru_nvcsw,
+                   shares=stats.shares)
+        return out
+
+    answer_requests(answer, answers)
 
 
 def main() -> int:

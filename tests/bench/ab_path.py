@@ -18,14 +18,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from ab_servers import ask_in_turn
+from ab_servers import answer_requests, ask_in_turn
 
 HERE = Path(__file__).resolve()
 SIZE, BOUNCES, REFERENCE = 32, 4, 1024
@@ -78,13 +77,15 @@ def serve(repo: str, samples: int, noise: bool) -> None:
 
     reference = render(REFERENCE)[1] if noise else None
     render(1)  # warm
-    print("ready", flush=True)
-    for _ in sys.stdin:
+
+    def answer(_request):
         seconds, image = render(samples)
         out = {"seconds": seconds}
         if reference is not None:
             out["rmse"] = rel_rmse(image, reference)
-        print(json.dumps(out), flush=True)
+        return out
+
+    answer_requests(answer)
 
 
 def profile(samples: int) -> None:

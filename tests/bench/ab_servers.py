@@ -1,11 +1,23 @@
-"""Before/after render servers asked in turn (``ab_cpu``, ``ab_path``, ``ab_bars``): one process per
-checkout, started once, each printing ``ready`` and then one JSON line per request line; the driver
-alternates the order of the requests and of the servers, so both checkouts see the same machine."""
+"""Before/after render servers asked in turn (``ab_cpu``, ``ab_path``, ``ab_bars``, ``ab_parent``):
+one process per checkout, started once, each printing ``ready`` and then one JSON line per request
+line (:func:`answer_requests`); the driver alternates the order of the requests and of the servers,
+so both checkouts see the same machine."""
 
 from __future__ import annotations
 
 import json
 import subprocess
+import sys
+from typing import Callable, TextIO
+
+
+def answer_requests(answer: Callable[[str], object], out: TextIO | None = None) -> None:
+    """The server's side, once its checkout is set up: ``ready``, then per request line on stdin
+    (stripped) the JSON of ``answer(request)`` on ``out`` (default stdout), until stdin closes."""
+    out = sys.stdout if out is None else out
+    print("ready", file=out, flush=True)
+    for line in sys.stdin:
+        print(json.dumps(answer(line.strip())), file=out, flush=True)
 
 
 def ask_each_in_turn(commands: dict, repeats: int, requests: tuple[str, ...]) -> dict:

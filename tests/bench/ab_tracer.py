@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import inspect
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -111,20 +111,17 @@ def main() -> int:
     calls = _record(args.after)
     from restframe_addon.core import blas  # (the recording checkout's: render_tiles keeps BLAS on one thread)
 
+    from bench_common import cpu_interleaved  # (after the recording, which imports the --after checkout's core first)
+
     sides = {"after": _load(args.after), "before": _load(args.before)}
     caches = {side: functions["TraceCache"]() for side, functions in sides.items()}
-    best = {(side, name): np.inf for side in sides for _, name in FUNCTIONS}
     same = {}
     with blas.single_threaded():
         for side, functions in sides.items():  # warm each side's cache; compare the results
             for _, name in FUNCTIONS:
                 same.setdefault(name, []).append(_bits(_replay(functions, name, calls[name], caches[side])))
-        for repeat in range(args.repeats):
-            for side in (("before", "after") if repeat % 2 == 0 else ("after", "before")):
-                for _, name in FUNCTIONS:
-                    t0 = time.process_time()
-                    _replay(sides[side], name, calls[name], caches[side])
-                    best[side, name] = min(best[side, name], time.process_time() - t0)
+        best = cpu_interleaved({(side, name): functools.partial(_replay, sides[side], name, calls[name], caches[side])
+                                for side in ("before", "after") for _, name in FUNCTIONS}, args.repeats, warmup=0)
     print(f"moving_sphere's recorded calls replayed, CPU seconds, min of {args.repeats} interleaved repeats")
     print("| function | calls | before | after | after / before | same bits |\n|---|---|---|---|---|---|")
     for _, name in FUNCTIONS:

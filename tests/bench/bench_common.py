@@ -136,6 +136,22 @@ def interleaved(funcs: dict, repeats: int, warmup: int = 1) -> dict:
             for name, t in times.items()}
 
 
+def cpu_interleaved(funcs: dict, repeats: int, warmup: int = 1) -> dict:
+    """Like :func:`interleaved`, in CPU seconds of this process (one thread: immune to the other work
+    of a shared machine), the results not kept; returns name -> min."""
+    for _ in range(warmup):
+        for f in funcs.values():
+            f()
+    times = {name: [] for name in funcs}
+    names = list(funcs)
+    for r in range(repeats):
+        for name in (names if r % 2 == 0 else names[::-1]):
+            t0 = time.process_time()
+            funcs[name]()
+            times[name].append(time.process_time() - t0)
+    return {name: min(t) for name, t in times.items()}
+
+
 def timed(f):
     t0 = time.perf_counter()
     value = f()

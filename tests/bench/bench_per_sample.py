@@ -29,7 +29,8 @@ import time
 
 import numpy as np
 
-from bench_common import Context, Goal, Section, fmt, load, print_section, register_addon, settings, standalone_context
+from bench_common import (Context, Goal, Section, cpu_interleaved, fmt, load, print_section, register_addon, settings,
+                          standalone_context)
 from bench_build import raw_build, sphere_scene
 from bench_parallel import cpu_seconds, export_blend
 from bench_throughput import raw_batches, raw_primary
@@ -41,21 +42,6 @@ from restframe_addon.core.render import render_tiles
 
 RENDER_GOAL = 3.0  # moving_sphere on one core at most this many times the raw Embree time of its queries
 FLOOR_GOAL = 1.25  # F12 of primary rays at most this many times raw Embree build + trace
-
-
-def cpu_interleaved(funcs: dict, repeats: int) -> dict:
-    """Like ``bench_common.interleaved``, in CPU seconds of this process (one thread: immune to the
-    other work of a shared machine); returns name -> min."""
-    for f in funcs.values():
-        f()
-    times = {name: [] for name in funcs}
-    names = list(funcs)
-    for r in range(repeats):
-        for name in (names if r % 2 == 0 else names[::-1]):
-            t0 = time.process_time()
-            funcs[name]()
-            times[name].append(time.process_time() - t0)
-    return {name: min(t) for name, t in times.items()}
 
 
 # --------------------------------------------------------------------------- recording embree's calls

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from blender_helpers import add_camera, add_plane, add_sun, export_now, principled, render_exr
+from restframe_addon.export.features import UNSUPPORTED
 
 
 @pytest.mark.parametrize("spoil, message", [
@@ -115,7 +116,7 @@ def test_principled_inputs_not_modelled_are_warned_about_once(scene, name, value
     plane.data.materials.append(paint)
     add_plane(scene, "Other", location=(-3.0, 0.0, 0.0)).data.materials.append(paint)
     _, _, warnings = export_now(scene)
-    assert warnings == [f"Material 'Velvet': Principled {name} not supported yet, rendered without"]
+    assert warnings == [f"Material 'Velvet': Principled {name} is not supported yet: rendered without"]
 
 
 def test_a_linked_input_not_modelled_is_warned_about_and_the_defaults_are_not(scene):
@@ -127,7 +128,7 @@ def test_a_linked_input_not_modelled_is_warned_about_and_the_defaults_are_not(sc
     add_plane(scene, "A").data.materials.append(plain)
     add_plane(scene, "B", location=(3.0, 0.0, 0.0)).data.materials.append(linked)
     _, _, warnings = export_now(scene)
-    assert warnings == ["Material 'Linked': Principled Sheen Weight not supported yet, rendered without"]
+    assert warnings == ["Material 'Linked': Principled Sheen Weight is not supported yet: rendered without"]
 
 
 def _add_lamp(scene, name, kind, location=(0.0, 0.0, 0.0), **data):
@@ -160,23 +161,24 @@ def test_a_lamp_scaled_to_zero_renders_as_in_cycles(scene, tmp_path, kind):
         assert flat[..., :3].max() == 0.0
 
 
-@pytest.mark.parametrize("kind, spoil, message", [
-    ('SUN', lambda lamp: setattr(lamp.data, "use_shadow", False), "Cast Shadow off is not supported yet"),
-    ('POINT', lambda lamp: setattr(lamp, "visible_diffuse", False), "Ray Visibility Diffuse off is not supported"),
+@pytest.mark.parametrize("kind, spoil, features", [
+    ('SUN', lambda lamp: setattr(lamp.data, "use_shadow", False), ["lamp cast shadow off"]),
+    ('POINT', lambda lamp: setattr(lamp, "visible_diffuse", False), ["lamp diffuse off"]),
     ('SPOT', lambda lamp: (setattr(lamp, "visible_glossy", False), setattr(lamp, "visible_transmission", False)),
-     "Ray Visibility Glossy, Transmission off is not supported"),
-    ('AREA', lambda lamp: setattr(lamp.data, "spread", math.radians(60)), "a Spread below 180 degrees is not supported"),
+     ["lamp glossy off", "lamp transmission off"]),
+    ('AREA', lambda lamp: setattr(lamp.data, "spread", math.radians(60)), ["area lamp spread"]),
 ])
-def test_lamp_settings_the_render_leaves_out_are_warned_about(scene, kind, spoil, message):
+def test_lamp_settings_the_render_leaves_out_are_warned_about(scene, kind, spoil, features):
     """Cycles honours these (a sun with Diffuse off lights a diffuse floor 0.018 where it lit it 0.19);
-    the renderer does not yet, and says so."""
+    the renderer does not yet, and says so, naming the lamps."""
     add_camera(scene)
     add_plane(scene)
     lamp = _add_lamp(scene, "Lamp", kind)
+    other = _add_lamp(scene, "Other", kind, location=(1.0, 0.0, 3.0))
     assert export_now(scene)[2] == []
     spoil(lamp)
-    warnings = export_now(scene)[2]
-    assert len(warnings) == 1 and warnings[0].startswith(f"Light 'Lamp': {message}")
+    spoil(other)
+    assert export_now(scene)[2] == [f"Lamp, Other: {UNSUPPORTED[feature]}" for feature in features]
 
 
 @pytest.mark.parametrize("data, message", [(None, "Rig: the scene camera is an empty object, not a camera"),

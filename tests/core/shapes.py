@@ -144,3 +144,9 @@ class HyperbolicBall:
             s = np.append(np.arange(lo, hi, step), hi)
             out[i] = self.margin(tau0[i] - s, x0[i] + s[:, None] * d[i]).min()
         return out
+
+
+def rotation_x(angle):
+    """The rotation by ``angle`` (radians) about +X (a lamp's matrix: its -Z axis tilted towards +Y)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])

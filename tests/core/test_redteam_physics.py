@@ -14,7 +14,7 @@ import pytest
 
 from restframe_addon.core.render import render_image
 from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity
-from shapes import look_at_camera, quad
+from shapes import look_at_camera, quad, rotation_x
 
 mpmath.mp.dps = 40
 DISTANCE = 20.0
@@ -48,11 +48,6 @@ def test_a_wall_at_one_minus_1e_9_c_along_the_line_of_sight(direction):
     assert centre["Combined"] == pytest.approx(float(doppler ** 4), rel=1e-5)
 
 
-def _rotation_x(angle):
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
 @pytest.mark.parametrize("integrator, colour", [("DIRECT", "OFF"), ("PATH", "OFF"), ("PATH", "SPECTRAL")])
 @pytest.mark.parametrize("degrees", [0.0, 30.0, 120.0])
 def test_a_soft_sun_gives_a_facing_surface_its_strength(integrator, colour, degrees):
@@ -64,7 +59,7 @@ def test_a_soft_sun_gives_a_facing_surface_its_strength(integrator, colour, degr
     tilt, albedo, strength = math.radians(20.0), 0.5, 3.0
     floor = Mesh("Floor", *quad((0, 0, 0), (100.0, 100.0)))
     camera = look_at_camera((0, 0, 10), (0, 0, 0), up=(0, 1, 0), fov_half_tan=0.05)
-    sun = Light("Sun", "SUN", (0, 0, 5), matrix=_rotation_x(tilt), power=strength, sun_angle=math.radians(degrees))
+    sun = Light("Sun", "SUN", (0, 0, 5), matrix=rotation_x(tilt), power=strength, sun_angle=math.radians(degrees))
     scene = Scene(camera=camera, meshes=[floor], lights=[sun], world_color=(0, 0, 0),
                   materials=[Material("Matte", base_color=(albedo,) * 3, roughness=1.0, specular_ior_level=0.0)])
     settings = RenderSettings(resolution=(4, 4), samples=256, threads=1, integrator=integrator, max_bounces=0,

@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 import pytest
-from shapes import look_at_camera, quad
+from shapes import look_at_camera, quad, rotation_x
 
 from restframe_addon.core.render import render_image
 from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity
@@ -51,11 +51,6 @@ def test_sun_and_spot_and_area_units():
     area = Light("area", "AREA", (0, 0, 2.0), power=1000.0, area_size=(0.01, 0.01))
     value = centre(render_image(floor_scene([area]), settings()))[0]
     assert value == pytest.approx(1000.0 / (math.pi * 4.0) / math.pi, rel=1e-4)
-
-
-def rotation_x(angle):
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
 
 
 @pytest.mark.parametrize("beta", [0.3, 0.9])

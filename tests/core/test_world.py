@@ -86,13 +86,14 @@ def test_euler_rotation_is_blenders_xyz():
 
 def test_image_lookup_bilinear_between_pixel_centres_and_closest():
     image = np.arange(12, dtype=np.float64).reshape(3, 4, 1) * np.ones(3)
-    centre = world.image_lookup(image, np.array([1.5 / 4]), np.array([0.5 / 3]))
+    texels = world.Texels(image)
+    centre = world.image_lookup(texels, np.array([1.5 / 4]), np.array([0.5 / 3]))
     assert np.allclose(centre, image[0, 1])
-    between = world.image_lookup(image, np.array([2.0 / 4]), np.array([1.0 / 3]))
+    between = world.image_lookup(texels, np.array([2.0 / 4]), np.array([1.0 / 3]))
     assert np.allclose(between, image[0:2, 1:3].mean(axis=(0, 1)))
-    wrapped = world.image_lookup(image, np.array([0.0]), np.array([0.5 / 3]))  # half way to the last column
+    wrapped = world.image_lookup(texels, np.array([0.0]), np.array([0.5 / 3]))  # half way to the last column
     assert np.allclose(wrapped, 0.5 * (image[0, 0] + image[0, 3]))
-    closest = world.image_lookup(image, np.array([0.99 / 4, 3.2 / 4]), np.array([2.9 / 3, 0.1 / 3]), "Closest")
+    closest = world.image_lookup(texels, np.array([0.99 / 4, 3.2 / 4]), np.array([2.9 / 3, 0.1 / 3]), "Closest")
     assert np.allclose(closest, [image[2, 0], image[0, 3]])
 
 
@@ -116,9 +117,9 @@ def test_texels_look_up_the_bits_of_a_plain_bilinear_repeat_lookup(dtype, channe
     expected += ((1 - fy) * fx)[:, None] * image[y0, x1]
     expected += ((1 - fx) * fy)[:, None] * image[y1, x0]
     expected += (fx * fy)[:, None] * image[y1, x1]
-    for looked_up in (world.image_lookup(texels, u, v), world.image_lookup(image, u, v)):
-        assert looked_up.dtype == np.float64
-        np.testing.assert_array_equal(looked_up, expected)
+    looked_up = world.image_lookup(texels, u, v)
+    assert looked_up.dtype == np.float64
+    np.testing.assert_array_equal(looked_up, expected)
     nearest = image[np.floor(v * h).astype(int) % h, np.floor(u * w).astype(int) % w]
     np.testing.assert_array_equal(world.image_lookup(texels, u, v, "Closest"), nearest)
     np.testing.assert_array_equal(world.image_lookup(texels, u, v, channels=1), expected[:, :1])
@@ -201,6 +202,32 @@ def test_environment_pdf_is_normalised_and_samples_follow_it(interpolation):
     assert chi2 < dof + 6 * math.sqrt(2 * dof), (chi2, dof)
 
 
+def test_the_cdf_inversion_picks_the_pixel_whose_interval_holds_the_random_numbers():
+    """A Closest map's cells are the pixels: u1 picks the row by the rows' cumulative luminance x
+    solid angle, u2 the column by the row's own, each by a plain float64 searchsorted here; the
+    sample lies in that pixel and carries its density, luminance / total (per unit solid angle), to
+    a few float64 steps of its row's cdf (the map keeps no densities: the difference of the cdf)."""
+    image = test_image(sun_value=1e5)
+    h, w = image.shape[:2]
+    env = world.EnvironmentWorld(image, strength=0.7, interpolation="Closest")
+    rng = np.random.default_rng(21)
+    u1, u2 = rng.random(200_000), rng.random(200_000)
+    d, pdf = env.sample(u1, u2)
+    u, v = world.direction_to_equirectangular(d)
+    luminance = 0.7 * image @ world.LUMINANCE_RGB
+    omega = (2.0 * np.pi / w) * np.diff(-np.cos(np.pi * np.arange(h + 1) / h))
+    weight = luminance * omega[:, None]
+    row = np.searchsorted(np.cumsum(weight.sum(axis=1)) / weight.sum(), u1, side="right")
+    row_cdf = np.cumsum(weight, axis=1) / weight.sum(axis=1, keepdims=True)
+    column = np.array([np.searchsorted(row_cdf[r], x, side="right") for r, x in zip(row, u2)])
+    np.testing.assert_array_equal(np.floor(v * h).astype(int), row)
+    np.testing.assert_array_equal(np.floor(u * w).astype(int), column)
+    row_density = weight.sum(axis=1)[row] / weight.sum() / omega[row]  # the density of a whole row's cdf
+    error = np.abs(pdf - luminance[row, column] / weight.sum())
+    assert np.all(error <= 4 * np.finfo(np.float64).eps * row_density), (error / row_density).max()
+    assert np.array_equal(pdf, env.pdf(d))
+
+
 def test_a_bright_sun_gives_no_fireflies():
     """radiance / pdf stays within 4x its mean (the integral) for a pixel 10^4 times the sky;
     uniform sphere sampling of the same world has a huge spread (the test can tell)."""
@@ -240,7 +267,7 @@ def test_the_sampling_maps_corners_are_the_linear_lookup():
     for split in (1, 3):
         corners = world._refined_lattice(luminance, v, split)
         uu, vv = np.meshgrid((np.arange(12 * split + 1) / split + 0.5) / 12, v)
-        looked_up = world.image_lookup(luminance[..., None], uu.ravel(), vv.ravel())
+        looked_up = world.image_lookup(world.Texels(luminance[..., None]), uu.ravel(), vv.ravel())
         np.testing.assert_allclose(corners, looked_up.reshape(uu.shape), rtol=1e-12, atol=1e-14)
 
 
