@@ -5,10 +5,12 @@ import pickle
 import resource
 import sys
 import tracemalloc
+from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, "tests/core")
+ROOT = Path(__file__).resolve().parents[1]  # the checkout, whatever the working directory
+sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "core")]
 from shapes import look_at_camera, quad  # noqa: E402
 
 from restframe_addon.core.prepared import prepare  # noqa: E402
