@@ -667,7 +667,7 @@ def _cones_pay(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> list
     keeps, for a per-frame cost of many rays' maps and queries (a row of the 11x11 bars: spheres
     4x the box)."""
     pays = []
-    for k, (a, b, c) in zip(ks, _boxes_of(frames, src, ks, cache)[3].tolist()):
+    for k, (a, b, c) in zip(ks, _boxes(frames, src, ks, cache).half.tolist()):
         frame = frames.frames[k]
         if frame.spin is not None:
             squares = frame.geometry.radius ** 2
@@ -1052,13 +1052,6 @@ def _body_boxes(frames: FrameSet, src: int, ks, cache, extent):
     largest |tau0|) is ``extent``."""
     boxes = _boxes(frames, src, ks, cache)
     return boxes.t, boxes.x, boxes.velocity, boxes.widened(extent)
-
-
-def _boxes_of(frames: FrameSet, src: int, ks, cache: TraceCache | None):
-    """(t, x, velocity, half-extents) of the body boxes (``FrameSet.body_boxes``) of the frames
-    ``ks``, (len(ks),) and (len(ks), 3), from the thread's cache where it has them."""
-    boxes = _boxes(frames, src, ks, cache)
-    return boxes.t, boxes.x, boxes.velocity, boxes.half
 
 
 def _boxes(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> "_Boxes":
