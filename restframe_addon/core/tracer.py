@@ -346,7 +346,7 @@ class TraceCache:
         if kept is None:
             if len(self._boxes) >= self._MAX_KEPT:
                 self._boxes.clear()
-            kept = self._boxes[key] = every.of(frames, ks)
+            kept = self._boxes[key] = _boxes_among(frames, ks, (every.t, every.x, every.velocity, every.half))
         return kept
 
     def direction_in(self, frames: FrameSet, src: int, k: int, direction) -> tuple:
@@ -1058,8 +1058,14 @@ def _boxes(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> "_Boxes"
     """The :class:`_Boxes` of the frames ``ks`` seen from frame src, the thread's kept ones where it has them."""
     if cache is not None:
         return cache.boxes(frames, src, ks)
+    return _boxes_among(frames, ks, frames.body_boxes(src))
+
+
+def _boxes_among(frames: FrameSet, ks, every) -> "_Boxes":
+    """The :class:`_Boxes` of the frames ``ks`` from ``every`` = (t, x, velocity, half) of every
+    geometry frame's body box (``FrameSet.body_boxes``, or a kept :class:`_Boxes`' own arrays)."""
     slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
-    return _boxes_of_sources(*(a[None, slots] for a in frames.body_boxes(src)))[0]
+    return _boxes_of_sources(*(a[None, slots] for a in every))[0]
 
 
 _BOX_FIELDS = ("t", "x", "velocity", "half", "margin", "abs_t", "x_reach", "v_reach", "axes_t", "axes_x",
@@ -1080,12 +1086,6 @@ class _Boxes:
         for name, value in fields.items():
             setattr(self, name, value)
         self._parallel: dict[bytes, tuple] = {}
-
-    def of(self, frames: FrameSet, ks) -> "_Boxes":
-        """The boxes of the frames ``ks`` among these (which are every geometry frame's)."""
-        slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
-        return _boxes_of_sources(self.t[None, slots], self.x[None, slots], self.velocity[None, slots],
-                                 self.half[None, slots])[0]
 
     def widened(self, extent) -> np.ndarray:
         """Half-extents (m, 3) widened for rounding, for rays whose (largest |coordinate| of x0,
