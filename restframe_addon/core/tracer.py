@@ -300,7 +300,8 @@ class TraceCache:
     tile and sample) and the triangle rows of small meshes (:func:`hit_geometry`).
 
     Not thread-safe: each render thread (or tile) owns one and passes it explicitly; the
-    frame set itself stays read-only, and so is everything handed out from here.
+    frame set itself stays read-only, and so is everything handed out from here (but for the
+    memo of directions in each :class:`_Boxes`, :meth:`_Boxes.along`, which only this thread reaches).
     """
 
     _MAX_CONES = 4096  # many observation events (animations, secondary bundles): start afresh past this
@@ -1074,8 +1075,9 @@ _BOX_FIELDS = ("t", "x", "velocity", "half", "margin", "abs_t", "x_reach", "v_re
 
 class _Boxes:
     """Body boxes (``FrameSet.body_boxes``) of some frames seen from one source frame, (m,) and (m, 3)
-    arrays, with what the tests of every bundle derive from them alone (read-only: a thread keeps
-    them, :meth:`TraceCache.boxes`): the half-extents widened for float32 geometry (``margin``), the
+    arrays, with what the tests of every bundle derive from them alone (the arrays read-only: a
+    thread keeps them, :meth:`TraceCache.boxes`; only :meth:`along`'s memo of directions still
+    grows, in that thread): the half-extents widened for float32 geometry (``margin``), the
     largest |coordinate| of each centre and velocity, and the boxes a row per axis (``axes_*``,
     (3, m): a bundle's slab test, :func:`_may_meet`, then takes the extremes of three rows, not of
     m short ones).  Made by :func:`_boxes_of_sources`."""
