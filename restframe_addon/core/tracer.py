@@ -357,8 +357,10 @@ class TraceCache:
         if kept is None:
             if len(self._directions) >= self._MAX_KEPT:
                 self._directions.clear()
-            kept = self._directions[key] = _direction_in(frames, src, k, direction)
-            kept[0].flags.writeable = False
+            d_k, w = _direction_in(frames, src, k, direction)
+            d_k = np.array(d_k)  # (its own: a map into the same frame hands back the caller's array)
+            d_k.flags.writeable = False
+            kept = self._directions[key] = (d_k, w)
         return kept
 
     def hit_table(self, geometry) -> tuple:
