@@ -300,7 +300,8 @@ class TraceCache:
     tile and sample) and the triangle rows of small meshes (:func:`hit_geometry`).
 
     Not thread-safe: each render thread (or tile) owns one and passes it explicitly; the
-    frame set itself stays read-only, and so is everything handed out from here.
+    frame set itself stays read-only, and so is everything handed out from here (but for the
+    memo of directions in each :class:`_Boxes`, :meth:`_Boxes.along`, which only this thread reaches).
     """
 
     _MAX_CONES = 4096  # many observation events (animations, secondary bundles): start afresh past this
@@ -346,7 +347,7 @@ class TraceCache:
         if kept is None:
             if len(self._boxes) >= self._MAX_KEPT:
                 self._boxes.clear()
-            kept = self._boxes[key] = every.of(frames, ks)
+            kept = self._boxes[key] = _boxes_among(frames, ks, (every.t, every.x, every.velocity, every.half))
         return kept
 
     def direction_in(self, frames: FrameSet, src: int, k: int, direction) -> tuple:
@@ -356,8 +357,10 @@ class TraceCache:
         if kept is None:
             if len(self._directions) >= self._MAX_KEPT:
                 self._directions.clear()
-            kept = self._directions[key] = _direction_in(frames, src, k, direction)
-            kept[0].flags.writeable = False
+            d_k, w = _direction_in(frames, src, k, direction)
+            d_k = np.array(d_k)  # (its own: a map into the same frame hands back the caller's array)
+            d_k.flags.writeable = False
+            kept = self._directions[key] = (d_k, w)
         return kept
 
     def hit_table(self, geometry) -> tuple:
@@ -667,7 +670,7 @@ def _cones_pay(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> list
     keeps, for a per-frame cost of many rays' maps and queries (a row of the 11x11 bars: spheres
     4x the box)."""
     pays = []
-    for k, (a, b, c) in zip(ks, _boxes_of(frames, src, ks, cache)[3].tolist()):
+    for k, (a, b, c) in zip(ks, _boxes(frames, src, ks, cache).half.tolist()):
         frame = frames.frames[k]
         if frame.spin is not None:
             squares = frame.geometry.radius ** 2
@@ -1054,19 +1057,18 @@ def _body_boxes(frames: FrameSet, src: int, ks, cache, extent):
     return boxes.t, boxes.x, boxes.velocity, boxes.widened(extent)
 
 
-def _boxes_of(frames: FrameSet, src: int, ks, cache: TraceCache | None):
-    """(t, x, velocity, half-extents) of the body boxes (``FrameSet.body_boxes``) of the frames
-    ``ks``, (len(ks),) and (len(ks), 3), from the thread's cache where it has them."""
-    boxes = _boxes(frames, src, ks, cache)
-    return boxes.t, boxes.x, boxes.velocity, boxes.half
-
-
 def _boxes(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> "_Boxes":
     """The :class:`_Boxes` of the frames ``ks`` seen from frame src, the thread's kept ones where it has them."""
     if cache is not None:
         return cache.boxes(frames, src, ks)
+    return _boxes_among(frames, ks, frames.body_boxes(src))
+
+
+def _boxes_among(frames: FrameSet, ks, every) -> "_Boxes":
+    """The :class:`_Boxes` of the frames ``ks`` from ``every`` = (t, x, velocity, half) of every
+    geometry frame's body box (``FrameSet.body_boxes``, or a kept :class:`_Boxes`' own arrays)."""
     slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
-    return _boxes_of_sources(*(a[None, slots] for a in frames.body_boxes(src)))[0]
+    return _boxes_of_sources(*(a[None, slots] for a in every))[0]
 
 
 _BOX_FIELDS = ("t", "x", "velocity", "half", "margin", "abs_t", "x_reach", "v_reach", "axes_t", "axes_x",
@@ -1075,8 +1077,9 @@ _BOX_FIELDS = ("t", "x", "velocity", "half", "margin", "abs_t", "x_reach", "v_re
 
 class _Boxes:
     """Body boxes (``FrameSet.body_boxes``) of some frames seen from one source frame, (m,) and (m, 3)
-    arrays, with what the tests of every bundle derive from them alone (read-only: a thread keeps
-    them, :meth:`TraceCache.boxes`): the half-extents widened for float32 geometry (``margin``), the
+    arrays, with what the tests of every bundle derive from them alone (the arrays read-only: a
+    thread keeps them, :meth:`TraceCache.boxes`; only :meth:`along`'s memo of directions still
+    grows, in that thread): the half-extents widened for float32 geometry (``margin``), the
     largest |coordinate| of each centre and velocity, and the boxes a row per axis (``axes_*``,
     (3, m): a bundle's slab test, :func:`_may_meet`, then takes the extremes of three rows, not of
     m short ones).  Made by :func:`_boxes_of_sources`."""
@@ -1087,12 +1090,6 @@ class _Boxes:
         for name, value in fields.items():
             setattr(self, name, value)
         self._parallel: dict[bytes, tuple] = {}
-
-    def of(self, frames: FrameSet, ks) -> "_Boxes":
-        """The boxes of the frames ``ks`` among these (which are every geometry frame's)."""
-        slots = np.array([frames.geometry_slot[k] for k in ks], dtype=np.int64)
-        return _boxes_of_sources(self.t[None, slots], self.x[None, slots], self.velocity[None, slots],
-                                 self.half[None, slots])[0]
 
     def widened(self, extent) -> np.ndarray:
         """Half-extents (m, 3) widened for rounding, for rays whose (largest |coordinate| of x0,

@@ -97,3 +97,18 @@ def test_parallel_rays_clip_and_reach_bit_for_bit_as_rays_of_their_own():
         plain = tracer._bundle_reach(tau0, x0, own, np.full(n, 1e-4), np.full(n, np.inf))
         for field in ("lo", "hi", "earliest", "latest", "direction"):
             np.testing.assert_array_equal(getattr(fast, field), getattr(plain, field))
+
+
+def test_a_kept_sun_direction_is_the_caches_own_array():
+    """TraceCache.direction_in keeps a read-only array of its own, also where the map into the frame
+    is the identity and hands back the caller's direction, which stays as the caller made it."""
+    frame_set = frames()
+    moving = next(k for k in frame_set.geometry if k != frame_set.world)
+    cache = tracer.TraceCache()
+    for k in (frame_set.world, moving):
+        direction = np.array([0.3, -0.2, 0.9]) / np.linalg.norm([0.3, -0.2, 0.9])
+        d_k, w = cache.direction_in(frame_set, frame_set.world, k, direction)
+        want = tracer._direction_in(frame_set, frame_set.world, k, np.array(direction))
+        assert direction.flags.writeable and d_k is not direction and not d_k.flags.writeable
+        assert d_k.tobytes() == want[0].tobytes() and w == want[1]
+        assert cache.direction_in(frame_set, frame_set.world, k, direction)[0] is d_k  # kept
