@@ -45,12 +45,17 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
-if __name__ == "__main__" and "--checkout" in sys.argv:  # the renderer of another checkout (a git worktree)
+OTHER_CHECKOUT = __name__ == "__main__" and "--checkout" in sys.argv
+if OTHER_CHECKOUT:  # the renderer of another checkout (a git worktree)
     ROOT = Path(sys.argv[sys.argv.index("--checkout") + 1]).resolve()
 sys.path.insert(0, str(ROOT))
 import restframe_addon  # noqa: E402,F401  (this checkout's, before bench_common puts the suite's own on the path)
 
 from bench_common import Context, Goal, Section, print_section, register_addon, standalone_context  # noqa: E402
+
+if OTHER_CHECKOUT:  # the worker processes boot with this process's sys.path, on which bench_common has put
+    sys.path.remove(str(ROOT))  # the suite's own checkout first: ROOT first again, so that they too run its code
+    sys.path.insert(0, str(ROOT))
 
 SCENES = {  # name: (.blend, resolution or None for the file's, samples or None, tile size or None)
     "moving_sphere": ("moving_sphere.blend", (960, 540), 8, None),
