@@ -48,6 +48,12 @@ class Section:
     def add(self, text: str = "") -> None:
         self.body.append(text)
 
+    def add_paragraphs(self, text: str) -> None:
+        """Each paragraph of ``text`` (a docstring's, split by blank lines) as one line, a blank one after it."""
+        for paragraph in text.split("\n\n"):
+            self.add(" ".join(paragraph.split()))
+            self.add()
+
     def table(self, header: list[str], rows: list[list]) -> None:
         self.body.append("| " + " | ".join(header) + " |")
         self.body.append("|" + "|".join("---" for _ in header) + "|")

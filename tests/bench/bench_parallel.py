@@ -459,9 +459,7 @@ def run(ctx: Context, repeats: int | None = None) -> Section:
     register_addon()
     repeats = repeats or ctx.pick(3, 1)
     sec = Section("10. Two cores and the 16-core projection: threads against worker processes")
-    for paragraph in __doc__.split("\n\n")[2:]:
-        sec.add(" ".join(paragraph.split()))
-        sec.add()
+    sec.add_paragraphs(__doc__.split("\n\n", 2)[2])  # after the title and the commands
     pools = {"tuned": workers.WorkerPool(),
              "untuned": workers.WorkerPool(environment={**os.environ, "OPENBLAS_NUM_THREADS": "1"}),
              "twin": workers.WorkerPool()}  # twin: a second, independent render at once (the machine's scaling)
