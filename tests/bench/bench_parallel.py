@@ -40,6 +40,7 @@ import pickle
 import sys
 import threading
 import time
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -123,7 +124,9 @@ def serial_seconds(stats, rebuild: float, streaming_per_tile: float, tiles: int)
             "streaming into Blender's result": streaming_per_tile * tiles}
 
 
-PARENT_CACHES = {}  # pool -> the geometry cache this process prepares its renders with
+# pool -> the geometry cache this process prepares its renders with (it goes with its pool: the
+# scene report's cold pool's, with its built geometry, once that pool is gone)
+PARENT_CACHES = weakref.WeakKeyDictionary()
 
 
 def f12_prepared(pool, count: int, source):
