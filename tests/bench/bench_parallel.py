@@ -157,13 +157,19 @@ def amdahl(serial: float, work: float, cores: int) -> float:
     return (serial + work) / (serial + work / cores)
 
 
+def tiles_on(prepared, workers_count: int) -> list[tuple[int, int, int, int]]:
+    """The tiles of a render of ``prepared`` on ``workers_count`` workers (PreparedScene.tiles:
+    halved while fewer than the workers)."""
+    return dataclasses.replace(prepared, settings=dataclasses.replace(prepared.settings,
+                                                                      threads=workers_count)).tiles()
+
+
 def tiles_and_shares(prepared, workers_count: int) -> tuple[int, int]:
     """The tiles and shares a render of ``prepared`` has with ``workers_count`` workers: the
     tiles are halved while fewer than the workers, and the shares cut them in bands."""
     from restframe_addon.core import workers
 
-    rects = dataclasses.replace(prepared, settings=dataclasses.replace(prepared.settings,
-                                                                       threads=workers_count)).tiles()
+    rects = tiles_on(prepared, workers_count)
     return len(rects), len(workers.share_out(rects, workers_count))
 
 
