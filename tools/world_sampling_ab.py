@@ -55,7 +55,8 @@ def compare_bits(modules: dict) -> None:
             u1, u2 = rng.random(2_000_000), rng.random(2_000_000)
             (d_before, pdf_before), (d_after, pdf_after) = before.sample(u1, u2), after.sample(u1, u2)
             relative = np.abs(pdf_after - pdf_before) / np.maximum(pdf_before, 1e-300)
-            looked_up = np.abs(after.pdf(d_before) - before.pdf(d_before)) / np.maximum(before.pdf(d_before), 1e-300)
+            pdf_of_before = before.pdf(d_before)
+            looked_up = np.abs(after.pdf(d_before) - pdf_of_before) / np.maximum(pdf_of_before, 1e-300)
             print(f"{shape[0]}x{shape[1]} {interpolation}: directions bit-identical {np.array_equal(d_before, d_after)}; "
                   f"densities differing {np.count_nonzero(pdf_before != pdf_after)} of {len(u1)}, largest relative "
                   f"difference {relative.max():.2g} (pdf(): {looked_up.max():.2g})")

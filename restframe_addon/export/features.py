@@ -1,10 +1,11 @@
 """Blender features a scene may use that RESTframe does not render yet, one question each.
 
-Each ``uses_*`` function (and :func:`lamp_features`, :func:`principled_features`) says whether
-an object, lamp or material uses one feature, so the exporter can warn once per render and
-feature, naming the objects (materials as ``Material 'name'``), and so a later implementation
-can ask the same question to switch the feature on.  ``UNSUPPORTED`` holds the warning text of
-each feature, in one place.
+Each ``uses_*`` function says whether an object or material uses one feature, and
+:func:`object_features`, :func:`lamp_features` and :func:`principled_features` list the features
+an object, a lamp or a Principled node uses, so the exporter can warn once per render and feature
+(:class:`FeatureReport`), naming the objects (materials as ``Material 'name'``), and so a later
+implementation can ask the same question to switch the feature on.  ``UNSUPPORTED`` holds the
+warning text of each feature, in one place.
 """
 
 from __future__ import annotations

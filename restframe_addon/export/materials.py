@@ -45,12 +45,12 @@ def mapping_affine(kind: str, location, rotation, scale) -> np.ndarray:
 class MaterialExporter:
     """Principled BSDF (and a few simple shaders) -> core Materials, each read once."""
 
-    def __init__(self, warn: Callable[[str], None], scene=None, unsupported: FeatureReport | None = None):
+    def __init__(self, warn: Callable[[str], None], scene=None, *, unsupported: FeatureReport):
         """``unsupported`` collects the Principled inputs a material uses that are not modelled
-        (warned about with the scene's other unsupported features)."""
+        (its owner warns about them with the scene's other unsupported features)."""
         self.warn = warn
         self.scene = scene
-        self.unsupported = FeatureReport() if unsupported is None else unsupported
+        self.unsupported = unsupported
         self.materials: list[Material] = [Material(name="Default")]
         self._index: dict[int, int] = {}
         # material index -> (2, 3) affine map of its texture's UVs (Mapping node, UDIM layout)

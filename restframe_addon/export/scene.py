@@ -140,7 +140,7 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
     jumping: set[str] = set()
     camera_position = tuple(camera_object.matrix_world.translation)
     unsupported = FeatureReport()
-    materials = MaterialExporter(warn_once, scene, unsupported)
+    materials = MaterialExporter(warn_once, scene, unsupported=unsupported)
     features_seen: set[int] = set()  # original objects already asked (instances share theirs)
     # instanced instancers with a velocity -> (object, pivot); Blender lists them before their instances
     moving_instancers: dict = {}

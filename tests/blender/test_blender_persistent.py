@@ -107,6 +107,7 @@ def test_the_command_line_reuses_the_geometry_of_its_frames(animation, tmp_path,
 def test_the_exporter_reads_the_triangles_and_materials_blender_lists(scene):
     """read_mesh takes its arrays from attributes (contiguous storage): the same values as the
     loop triangles' own per-element fields, for quads and n-gons, several materials, a modifier."""
+    from restframe_addon.export.features import FeatureReport
     from restframe_addon.export.materials import MaterialExporter
     from restframe_addon.export.meshes import read_mesh
 
@@ -121,7 +122,7 @@ def test_the_exporter_reads_the_triangles_and_materials_blender_lists(scene):
     mesh.polygons[2].material_index = 1
     obj.modifiers.new("Subdivide", 'SUBSURF').levels = 1
     evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
-    materials = MaterialExporter(lambda message: None, scene)
+    materials = MaterialExporter(lambda message: None, scene, unsupported=FeatureReport())
     data = read_mesh(evaluated, evaluated.data, materials)
 
     tris = evaluated.data.loop_triangles
