@@ -319,7 +319,7 @@ class RenderStats:
     in_place: int = 0  # shares a worker wrote into the results image (the others came through its pipe)
     pickling: float = 0.0  # this process pickling the scene (0: sent before; built ahead: pickled then)
     sending: float = 0.0  # writing the scene's file and telling the workers (CPU)
-    loop_cpu: float = 0.0  # the render loop handling messages (dealing, receiving, joining bands), this thread
+    loop_cpu: float = 0.0  # the render loop handling messages (dealing, receiving, placing piped bands), this thread
     polling_cpu: float = 0.0  # its checks for Esc while no message came (every _POLL s: it grows with the wall time)
     receiving_cpu: float = 0.0  # the reader threads unpickling the workers' messages
     caller: float = 0.0  # wall time the caller spent between tiles (the engine: streaming a tile into Blender's result)
@@ -793,9 +793,10 @@ class WorkerPool:
         return self._workers[:count]
 
     def _deal(self, workers, todo, job, scene_id, rects, results, pace: _Pace):
-        """Deal every worker the shares it wants (``pace``: at least ``_TILES_IN_FLIGHT``), one
-        share per worker in turn (so the first round reaches every worker); each share names its
-        tile's place in the ``results`` image (None: no image, the passes come back in the message)."""
+        """Deal every worker the shares it wants (``pace``: ``_TILES_IN_FLIGHT``, more while batching,
+        one in the render's tail), one share per worker in turn (so the first round reaches every
+        worker); each share names its tile's place in the ``results`` image (None: no image, the
+        passes come back in the message)."""
         tail = pace.tail(todo, len(workers))
         batching, dealt = not tail and pace.batching(todo, len(workers)), True
         while todo and dealt:

@@ -19,14 +19,13 @@ threads' sleep in their tiles summed; ``--timeline`` prints the intervals of the
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 import threading
 import time
 from pathlib import Path
 
-from ab_servers import ask_in_turn
+from ab_servers import answer_requests, ask_in_turn
 
 HERE = Path(__file__).resolve()
 
@@ -98,23 +97,24 @@ def serve(repo: str, threads: int) -> None:
         work()
         return time.perf_counter() - t0, [(e[0], e[1], e[2] - t0, e[3] - t0, e[4], e[5]) for e in events]
 
-    f12(), raw()
-    print("ready", flush=True)
-    for _ in sys.stdin:
+    def answer(_request):
         (f12_wall, f12_events), (raw_wall, raw_events) = measured(f12), measured(raw)
         dealt_wall, _ = measured(lambda: raw(dealt=True))
         tiles = [e for e in f12_events if e[1].startswith("tile")]
         prepare_end = next(e[3] for e in f12_events if e[1] == "prepare")
         bvh = next(e for e in f12_events if e[1] == "BVH")
-        print(json.dumps({"F12": f12_wall, "raw": raw_wall, "ratio": f12_wall / raw_wall,
-                          "raw dealt": dealt_wall, "ratio to raw dealt": f12_wall / dealt_wall, "prepare": prepare_end,
-                          "prepare but BVH": prepare_end - (bvh[3] - bvh[2]), "BVH": bvh[3] - bvh[2],
-                          "raw build": next(e[3] - e[2] for e in raw_events if e[1] == "raw build"),
-                          "raw BVH": raw_bvh[0],
-                          "tiles": max(e[3] for e in tiles) - prepare_end,
-                          "tile sleep": sum(e[3] - e[2] - e[4] - e[5] for e in tiles),
-                          "tile cpu": sum(e[4] for e in tiles), "runq": sum(e[5] for e in f12_events),
-                          "events": {"F12": f12_events, "raw": raw_events}}), flush=True)
+        return {"F12": f12_wall, "raw": raw_wall, "ratio": f12_wall / raw_wall,
+                "raw dealt": dealt_wall, "ratio to raw dealt": f12_wall / dealt_wall, "prepare": prepare_end,
+                "prepare but BVH": prepare_end - (bvh[3] - bvh[2]), "BVH": bvh[3] - bvh[2],
+                "raw build": next(e[3] - e[2] for e in raw_events if e[1] == "raw build"),
+                "raw BVH": raw_bvh[0],
+                "tiles": max(e[3] for e in tiles) - prepare_end,
+                "tile sleep": sum(e[3] - e[2] - e[4] - e[5] for e in tiles),
+                "tile cpu": sum(e[4] for e in tiles), "runq": sum(e[5] for e in f12_events),
+                "events": {"F12": f12_events, "raw": raw_events}}
+
+    f12(), raw()
+    answer_requests(answer)
 
 
 def timeline(events: list) -> list[str]:

@@ -1,4 +1,4 @@
-"""Before/after render servers asked in turn (``ab_cpu``, ``ab_path``, ``ab_bars``, ``ab_parent``):
+"""Before/after render servers asked in turn (``ab_cpu``, ``ab_path``, ``ab_bars``, ``ab_parent``, ``ab_floor``):
 one process per checkout, started once, each printing ``ready`` and then one JSON line per request
 line (:func:`answer_requests`); the driver alternates the order of the requests and of the servers,
 so both checkouts see the same machine."""

@@ -48,6 +48,12 @@ class Section:
     def add(self, text: str = "") -> None:
         self.body.append(text)
 
+    def add_paragraphs(self, text: str) -> None:
+        """Each paragraph of ``text`` (a docstring's, split by blank lines) as one line, a blank one after it."""
+        for paragraph in text.split("\n\n"):
+            self.add(" ".join(paragraph.split()))
+            self.add()
+
     def table(self, header: list[str], rows: list[list]) -> None:
         self.body.append("| " + " | ".join(header) + " |")
         self.body.append("|" + "|".join("---" for _ in header) + "|")
@@ -118,27 +124,10 @@ def load() -> float:
 
 
 # --------------------------------------------------------------------------- timing
-def interleaved(funcs: dict, repeats: int, warmup: int = 1) -> dict:
-    """Time each callable ``repeats`` times, interleaved; returns name -> {min, median, result}."""
-    for _ in range(warmup):
-        for f in funcs.values():
-            f()
-    times = {name: [] for name in funcs}
-    results = {}
-    names = list(funcs)
-    for r in range(repeats):
-        order = names if r % 2 == 0 else names[::-1]
-        for name in order:
-            t0 = time.perf_counter()
-            results[name] = funcs[name]()
-            times[name].append(time.perf_counter() - t0)
-    return {name: {"min": min(t), "median": float(np.median(t)), "result": results[name], "all": t}
-            for name, t in times.items()}
-
-
-def cpu_interleaved(funcs: dict, repeats: int, warmup: int = 1) -> dict:
-    """Like :func:`interleaved`, in CPU seconds of this process (one thread: immune to the other work
-    of a shared machine), the results not kept; returns name -> min."""
+def _interleaved_times(funcs: dict, repeats: int, warmup: int, clock, results: dict | None = None) -> dict:
+    """Each callable's ``clock`` seconds over ``repeats`` rounds after ``warmup`` untimed ones, the order
+    reversed every other round; name -> [seconds].  ``results``: where each one's last result is kept
+    (None: each is dropped at once)."""
     for _ in range(warmup):
         for f in funcs.values():
             f()
@@ -146,10 +135,32 @@ def cpu_interleaved(funcs: dict, repeats: int, warmup: int = 1) -> dict:
     names = list(funcs)
     for r in range(repeats):
         for name in (names if r % 2 == 0 else names[::-1]):
-            t0 = time.process_time()
-            funcs[name]()
-            times[name].append(time.process_time() - t0)
-    return {name: min(t) for name, t in times.items()}
+            t0 = clock()
+            if results is None:
+                funcs[name]()
+            else:
+                results[name] = funcs[name]()
+            times[name].append(clock() - t0)
+    return times
+
+
+def interleaved(funcs: dict, repeats: int, warmup: int = 1) -> dict:
+    """Time each callable ``repeats`` times, interleaved; returns name -> {min, median, result}."""
+    results = {}
+    times = _interleaved_times(funcs, repeats, warmup, time.perf_counter, results)
+    return {name: {"min": min(t), "median": float(np.median(t)), "result": results[name], "all": t}
+            for name, t in times.items()}
+
+
+def cpu_interleaved(funcs: dict, repeats: int, warmup: int = 1) -> dict:
+    """Like :func:`interleaved`, in CPU seconds of this process (one thread: immune to the other work
+    of a shared machine), the results not kept; returns name -> min."""
+    return {name: min(t) for name, t in _interleaved_times(funcs, repeats, warmup, time.process_time).items()}
+
+
+def wall_interleaved(funcs: dict, repeats: int, warmup: int = 1) -> dict:
+    """Like :func:`cpu_interleaved`, in wall seconds (for work on several threads)."""
+    return {name: min(t) for name, t in _interleaved_times(funcs, repeats, warmup, time.perf_counter).items()}
 
 
 def timed(f):

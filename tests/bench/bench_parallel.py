@@ -43,17 +43,23 @@ import pickle
 import sys
 import threading
 import time
+import weakref
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
-if __name__ == "__main__" and "--checkout" in sys.argv:  # the renderer of another checkout (a git worktree)
+OTHER_CHECKOUT = __name__ == "__main__" and "--checkout" in sys.argv
+if OTHER_CHECKOUT:  # the renderer of another checkout (a git worktree)
     ROOT = Path(sys.argv[sys.argv.index("--checkout") + 1]).resolve()
 sys.path.insert(0, str(ROOT))
 import restframe_addon  # noqa: E402,F401  (this checkout's, before bench_common puts the suite's own on the path)
 
 from bench_common import Context, Goal, Section, print_section, register_addon, standalone_context  # noqa: E402
+
+if OTHER_CHECKOUT:  # the worker processes boot with this process's sys.path, on which bench_common has put
+    sys.path.remove(str(ROOT))  # the suite's own checkout first: ROOT first again, so that they too run its code
+    sys.path.insert(0, str(ROOT))
 
 SCENES = {  # name: (.blend, resolution or None for the file's, samples or None, tile size or None)
     "moving_sphere": ("moving_sphere.blend", (960, 540), 8, None),
@@ -121,7 +127,9 @@ def serial_seconds(stats, rebuild: float, streaming_per_tile: float, tiles: int)
             "streaming into Blender's result": streaming_per_tile * tiles}
 
 
-PARENT_CACHES = {}  # pool -> the geometry cache this process prepares its renders with
+# pool -> the geometry cache this process prepares its renders with (it goes with its pool: the
+# scene report's cold pool's, with its built geometry, once that pool is gone)
+PARENT_CACHES = weakref.WeakKeyDictionary()
 
 
 def f12_prepared(pool, count: int, source):
@@ -152,13 +160,19 @@ def amdahl(serial: float, work: float, cores: int) -> float:
     return (serial + work) / (serial + work / cores)
 
 
+def tiles_on(prepared, workers_count: int) -> list[tuple[int, int, int, int]]:
+    """The tiles of a render of ``prepared`` on ``workers_count`` workers (PreparedScene.tiles:
+    halved while fewer than the workers)."""
+    return dataclasses.replace(prepared, settings=dataclasses.replace(prepared.settings,
+                                                                      threads=workers_count)).tiles()
+
+
 def tiles_and_shares(prepared, workers_count: int) -> tuple[int, int]:
     """The tiles and shares a render of ``prepared`` has with ``workers_count`` workers: the
     tiles are halved while fewer than the workers, and the shares cut them in bands."""
     from restframe_addon.core import workers
 
-    rects = dataclasses.replace(prepared, settings=dataclasses.replace(prepared.settings,
-                                                                       threads=workers_count)).tiles()
+    rects = tiles_on(prepared, workers_count)
     return len(rects), len(workers.share_out(rects, workers_count))
 
 
@@ -486,9 +500,7 @@ def run(ctx: Context, repeats: int | None = None) -> Section:
     register_addon()
     repeats = repeats or ctx.pick(3, 1)
     sec = Section("10. Two cores and the 16-core projection: threads against worker processes")
-    for paragraph in __doc__.split("\n\n")[2:]:
-        sec.add(" ".join(paragraph.split()))
-        sec.add()
+    sec.add_paragraphs(__doc__.split("\n\n", 2)[2])  # after the title and the commands
     pools = {"tuned": workers.WorkerPool(),
              "untuned": workers.WorkerPool(environment={**os.environ, "OPENBLAS_NUM_THREADS": "1"}),
              "twin": workers.WorkerPool()}  # twin: a second, independent render at once (the machine's scaling)

@@ -30,7 +30,7 @@ import time
 import numpy as np
 
 from bench_common import (Context, Goal, Section, cpu_interleaved, fmt, load, print_section, register_addon, settings,
-                          standalone_context)
+                          standalone_context, wall_interleaved)
 from bench_build import raw_build, sphere_scene
 from bench_parallel import cpu_seconds, export_blend
 from bench_throughput import raw_batches, raw_primary
@@ -242,18 +242,6 @@ def raw_floor(vertices, triangles, batches, threads: int) -> None:
         worker.start()
     for worker in workers:
         worker.join()
-
-
-def wall_interleaved(funcs: dict, repeats: int) -> dict:
-    for f in funcs.values():
-        f()
-    times = {name: [] for name in funcs}
-    for r in range(repeats):
-        for name in (list(funcs) if r % 2 == 0 else list(funcs)[::-1]):
-            t0 = time.perf_counter()
-            funcs[name]()
-            times[name].append(time.perf_counter() - t0)
-    return {name: min(t) for name, t in times.items()}
 
 
 def primary_floor(ctx: Context, sec: Section) -> None:

@@ -159,9 +159,7 @@ def run(ctx: Context, repeats: int | None = None, frames: str | None = None, hea
     heavy_frames = heavy_frames or ctx.pick("1-6", "1-2")
     segments = ctx.pick(HEAVY_SEGMENTS, 32)
     sec = Section("11. Persistent data across frames")
-    for paragraph in __doc__.split("\n\n")[2:]:
-        sec.add(" ".join(paragraph.split()))
-        sec.add()
+    sec.add_paragraphs(__doc__.split("\n\n", 2)[2])  # after the title and the commands
     sec.add(f"{repeats} runs per scene and mode; load average {os.getloadavg()[0]:.2f} at the start, {os.cpu_count()} cores.")
     sec.add()
     with tempfile.TemporaryDirectory(prefix="restframe-heavy-") as scratch:

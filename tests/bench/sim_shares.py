@@ -28,8 +28,9 @@ sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve
 BAND = 8  # rows per measured band
 
 
-def row_costs(repeats: int) -> tuple[dict, float]:
-    """CPU seconds of each pixel row of each 256-px column, {(x0, y): seconds}, and the fixed cost of a call."""
+def row_costs(repeats: int) -> tuple[dict, float, object]:
+    """CPU seconds of each pixel row of each 256-px column, {(x0, y): seconds}, the fixed cost of a
+    call, and the prepared scene."""
     import restframe_addon
     from bench_parallel import export_blend
     from restframe_addon.core import blas, malloc
@@ -52,18 +53,7 @@ def row_costs(repeats: int) -> tuple[dict, float]:
                     bands[key] = min(bands.get(key, float("inf")), time.thread_time() - cpu)
     fixed = min(bands.values())
     rows = {(x0, y): (seconds - fixed) / (y1 - y0) for (x0, y0, y1), seconds in bands.items() for y in range(y0, y1)}
-    return rows, fixed
-
-
-def tiles(workers_count: int, width=960, height=540, size=256) -> list[tuple[int, int, int, int]]:
-    """The tiles of a render on that many workers (as PreparedScene.tiles: halved while fewer than the workers)."""
-    w = h = size
-    while -(-width // w) * -(-height // h) < workers_count:
-        if h >= w:
-            h = (h + 1) // 2
-        else:
-            w = (w + 1) // 2
-    return [(x, y, min(x + w, width), min(y + h, height)) for y in range(0, height, h) for x in range(0, width, w)]
+    return rows, fixed, prepared
 
 
 def finish(rects, shares, workers_count: int, rows: dict, per_call: float, latency: float, tail: int) -> float:
@@ -102,9 +92,11 @@ def main():
     parser.add_argument("--latency-ms", type=float, default=1.0)
     parser.add_argument("--per-call-ms", type=float, default=1.0)
     args = parser.parse_args()
+    from bench_parallel import tiles_on
+
     from restframe_addon.core import workers
 
-    rows, fixed = row_costs(args.repeats)
+    rows, fixed, prepared = row_costs(args.repeats)
     work = sum(rows.values())
     print(f"moving_sphere 960x540, 8 samples: {work:.3f} CPU s in rows, {fixed * 1e3:.2f} ms a call; "
           f"simulated with {args.per_call_ms} ms a share, {args.latency_ms} ms to deal a waiting worker\n")
@@ -115,7 +107,7 @@ def main():
         for tail in (0, 2, 4):
             cells = []
             for count in (2, 4, 8, 16):
-                rects = tiles(count)
+                rects = tiles_on(prepared, count)
                 shares = workers.share_out(rects, count)
                 end = finish(rects, shares, count, rows, args.per_call_ms / 1e3, args.latency_ms / 1e3, tail)
                 cells.append(f"{work / count / end:.3f} ({len(shares)} shares)")
