@@ -329,8 +329,7 @@ class LayeredLobes:
 
 
 class Shader:
-    """Traces and shades backward rays for one prepared scene (thread-safe: read-only state but
-    for caches of values that do not depend on the rays).
+    """Traces and shades backward rays for one prepared scene (thread-safe: read-only state).
 
     ``layered``: evaluate surfaces with :class:`LayeredLobes` (Path Tracing) instead of the
     direct-light integrator's plain sum of lobes.
@@ -347,7 +346,6 @@ class Shader:
         self.searchlight = searchlight
         # how far secondary and shadow rays start off a surface (RestFrame.surface_offset)
         self.epsilon = MappingProxyType({k: float(frames.surface_offsets[k]) for k in frames.geometry})
-        self._sharp_suns: dict = {}  # _sharp_sun's rows (the same whichever thread adds one)
         # the material of every triangle of a frame whose triangles have one (a body of one
         # material, the common case): its hits' material numbers are that number broadcast, not gathered
         single = {}
@@ -360,6 +358,11 @@ class Shader:
                     one.flags.writeable = False
                 single[id(geometry)] = one
         self._one_material = MappingProxyType({k: single[id(frames.frames[k].geometry)] for k in frames.geometry})
+        # a sharp sun's light in every frame with geometry that moves against it (_sharp_sun), made once here
+        self._sharp_suns = MappingProxyType({
+            (pl.frame, k, tuple(pl.axes[:, 2])): self._sunlight_row(pl.frame, k, pl.axes[:, 2])
+            for pl in self.lights if pl.light.kind == "SUN" and not pl.sampled for k in frames.geometry
+            if not frames.map(pl.frame, k).is_identity})
 
     # ------------------------------------------------------------------ helpers
     def searchlight_power(self, doppler, exponent: int):
@@ -816,15 +819,15 @@ class Shader:
 
     def _sharp_sun(self, j: int, k: int, axis) -> tuple:
         """A sharp sun's light in frame k from its frame j (emitting along -``axis``): its direction,
-        irradiance factor and D, one read-only row each, mapped once per (j, k, axis) and kept (the
-        same steps on the same numbers as for one hit's row: the same bits)."""
-        key = (j, k, tuple(axis))
-        found = self._sharp_suns.get(key)
-        if found is None:
-            found = self._sunlight(self.frames.map(j, k), np.array([axis], dtype=np.float64))
-            for a in found:
-                a.flags.writeable = False
-            self._sharp_suns[key] = found
+        irradiance factor and D, one read-only row each, mapped once per (j, k, axis) when the
+        shader is made (the same steps on the same numbers as for one hit's row: the same bits)."""
+        return self._sharp_suns[(j, k, tuple(axis))]
+
+    def _sunlight_row(self, j: int, k: int, axis) -> tuple:
+        """:meth:`_sunlight` of the one direction ``axis`` from frame j into frame k, read-only."""
+        found = self._sunlight(self.frames.map(j, k), np.array([axis], dtype=np.float64))
+        for a in found:
+            a.flags.writeable = False
         return found
 
     def _momentary(self, pl: PreparedLight, k, tau, position):
