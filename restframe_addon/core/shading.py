@@ -541,7 +541,9 @@ class Shader:
                 mapped = self._normal_mapped(frame, prim[s], material[s], hit_uv(frame, prim[s], u[s], v[s]), ng[s],
                                              plain, back[s], d_k[s],
                                              np.zeros(len(plain)) if tau_hit is None else tau_hit[s])
-                if mapped is not plain:
+                if mapped is not plain and len(segments) == 1:  # (one frame: _normal_mapped's copy is every row)
+                    ns = mapped
+                elif mapped is not plain:
                     if not own:
                         ns, own = ns.copy(), True
                     ns[s] = mapped
