@@ -492,6 +492,10 @@ class Shader:
             return np.ndarray((len(prim),), one.dtype, one, strides=(0,))
         return self.materials.clamp(np.take(self.frames.frames[k].geometry.tri_material, prim))
 
+    def _frames_materials(self, segments, prim) -> np.ndarray:
+        """:meth:`hit_materials` at hits of several frames (``segments``: (frame k, its rows)), joined."""
+        return joined_frames([self.hit_materials(k, prim[s]) for k, s in segments])
+
     def hit_opacity(self, hits: Hits) -> np.ndarray:
         """Principled Alpha at hits (every ray hit something)."""
         alpha = np.ones(len(hits.frame))
@@ -530,7 +534,7 @@ class Shader:
     def frames_surface_info(self, segments, prim, u, v, d_k, tau_hit=None, cache: TraceCache | None = None):
         """:meth:`surface_info` at hits of several frames (``segments``: (frame k, its rows))."""
         position, ng, ns, back = facing_normals(self.frames, segments, prim, u, v, d_k, tau_hit, cache)
-        material = joined_frames([self.hit_materials(k, prim[s]) for k, s in segments])
+        material = self._frames_materials(segments, prim)
         if self.materials.normal_mapped:
             own = False  # (ns may be ng, or the geometry's: copied before a normal map writes into it)
             for k, s in segments:
@@ -555,7 +559,7 @@ class Shader:
         (the geometry, the lamps' light) worked out frame by frame, the rest once for all."""
         mats = self.materials
         if self._emission_only(depth):  # no normals, texture or base colour needed
-            mat = joined_frames([self.hit_materials(k, prim[s]) for k, s in segments])
+            mat = self._frames_materials(segments, prim)
             return self._emission(segments, tau, prim, mat, lam)
         position, ng, ns, mat, back = self.frames_surface_info(segments, prim, u, v, d_k, tau, cache)
         uvs = [hit_uv(self.frames.frames[k], prim[s], u[s], v[s]) for k, s in segments]
