@@ -637,15 +637,14 @@ class Shader:
         return ns
 
     # ------------------------------------------------------------------ direct light
-    def brdf(self, ns, view, light, base, mat, lobes: LayeredLobes | None = None, cos_l=None):
+    def brdf(self, ns, view, light, base, mat, cos_l=None):
         """The surfaces' non-delta BSDF f (n, C) (without the cosine), in their rest frame: the
         diffuse lobe and, on rough surfaces with a specular lobe, GGX highlights (``layered``: as
-        :class:`LayeredLobes`; ``lobes``: those of these very points, if already made; ``cos_l``:
-        ns . light where the caller has it).  Mirror reflection and refraction are delta lobes,
-        traced instead (DIRECT: ``_secondary``)."""
+        :class:`LayeredLobes`; ``cos_l``: ns . light where the caller has it).  Mirror reflection
+        and refraction are delta lobes, traced instead (DIRECT: ``_secondary``)."""
         mats = self.materials
         if self.layered:
-            return (lobes if lobes is not None else LayeredLobes(mats, base, mat, ns, view)).value(light)
+            return LayeredLobes(mats, base, mat, ns, view).value(light)
         # one material (the common case: a frame's hits on one body): its constants as 1-element
         # arrays, no gathers, no specular work unless it has a lobe
         one = _only_material(mat)
@@ -669,8 +668,7 @@ class Shader:
             value[r] += specular
         return value
 
-    def _direct(self, segments, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache,
-                lobes=None):
+    def _direct(self, segments, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache):
         """The lamps' light reflected toward ``view`` (n, C): one shadow ray per lamp and hit, of
         the hits of several frames (``segments``: (frame k, its rows), in order).  A selection of
         hits is a slice while it is all of them (views, not gathers)."""
@@ -705,9 +703,8 @@ class Shader:
                 sel = lit if isinstance(sel, slice) else np.take(sel, lit)
             elif shadowed:  # a few: cheaper to shade them too, with no light
                 weight[blocked] = 0.0
-            part = None if lobes is None else lobes.take(sel)
             f = self.brdf(rows.take(ns, sel), rows.take(view, sel), e_sel, rows.take(base, sel), rows.take(mat, sel),
-                          part, rows.take(cos_n, sel))
+                          rows.take(cos_n, sel))
             emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), rows.take(doppler, sel)), len(f),
                                         None if clock is None else rows.take(clock, sel))
             f = _weighted_product(f, emitted, weight)
