@@ -244,14 +244,18 @@ def compose_velocities(u, v):
     # from_velocity): near c it is the small difference that carries the whole result
     one_minus_uv = float(1 - sum(Fraction(float(a)) * Fraction(float(c)) for a, c in zip(u, v)))
     gamma = boost.gamma * body.gamma * one_minus_uv
-    # v' = ((v_par - b) n + v_perp / gamma_u) / (1 - u.v): the textbook numerator
-    # v/gamma_u - u + gamma_u/(gamma_u + 1) (u.v) u with its parallel part simplified exactly
-    v = body.b * body.n
-    v_par = float(boost.n @ v)
-    v_perp = v - v_par * boost.n
     if boost.is_identity:
-        return v, body.gamma
-    velocity = ((v_par - boost.b) * boost.n + v_perp / boost.gamma) / one_minus_uv
+        return body.b * body.n, body.gamma
+    # v' = ((v_par - b) n + v_perp / gamma_u) / (1 - u.v): the textbook numerator
+    # v/gamma_u - u + gamma_u/(gamma_u + 1) (u.v) u with its parallel part simplified exactly;
+    # v_par - b = u.(v - u) / |u| and v_perp = v - (u.v / u.u) u exact from the float inputs, as
+    # 1 - u.v: near c both are small differences divided by the small 1 - u.v (a body moving
+    # with the frame is exactly at rest in it)
+    exact_u, exact_v = [Fraction(float(a)) for a in u], [Fraction(float(c)) for c in v]
+    u_dot_v, u_dot_u = (sum(a * c for a, c in zip(exact_u, w)) for w in (exact_v, exact_u))
+    v_par_minus_b = float(u_dot_v - u_dot_u) / boost.b
+    v_perp = np.array([float(c - u_dot_v / u_dot_u * a) for a, c in zip(exact_u, exact_v)])
+    velocity = (v_par_minus_b * boost.n + v_perp / boost.gamma) / one_minus_uv
     norm = float(np.linalg.norm(velocity))
     if norm > 0.5:  # near c the speed is better known from gamma, which has no cancellation
         velocity *= (math.sqrt((gamma - 1.0) * (gamma + 1.0)) / gamma) / norm

@@ -61,6 +61,7 @@ def build_scene(size):
     scene.cycles.max_bounces = 0  # direct light only: what RESTframe computes for a diffuse scene
     scene.cycles.filter_width = 0.01  # (almost) box pixels, like RESTframe's stratified samples
     scene.cycles.seed = 1
+    scene.restframe.integrator = 'DIRECT'  # as Cycles' max_bounces = 0 (a new scene's default is PATH)
     return scene
 
 

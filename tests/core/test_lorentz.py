@@ -232,6 +232,17 @@ def test_velocity_composition(u, v):
     assert rel(gamma, 1 / mp.sqrt(1 - sum(c * c for c in ref))) < 1e-14
 
 
+@pytest.mark.parametrize("b", [1e-12, 0.5, 0.9, 1 - 1e-6, 1 - 1e-9, 1 - 1e-12])
+@pytest.mark.parametrize("direction", [(1.0, 0.0, 0.0), (0.36, -0.48, 0.8), (0.6, 0.8, 0.0)])
+def test_a_body_moving_with_the_frame_is_exactly_at_rest_in_it(b, direction):
+    """u = v: the composed velocity is 0 and gamma 1, not the rounding of v_par - b or v_perp
+    divided by 1 - u.v = 1/gamma^2 (which left 5.6e-8 c at 1 - 1e-9 along (0.36, -0.48, 0.8))."""
+    u = tuple(b * np.asarray(direction))
+    velocity, gamma = compose_velocities(u, u)
+    assert np.array_equal(velocity, np.zeros(3))
+    assert gamma == pytest.approx(1.0, abs=1e-15)
+
+
 def textbook_boost(beta):
     """The Lorentz boost matrix into a frame moving with beta, written out (acting on (tau, x, y, z))."""
     beta = np.asarray(beta, dtype=np.float64)
