@@ -280,8 +280,8 @@ def render_tiles(prepared: PreparedScene, should_stop: Callable[[], bool] = lamb
 
 def tiles_in_threads(prepared: PreparedScene, rects, workers: int, should_stop) -> Iterator[Tile]:
     """Yield the tiles ``rects`` of the prepared scene as ``workers`` threads complete them:
-    those that see something first, so that the short ones that see nothing even out the
-    threads' ends."""
+    with more than one thread, those that see something first, so that the short ones that see
+    nothing even out the threads' ends (one thread: in their order)."""
     unseen = UnseenTiles(prepared)
     if workers == 1:
         cache = TraceCache()

@@ -329,8 +329,7 @@ class LayeredLobes:
 
 
 class Shader:
-    """Traces and shades backward rays for one prepared scene (thread-safe: read-only state but
-    for caches of values that do not depend on the rays).
+    """Traces and shades backward rays for one prepared scene (thread-safe: read-only state).
 
     ``layered``: evaluate surfaces with :class:`LayeredLobes` (Path Tracing) instead of the
     direct-light integrator's plain sum of lobes.
@@ -347,7 +346,6 @@ class Shader:
         self.searchlight = searchlight
         # how far secondary and shadow rays start off a surface (RestFrame.surface_offset)
         self.epsilon = MappingProxyType({k: float(frames.surface_offsets[k]) for k in frames.geometry})
-        self._sharp_suns: dict = {}  # _sharp_sun's rows (the same whichever thread adds one)
         # the material of every triangle of a frame whose triangles have one (a body of one
         # material, the common case): its hits' material numbers are that number broadcast, not gathered
         single = {}
@@ -360,6 +358,11 @@ class Shader:
                     one.flags.writeable = False
                 single[id(geometry)] = one
         self._one_material = MappingProxyType({k: single[id(frames.frames[k].geometry)] for k in frames.geometry})
+        # a sharp sun's light in every frame with geometry that moves against it (_sharp_sun), made once here
+        self._sharp_suns = MappingProxyType({
+            (pl.frame, k, tuple(pl.axes[:, 2])): self._sunlight_row(pl.frame, k, pl.axes[:, 2])
+            for pl in self.lights if pl.light.kind == "SUN" and not pl.sampled for k in frames.geometry
+            if not frames.map(pl.frame, k).is_identity})
 
     # ------------------------------------------------------------------ helpers
     def searchlight_power(self, doppler, exponent: int):
@@ -489,6 +492,10 @@ class Shader:
             return np.ndarray((len(prim),), one.dtype, one, strides=(0,))
         return self.materials.clamp(np.take(self.frames.frames[k].geometry.tri_material, prim))
 
+    def _frames_materials(self, segments, prim) -> np.ndarray:
+        """:meth:`hit_materials` at hits of several frames (``segments``: (frame k, its rows)), joined."""
+        return joined_frames([self.hit_materials(k, prim[s]) for k, s in segments])
+
     def hit_opacity(self, hits: Hits) -> np.ndarray:
         """Principled Alpha at hits (every ray hit something)."""
         alpha = np.ones(len(hits.frame))
@@ -527,7 +534,7 @@ class Shader:
     def frames_surface_info(self, segments, prim, u, v, d_k, tau_hit=None, cache: TraceCache | None = None):
         """:meth:`surface_info` at hits of several frames (``segments``: (frame k, its rows))."""
         position, ng, ns, back = facing_normals(self.frames, segments, prim, u, v, d_k, tau_hit, cache)
-        material = joined_frames([self.hit_materials(k, prim[s]) for k, s in segments])
+        material = self._frames_materials(segments, prim)
         if self.materials.normal_mapped:
             own = False  # (ns may be ng, or the geometry's: copied before a normal map writes into it)
             for k, s in segments:
@@ -538,7 +545,9 @@ class Shader:
                 mapped = self._normal_mapped(frame, prim[s], material[s], hit_uv(frame, prim[s], u[s], v[s]), ng[s],
                                              plain, back[s], d_k[s],
                                              np.zeros(len(plain)) if tau_hit is None else tau_hit[s])
-                if mapped is not plain:
+                if mapped is not plain and len(segments) == 1:  # (one frame: _normal_mapped's copy is every row)
+                    ns = mapped
+                elif mapped is not plain:
                     if not own:
                         ns, own = ns.copy(), True
                     ns[s] = mapped
@@ -550,7 +559,7 @@ class Shader:
         (the geometry, the lamps' light) worked out frame by frame, the rest once for all."""
         mats = self.materials
         if self._emission_only(depth):  # no normals, texture or base colour needed
-            mat = joined_frames([self.hit_materials(k, prim[s]) for k, s in segments])
+            mat = self._frames_materials(segments, prim)
             return self._emission(segments, tau, prim, mat, lam)
         position, ng, ns, mat, back = self.frames_surface_info(segments, prim, u, v, d_k, tau, cache)
         uvs = [hit_uv(self.frames.frames[k], prim[s], u[s], v[s]) for k, s in segments]
@@ -628,15 +637,14 @@ class Shader:
         return ns
 
     # ------------------------------------------------------------------ direct light
-    def brdf(self, ns, view, light, base, mat, lobes: LayeredLobes | None = None, cos_l=None):
+    def brdf(self, ns, view, light, base, mat, cos_l=None):
         """The surfaces' non-delta BSDF f (n, C) (without the cosine), in their rest frame: the
         diffuse lobe and, on rough surfaces with a specular lobe, GGX highlights (``layered``: as
-        :class:`LayeredLobes`; ``lobes``: those of these very points, if already made; ``cos_l``:
-        ns . light where the caller has it).  Mirror reflection and refraction are delta lobes,
-        traced instead (DIRECT: ``_secondary``)."""
+        :class:`LayeredLobes`; ``cos_l``: ns . light where the caller has it).  Mirror reflection
+        and refraction are delta lobes, traced instead (DIRECT: ``_secondary``)."""
         mats = self.materials
         if self.layered:
-            return (lobes if lobes is not None else LayeredLobes(mats, base, mat, ns, view)).value(light)
+            return LayeredLobes(mats, base, mat, ns, view).value(light)
         # one material (the common case: a frame's hits on one body): its constants as 1-element
         # arrays, no gathers, no specular work unless it has a lobe
         one = _only_material(mat)
@@ -660,8 +668,7 @@ class Shader:
             value[r] += specular
         return value
 
-    def _direct(self, segments, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache,
-                lobes=None):
+    def _direct(self, segments, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache):
         """The lamps' light reflected toward ``view`` (n, C): one shadow ray per lamp and hit, of
         the hits of several frames (``segments``: (frame k, its rows), in order).  A selection of
         hits is a slice while it is all of them (views, not gathers)."""
@@ -696,9 +703,8 @@ class Shader:
                 sel = lit if isinstance(sel, slice) else np.take(sel, lit)
             elif shadowed:  # a few: cheaper to shade them too, with no light
                 weight[blocked] = 0.0
-            part = None if lobes is None else lobes.take(sel)
             f = self.brdf(rows.take(ns, sel), rows.take(view, sel), e_sel, rows.take(base, sel), rows.take(mat, sel),
-                          part, rows.take(cos_n, sel))
+                          rows.take(cos_n, sel))
             emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), rows.take(doppler, sel)), len(f),
                                         None if clock is None else rows.take(clock, sel))
             f = _weighted_product(f, emitted, weight)
@@ -816,15 +822,15 @@ class Shader:
 
     def _sharp_sun(self, j: int, k: int, axis) -> tuple:
         """A sharp sun's light in frame k from its frame j (emitting along -``axis``): its direction,
-        irradiance factor and D, one read-only row each, mapped once per (j, k, axis) and kept (the
-        same steps on the same numbers as for one hit's row: the same bits)."""
-        key = (j, k, tuple(axis))
-        found = self._sharp_suns.get(key)
-        if found is None:
-            found = self._sunlight(self.frames.map(j, k), np.array([axis], dtype=np.float64))
-            for a in found:
-                a.flags.writeable = False
-            self._sharp_suns[key] = found
+        irradiance factor and D, one read-only row each, mapped once per (j, k, axis) when the
+        shader is made (the same steps on the same numbers as for one hit's row: the same bits)."""
+        return self._sharp_suns[(j, k, tuple(axis))]
+
+    def _sunlight_row(self, j: int, k: int, axis) -> tuple:
+        """:meth:`_sunlight` of the one direction ``axis`` from frame j into frame k, read-only."""
+        found = self._sunlight(self.frames.map(j, k), np.array([axis], dtype=np.float64))
+        for a in found:
+            a.flags.writeable = False
         return found
 
     def _momentary(self, pl: PreparedLight, k, tau, position):
