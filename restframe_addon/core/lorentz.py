@@ -242,7 +242,9 @@ def compose_velocities(u, v):
     body = Boost.from_velocity(v, name="body velocity")
     # gamma' = gamma_u gamma_v (1 - u.v), with 1 - u.v exact from the float inputs (as 1 - b^2 in
     # from_velocity): near c it is the small difference that carries the whole result
-    one_minus_uv = float(1 - sum(Fraction(float(a)) * Fraction(float(c)) for a, c in zip(u, v)))
+    exact_u, exact_v = [Fraction(float(a)) for a in u], [Fraction(float(c)) for c in v]
+    u_dot_v = sum(a * c for a, c in zip(exact_u, exact_v))
+    one_minus_uv = float(1 - u_dot_v)
     gamma = boost.gamma * body.gamma * one_minus_uv
     if boost.is_identity:
         return body.b * body.n, body.gamma
@@ -251,8 +253,7 @@ def compose_velocities(u, v):
     # v_par - b = u.(v - u) / |u| and v_perp = v - (u.v / u.u) u exact from the float inputs, as
     # 1 - u.v: near c both are small differences divided by the small 1 - u.v (a body moving
     # with the frame is exactly at rest in it)
-    exact_u, exact_v = [Fraction(float(a)) for a in u], [Fraction(float(c)) for c in v]
-    u_dot_v, u_dot_u = (sum(a * c for a, c in zip(exact_u, w)) for w in (exact_v, exact_u))
+    u_dot_u = sum(a * a for a in exact_u)
     v_par_minus_b = float(u_dot_v - u_dot_u) / boost.b
     v_perp = np.array([float(c - u_dot_v / u_dot_u * a) for a, c in zip(exact_u, exact_v)])
     velocity = (v_par_minus_b * boost.n + v_perp / boost.gamma) / one_minus_uv
