@@ -433,8 +433,7 @@ def scene_report(sec: Section, name: str, spec, pools: dict, repeats: int, quick
         many_pool.close()
     measured = many_pool.last_stats
     many_tiles = len(many_copy.tiles())
-    many_parent = (measured.pickling + measured.sending + measured.loop_cpu + measured.receiving_cpu
-                   + streaming_for(many_tiles))
+    many_parent = measured.parent_seconds - measured.caller_cpu + streaming_for(many_tiles)  # as two_parent
     for label, rebuilt in ((f"F12 cold, strict, measured on {many} worker processes ({many_tiles} tiles, "
                             f"{measured.shares} shares)", cold_wait),
                            (f"F12 warm, strict, measured on {many} worker processes", warm_wait)):
