@@ -164,21 +164,24 @@ class CameraRays:
         return (np.broadcast_to(self.position, (n, 3)), directions, camera.clip_start * per_depth,
                 camera.clip_end * per_depth, np.ones(n, dtype=bool))
 
-    def cone(self, rect):
-        """(axis, half-angle) of a cone holding the direction of every pinhole ray through the
-        pixels ``rect`` = (x0, y0, x1, y1) (their whole area) of a perspective camera, None for
-        other cameras or a cone of a right angle or more.  The rays through a rectangle of the
-        image plane are positive sums of its corners' rays, which a cone under a right angle
-        (a convex set) holding those holds too; widened for the rays' own rounding."""
+    def cones(self, rects) -> list:
+        """Per rectangle of ``rects`` ((x0, y0, x1, y1) each, their whole area): (axis, half-angle)
+        of a cone holding the direction of every pinhole ray through its pixels, None for a cone
+        of a right angle or more; all None for other cameras.  The rays through a rectangle of
+        the image plane are positive sums of its corners' rays, which a cone under a right angle
+        (a convex set) holding those holds too; widened for the rays' own rounding.  Every
+        rectangle's corners at once (a render's tiles: one pass, not one per tile)."""
         if self.camera.kind != "PERSP":
-            return None
-        x0, y0, x1, y1 = rect
-        corners = self._perspective(np.array([x0, x1, x1, x0], dtype=np.float64) / self.width,
-                                    np.array([y0, y0, y1, y1], dtype=np.float64) / self.height, False)[1]
-        axis = corners.sum(axis=0)
-        axis /= np.linalg.norm(axis)
-        angle = float(np.arccos(np.clip(corners @ axis, -1.0, 1.0).min())) * (1.0 + 1e-6) + 1e-9
-        return (axis, angle) if angle < 0.5 * np.pi else None
+            return [None] * len(rects)
+        x0, y0, x1, y1 = np.asarray(rects, dtype=np.float64).reshape(-1, 4).T
+        corners = self._perspective((np.stack([x0, x1, x1, x0], axis=1) / self.width).ravel(),
+                                    (np.stack([y0, y0, y1, y1], axis=1) / self.height).ravel(),
+                                    False)[1].reshape(-1, 4, 3)
+        axes = corners.sum(axis=1)
+        axes /= np.sqrt(np.einsum("ij,ij->i", axes, axes))[:, None]
+        cosines = np.einsum("ikj,ij->ik", corners, axes)
+        angles = np.arccos(np.clip(cosines, -1.0, 1.0).min(axis=1)) * (1.0 + 1e-6) + 1e-9
+        return [(axis, float(angle)) if angle < 0.5 * np.pi else None for axis, angle in zip(axes, angles)]
 
     def _through_lens(self, origins, directions, s_lo, s_hi, valid, pixel, sample, count):
         """The pinhole rays moved to their aperture points and aimed at the points where they

@@ -156,12 +156,15 @@ class PreparedScene:
         while a missing ray's colour and passes do not depend on its direction (a pinhole camera
         at rest with the world, Direct Light), so that a tile need not make or trace its rays
         (:meth:`missing_rays` stand in for them)."""
+        return self.each_misses_everything([rect], cache)[0]
+
+    def each_misses_everything(self, rects, cache: TraceCache | None = None) -> list[bool]:
+        """:meth:`misses_everything` of each rectangle of ``rects``, all at once (a render's tiles)."""
         frames = self.frames
         if self.samples_vary or self.path_tracer is not None or not frames.map(frames.camera, frames.world).is_identity:
-            return False
-        cone = self.camera_rays.cone(rect)
-        return cone is not None and misses_everything(frames, frames.camera, (float(self.camera_tau),
-                                                                              self.camera_rays.position), cone, cache)
+            return [False] * len(rects)
+        return misses_everything(frames, frames.camera, (float(self.camera_tau), self.camera_rays.position),
+                                 self.camera_rays.cones(rects), cache)
 
     def missing_rays(self, n: int):
         """``n`` camera rays that :meth:`misses_everything` found to miss: their shared

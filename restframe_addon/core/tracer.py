@@ -848,21 +848,28 @@ def _bundle_cone(d):
     return axis, float(np.arccos(np.clip((d @ axis).min(), -1.0, 1.0)))
 
 
-def misses_everything(frames: FrameSet, src: int, origin_event, cone, cache: TraceCache | None = None) -> bool:
-    """Whether every backward ray from one event (tau, x) of frame src whose direction lies in
-    ``cone`` (axis, half-angle) misses every surface: the cone meets none of the frames' sphere
-    cones, so the tracer's own cull would drop each such ray (in a scene without animated
-    segments, whose candidate frames depend on the rays' events)."""
-    if frames.groups:
-        return False
-    ks = list(frames.geometry)
-    for cones in _frame_cones(frames, src, ks, origin_event, cache):
-        if cones is None:
-            return False
-        meeting = _cones_meeting(cones, *cone)
-        if meeting is None or len(meeting):
-            return False
-    return True
+def misses_everything(frames: FrameSet, src: int, origin_event, cones, cache: TraceCache | None = None) -> list[bool]:
+    """Per cone (axis, half-angle) of ``cones`` (None: not known to be under a right angle):
+    whether every backward ray from one event (tau, x) of frame src whose direction lies in it
+    misses every surface: the cone meets none of the frames' sphere cones, so the tracer's own
+    cull would drop each such ray (in a scene without animated segments, whose candidate frames
+    depend on the rays' events).  Every cone against each frame's spheres at once."""
+    known = [i for i, cone in enumerate(cones) if cone is not None]
+    missing = [False] * len(cones)
+    if frames.groups or not known:
+        return missing
+    axes = np.array([cones[i][0] for i in known])
+    angles = np.array([cones[i][1] for i in known])
+    clear = np.ones(len(known), dtype=bool)
+    for spheres in _frame_cones(frames, src, list(frames.geometry), origin_event, cache):
+        if spheres is None:
+            return missing
+        sphere_axes, spread = spheres
+        apart = np.arccos(np.clip(sphere_axes @ axes.T, -1.0, 1.0))  # (spheres, cones)
+        clear &= (apart > spread[:, None] + angles).all(axis=0)  # as _cones_meeting finds none
+    for i, gone in zip(known, clear.tolist()):
+        missing[i] = gone
+    return missing
 
 
 def _frame_cones(frames: FrameSet, src: int, ks, origin_event, cache: TraceCache | None) -> list:

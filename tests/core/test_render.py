@@ -516,7 +516,8 @@ def test_tiles_that_see_nothing_are_not_traced_and_render_the_same(monkeypatch, 
     monkeypatch.setattr(shading, "trace_nearest", lambda *args, **kw: traced.append(len(args[4])) or trace(*args, **kw))
     quick = render_image(scene, settings((48, 40), tile_size=8, **options))
     quick_rays, traced[:] = sum(traced), []
-    monkeypatch.setattr(prepared_module.PreparedScene, "misses_everything", lambda self, rect, cache=None: False)
+    monkeypatch.setattr(prepared_module.PreparedScene, "each_misses_everything",
+                        lambda self, rects, cache=None: [False] * len(rects))
     full = render_image(scene, settings((48, 40), tile_size=8, **options))
     assert quick_rays < 0.75 * sum(traced)  # (the exposure measurement traces a preview either way)
     assert 0.02 < (full["Depth"] < 1e9).mean() < 0.5
@@ -548,9 +549,9 @@ def test_tiles_that_see_nothing_are_rendered_once_per_shape(threads):
     assert not any(values.flags.writeable for tile in unseen for values in tile.passes.values())
 
 
-def test_tiles_that_see_something_are_dealt_first():
+def test_tiles_that_see_something_are_dealt_first(monkeypatch):
     """The render threads take the tiles that see something first, then the short ones that see
-    nothing (which even out the threads' ends), each tile once."""
+    nothing (which even out the threads' ends), each tile once, all found in one pass."""
     from restframe_addon.core.prepared import prepare
     from restframe_addon.core.render import UnseenTiles, seen_first, tiles_in_threads
 
@@ -558,7 +559,12 @@ def test_tiles_that_see_something_are_dealt_first():
     rects = prepared.tiles()
     empty = [prepared.misses_everything(rect) for rect in rects]
     assert 0 < sum(empty) < len(rects) and empty[0] and not all(empty[:len(rects) - sum(empty)])  # not so already
+    asked = []
+    each = type(prepared).each_misses_everything
+    monkeypatch.setattr(type(prepared), "each_misses_everything",
+                        lambda self, found, cache=None: asked.append(len(found)) or each(self, found, cache))
     order = list(seen_first(UnseenTiles(prepared), rects))
     assert order == [r for r, e in zip(rects, empty) if not e] + [r for r, e in zip(rects, empty) if e]
+    assert asked == [len(rects)]  # every tile's cone and cull at once, not one call per tile
     tiles = list(tiles_in_threads(prepared, rects, 2, lambda: False))
     assert sorted((t.x0, t.y0, t.x1, t.y1) for t in tiles) == sorted(rects)
