@@ -6,8 +6,9 @@
 
 The floor of ``bench_per_sample`` (261k-triangle sphere at (0.5, 0.2, 0) c, 1536^2, one sample, no
 lights, threads) against raw Embree (its build, then ``embree.run`` of the same pixel rays over as
-many Python threads: ``bench_per_sample``'s fixed split, and ``raw dealt``, each thread taking the
-next tile's rays when it is free), both in each checkout's own server, asked in turn (``ab_servers``).  Wall
+many Python threads: every other tile to each thread, ``bench_per_sample``'s split before
+session 8, and ``raw dealt``, each thread taking the next tile's rays when it is free, its split
+since), both in each checkout's own server, asked in turn (``ab_servers``).  Wall
 clock means little on a shared machine, so each interval of a thread is split by the kernel's
 accounting of that thread (``/proc/thread-self/schedstat``): on a CPU, waiting for one (other
 processes: the machine's load) and the rest, asleep (the GIL, the pool's queue).  Reported per
@@ -79,7 +80,7 @@ def serve(repo: str, threads: int) -> None:
     raw_bvh = []
 
     def raw(dealt: bool = False):
-        """bench_per_sample's raw: every ``threads``-th tile's rays on each thread, or ``dealt``
+        """Raw: every ``threads``-th tile's rays on each thread, or ``dealt`` (bench_per_sample's)
         (each thread takes the next tile's rays as it is free, as the render's pool deals tiles)."""
         raw_bvh[:] = [build(vertices, triangles, True)]
         queue = iter(batches)
