@@ -165,7 +165,7 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
 
     def render(self, depsgraph):
         global _last_outcome
-        self._tiles_done = self._tiles_total = 0
+        self._tiles_done = self._tiles_total = self._tiles_reported = 0
         failed = False
         try:
             if _PENDING_INTERRUPT.is_set():  # Ctrl-C before this render began (an earlier callback)
@@ -256,12 +256,20 @@ class RestframeRenderEngine(bpy.types.RenderEngine):
                 passes[index].rect.foreach_set(tile.passes[name].ravel())
             self.end_result(result)
             self._tiles_done = done
-            self.update_progress(done / total)
-            self.update_stats("", f"{status}{done}/{total} | {time.monotonic() - started:.1f} s")
+            if not tile.more_ready:  # shown at once; the progress once for the tiles that came together
+                self._report_progress(status, done, total, started)
+        if 0 < self._tiles_done != self._tiles_reported:  # stopped before the last of tiles that came together
+            self._report_progress(status, self._tiles_done, total, started)
         result = self.get_result()
         for field, value in observer_stamp(scene).items():
             result.stamp_data_add_field(field, value)
         return None if self.should_stop() else prepared
+
+    def _report_progress(self, status: str, done: int, total: int, started: float):
+        """Blender's progress bar and status line: ``done`` of ``total`` tiles written."""
+        self._tiles_reported = done
+        self.update_progress(done / total)
+        self.update_stats("", f"{status}{done}/{total} | {time.monotonic() - started:.1f} s")
 
 
 def _filled_passes(render_passes, core_passes: dict) -> list[tuple[int, str]]:

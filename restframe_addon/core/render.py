@@ -43,6 +43,9 @@ class Tile:
     y1: int
     passes: dict
     complete: bool = True  # False: stopped between sample batches (its Combined lacks samples)
+    # another tile finished with this one is yielded right after it (worker processes: the tiles of
+    # one wake-up), so a caller may report its progress once for them all, at the last
+    more_ready: bool = False
 
 
 class UnseenTiles:

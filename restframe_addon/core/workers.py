@@ -714,7 +714,8 @@ class WorkerPool:
                     bands[tile_index] -= 1
                     if bands[tile_index] == 0:
                         finished.append((tile_index, results.tile(tile_index, rects[tile_index])))
-                for tile_index, tile in finished:
+                for position, (tile_index, tile) in enumerate(finished, start=1):
+                    tile.more_ready = position < len(finished)
                     if should_stop():  # Esc: not another tile, even one finished in the same round
                         return
                     done.add(tile_index)

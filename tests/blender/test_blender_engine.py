@@ -234,3 +234,49 @@ def test_cancel_during_export_renders_nothing(scene, monkeypatch):
     # (no write_still: Blender itself skips writing a cancelled frame)
     assert bpy.ops.render.render() == {'FINISHED'}
     assert outcomes == ["ExportCancelled"]
+
+
+def test_tiles_that_come_together_are_each_shown_at_once_and_their_progress_reported_once(scene, tmp_path,
+                                                                                         monkeypatch):
+    """Tiles the render loop hands over together (``Tile.more_ready``: worker processes finishing
+    at once) are each written into Blender's result before the next is taken, and the progress
+    is reported once, at the last of them; the image is the same bits; on Esc between them the
+    progress still reaches the tiles written."""
+    add_camera(scene)
+    add_plane(scene, velocity=(0.0, 0.5, 0.3))
+    scene.view_layers[0].use_pass_z = True
+    scene.restframe.tile_size = 8  # 21x15 -> 3 x 2 tiles
+    scene.render.threads_mode, scene.render.threads = 'FIXED', 1
+    scene.restframe.parallelism = 'THREADS'  # every tile alone: the reference
+    plain = render_exr(scene, tmp_path / "plain.exr")
+    events, engines = [], []
+
+    def paired_tiles(*args, **kwargs):  # tiles 1-2, 3-4, 5-6 come together
+        for index, tile in enumerate(engine_render_tiles(*args, **kwargs)):
+            tile.more_ready = index % 2 == 0
+            yield tile
+            events.append(f"written {engines[-1]._tiles_done}")  # the engine asks for the next tile
+
+    def report_progress(self, status, done, total, started):
+        events.append(f"progress {done}/{total}")
+        return engine_report_progress(self, status, done, total, started)
+
+    def should_stop(self):
+        engines.append(self)
+        return stopping(self)
+
+    engine_render_tiles, engine_report_progress = engine.render_tiles, RestframeRenderEngine._report_progress
+    monkeypatch.setattr(engine, "render_tiles", paired_tiles)
+    monkeypatch.setattr(RestframeRenderEngine, "_report_progress", report_progress)
+    monkeypatch.setattr(RestframeRenderEngine, "should_stop", should_stop)
+    stopping = lambda self: False  # noqa: E731
+    together = render_exr(scene, tmp_path / "together.exr")
+    assert events == ["written 1", "progress 2/6", "written 2", "written 3", "progress 4/6", "written 4",
+                      "written 5", "progress 6/6", "written 6"], events
+    assert together.keys() == plain.keys() and "Depth" in plain
+    for name, data in plain.items():
+        assert np.array_equal(together[name], data, equal_nan=True), name
+    events.clear()
+    stopping = lambda self: bool(events)  # noqa: E731 (Esc once the first tile is written)
+    render_exr(scene, tmp_path / "cancelled.exr")
+    assert events == ["written 1", "progress 1/6"], events

@@ -534,10 +534,14 @@ def test_short_shares_render_the_same_bits_in_batches_with_fewer_wake_ups(pool, 
 
     monkeypatch.setattr(workers._Inbox, "take", counted_take)
     monkeypatch.setattr(workers.WorkerPool, "_deal", counted_deal)
-    assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 1)), in_threads(prepared))
+    tiles = list(pool.render(prepared, lambda: False, 1))
+    assert_same_passes(assemble(prepared, tiles), in_threads(prepared))
     shares = pool.last_stats.shares
     assert shares == len(prepared.tiles()) == 30
     assert len([count for count in takes if count]) < shares and max(held) > workers._TILES_IN_FLIGHT, (takes, held)
+    # the tiles of one wake-up say that another follows, but the last of each: one a wake-up that brought tiles
+    last_of_rounds = [tile for tile in tiles if not tile.more_ready]
+    assert not tiles[-1].more_ready and len(last_of_rounds) <= len([count for count in takes if count]) < shares
 
 
 def test_in_the_tail_of_long_shares_a_worker_holds_one_share_and_the_loop_does_not_sleep():
