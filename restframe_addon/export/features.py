@@ -36,6 +36,8 @@ UNSUPPORTED = {
     **{f"lamp {label.lower()} off": f"Ray Visibility {label} off on a lamp is not supported for its light yet: the "
                                     f"lamp lights {label.lower()} surfaces through its samples (only bounce rays miss it)"
        for _, label in _LAMP_RAY_VISIBILITY},
+    "lamp negative strength": "a negative Strength on a lamp is not supported yet (Cycles subtracts its light): "
+                              "the lamp gives no light",
     "area lamp spread": "an area lamp's Spread below 180 degrees is not supported yet: the lamp shines over the "
                         "whole half-space",
     **{f"Principled {name}": f"Principled {name} is not supported yet: rendered without" for name, _ in _NOT_MODELLED},
@@ -107,6 +109,8 @@ def lamp_features(lamp, visibility: int) -> list[str]:
     data, found = lamp.data, []
     if not getattr(data, "use_shadow", True):
         found.append("lamp cast shadow off")
+    if float(data.energy) < 0.0:
+        found.append("lamp negative strength")
     found += [f"lamp {label.lower()} off" for bit, label in _LAMP_RAY_VISIBILITY if not visibility & bit]
     if data.type == 'AREA' and float(getattr(data, "spread", math.pi)) < math.pi - 1e-6:
         found.append("area lamp spread")

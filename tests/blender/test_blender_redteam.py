@@ -167,6 +167,7 @@ def test_a_lamp_scaled_to_zero_renders_as_in_cycles(scene, tmp_path, kind):
     ('SPOT', lambda lamp: (setattr(lamp, "visible_glossy", False), setattr(lamp, "visible_transmission", False)),
      ["lamp glossy off", "lamp transmission off"]),
     ('AREA', lambda lamp: setattr(lamp.data, "spread", math.radians(60)), ["area lamp spread"]),
+    ('POINT', lambda lamp: setattr(lamp.data, "energy", -100.0), ["lamp negative strength"]),
 ])
 def test_lamp_settings_the_render_leaves_out_are_warned_about(scene, kind, spoil, features):
     """Cycles honours these (a sun with Diffuse off lights a diffuse floor 0.018 where it lit it 0.19);
