@@ -25,6 +25,18 @@ _NOT_MODELLED = (("Subsurface Weight", 0.0), ("Sheen Weight", 0.0), ("Anisotropi
 # the lamp Ray Visibility bits whose closures a lamp's samples light all the same (Cycles: not lit)
 _LAMP_RAY_VISIBILITY = ((RAY_DIFFUSE, "Diffuse"), (RAY_GLOSSY, "Glossy"), (RAY_TRANSMISSION, "Transmission"))
 
+
+
+def _lamp_ray_feature(label: str) -> str:
+    """The feature key of a lamp with Ray Visibility ``label`` off."""
+    return f"lamp {label.lower()} off"
+
+
+def _principled_feature(name: str) -> str:
+    """The feature key of a Principled BSDF input that is set but not modelled."""
+    return f"Principled {name}"
+
+
 # feature -> what RESTframe does instead (the warning's second half)
 UNSUPPORTED = {
     "shadow catcher": "Shadow Catcher is not supported: rendered as an ordinary surface",
@@ -33,14 +45,15 @@ UNSUPPORTED = {
               "(a volume-only material renders black)",
     "hair": "hair strands (particle hair, Curves objects) are not supported: left out",
     "lamp cast shadow off": "Cast Shadow off on a lamp is not supported yet: the lamp casts shadows",
-    **{f"lamp {label.lower()} off": f"Ray Visibility {label} off on a lamp is not supported for its light yet: the "
-                                    f"lamp lights {label.lower()} surfaces through its samples (only bounce rays miss it)"
+    **{_lamp_ray_feature(label): f"Ray Visibility {label} off on a lamp is not supported for its light yet: the "
+                                 f"lamp lights {label.lower()} surfaces through its samples (only bounce rays miss it)"
        for _, label in _LAMP_RAY_VISIBILITY},
     "lamp negative strength": "a negative Strength on a lamp is not supported yet (Cycles subtracts its light): "
                               "the lamp gives no light",
     "area lamp spread": "an area lamp's Spread below 180 degrees is not supported yet: the lamp shines over the "
                         "whole half-space",
-    **{f"Principled {name}": f"Principled {name} is not supported yet: rendered without" for name, _ in _NOT_MODELLED},
+    **{_principled_feature(name): f"Principled {name} is not supported yet: rendered without"
+       for name, _ in _NOT_MODELLED},
     "Principled Coat Tint": "Principled Coat Tint is not supported: the coat is clear",
 }
 
@@ -96,22 +109,22 @@ def principled_features(node) -> list[str]:
     """The Principled BSDF inputs (keys of ``UNSUPPORTED``) of a Principled node that are set or
     linked but not modelled; Coat Tint only on a coat (its Coat Weight's value above 0)."""
     inputs = node.inputs
-    found = [f"Principled {name}" for name, off in _NOT_MODELLED if name in inputs and _is_on(inputs[name], off)]
+    found = [_principled_feature(name) for name, off in _NOT_MODELLED if name in inputs and _is_on(inputs[name], off)]
     if float(inputs["Coat Weight"].default_value) > 0.0 and _is_on(inputs["Coat Tint"], _WHITE):
         found.append("Principled Coat Tint")
     return found
 
 
-def lamp_features(lamp, visibility: int) -> list[str]:
-    """The unsupported features (keys of ``UNSUPPORTED``) of a lamp object whose light the rays
-    in ``visibility`` (RAY_* bits, export.scene.ray_visibility) see: settings its light is
-    rendered without."""
+def lamp_features(lamp, light) -> list[str]:
+    """The unsupported features (keys of ``UNSUPPORTED``) of a lamp object exported as ``light``
+    (a core Light: its power as rendered, Strength x Exposure x its node tree's Emission Strength,
+    and the rays that see it): settings its light is rendered without."""
     data, found = lamp.data, []
     if not getattr(data, "use_shadow", True):
         found.append("lamp cast shadow off")
-    if float(data.energy) < 0.0:
+    if light.power < 0.0:
         found.append("lamp negative strength")
-    found += [f"lamp {label.lower()} off" for bit, label in _LAMP_RAY_VISIBILITY if not visibility & bit]
+    found += [_lamp_ray_feature(label) for bit, label in _LAMP_RAY_VISIBILITY if not light.visibility & bit]
     if data.type == 'AREA' and float(getattr(data, "spread", math.pi)) < math.pi - 1e-6:
         found.append("area lamp spread")
     return found

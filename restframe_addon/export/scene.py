@@ -183,7 +183,7 @@ def export_scene(depsgraph, camera_object=None, *, resolution=None,
                                               should_stop=should_stop, warn=warn_once)
             light = export_light(obj, matrix, velocity, pivot, warn_once, scene=scene, trajectory=trajectory)
             light.visibility = ray_visibility(inst, view_layer)  # which rays see a lamp with an extent
-            unsupported.add(name, lamp_features(obj, light.visibility))
+            unsupported.add(name, lamp_features(obj, light))
             lights.append(light)
             continue
         body = None

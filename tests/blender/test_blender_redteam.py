@@ -161,6 +161,12 @@ def test_a_lamp_scaled_to_zero_renders_as_in_cycles(scene, tmp_path, kind):
         assert flat[..., :3].max() == 0.0
 
 
+def _emission_strength(lamp, strength):
+    """Set the Strength of the Emission node in the lamp's node tree (Cycles multiplies the lamp's by it)."""
+    lamp.data.use_nodes = True
+    next(n for n in lamp.data.node_tree.nodes if n.type == 'EMISSION').inputs["Strength"].default_value = strength
+
+
 @pytest.mark.parametrize("kind, spoil, features", [
     ('SUN', lambda lamp: setattr(lamp.data, "use_shadow", False), ["lamp cast shadow off"]),
     ('POINT', lambda lamp: setattr(lamp, "visible_diffuse", False), ["lamp diffuse off"]),
@@ -168,6 +174,7 @@ def test_a_lamp_scaled_to_zero_renders_as_in_cycles(scene, tmp_path, kind):
      ["lamp glossy off", "lamp transmission off"]),
     ('AREA', lambda lamp: setattr(lamp.data, "spread", math.radians(60)), ["area lamp spread"]),
     ('POINT', lambda lamp: setattr(lamp.data, "energy", -100.0), ["lamp negative strength"]),
+    ('SPOT', lambda lamp: _emission_strength(lamp, -2.0), ["lamp negative strength"]),  # (its node tree's)
 ])
 def test_lamp_settings_the_render_leaves_out_are_warned_about(scene, kind, spoil, features):
     """Cycles honours these (a sun with Diffuse off lights a diffuse floor 0.018 where it lit it 0.19);
