@@ -6,6 +6,7 @@ with their parent."""
 import dataclasses
 import glob
 import io
+import mmap
 import os
 import pickle
 import signal
@@ -591,8 +592,11 @@ def test_a_workers_messages_of_a_round_go_in_one_write(pool):
             worker.process.stdin = worker.process.stdin.stream
 
 
-def test_a_pickled_scene_file_gives_back_aligned_writable_arrays(tmp_path):
-    """Its arrays out of band: each read back as a view of the file's one buffer, aligned, writable."""
+@pytest.mark.parametrize("mapped", [True, False], ids=["mapped", "read"])
+def test_a_pickled_scene_file_gives_back_aligned_writable_arrays(tmp_path, monkeypatch, mapped):
+    """Its arrays out of band: each read back as a view of the file's one buffer (mapped or read),
+    aligned, writable."""
+    monkeypatch.setattr(workers, "_MAP_SCENE_FILES", mapped)
     large = workers._IN_BAND_BYTES // 8
     value = {"a": np.arange(large, dtype=np.float64), "b": np.arange(12, dtype=np.int32).reshape(3, 4)[:, 1:],
              "f": np.asfortranarray(np.arange(2.0 * large).reshape(2, large)), "text": "x", "empty": np.zeros(0),
@@ -608,3 +612,25 @@ def test_a_pickled_scene_file_gives_back_aligned_writable_arrays(tmp_path):
         assert np.array_equal(back[name], value[name]) and back[name].dtype == value[name].dtype
     for name in ("a", "f"):
         assert back[name].flags.writeable and back[name].ctypes.data % workers._ALIGN == 0
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="a worker reads the scene's file there (a mapped file cannot be removed)")
+def test_a_worker_maps_the_scene_file_copy_on_write_and_its_arrays_outlive_the_file(tmp_path):
+    """A worker's scene arrays are views of a private mapping of the file the parent wrote (its
+    pages shared, not copied into the worker's memory): writing to them leaves the file as it
+    was, and they stay whole once the file is removed (the parent removes it for the next scene)."""
+    value = {"a": np.arange(workers._IN_BAND_BYTES // 4, dtype=np.float64)}
+    path = tmp_path / "scene"
+    with open(path, "wb") as file:
+        workers._Pickled(value).write(file)
+    written = path.read_bytes()
+    back = workers._Pickled.read(str(path))["a"]
+    base = back
+    while not isinstance(base, mmap.mmap) and getattr(base, "base", None) is not None:
+        base = base.base
+    base = base.obj if isinstance(base, memoryview) else base
+    assert isinstance(base, mmap.mmap)
+    back[0] = -1.0
+    assert path.read_bytes() == written
+    os.remove(path)
+    assert back[0] == -1.0 and np.array_equal(back[1:], value["a"][1:])
