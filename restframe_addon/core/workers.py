@@ -811,15 +811,16 @@ class WorkerPool:
         worker); each share names its tile's place in the ``results`` image (None: no image, the
         passes come back in the message)."""
         tail = pace.tail(todo, len(workers))
-        batching, dealt = not tail and pace.batching(todo, len(workers)), True
-        while todo and dealt:
-            dealt = False
-            for worker in workers:
-                if todo and worker.alive and pace.wants(worker, batching, tail):
-                    share, (tile_index, rows) = todo.popleft()
-                    worker.post(("tile", job, scene_id, share, rects[tile_index], rows, results.place(tile_index)))
-                    worker.dealt[share] = (tile_index, rows)
-                    dealt = True
+        batching = not tail and pace.batching(todo, len(workers))
+        wanting = [worker for worker in workers if worker.alive]
+        while todo and wanting:
+            # a worker that wants no share now wants none later this round (what it holds only
+            # grows): each turn asks only those dealt one the turn before (16 workers: half the asking)
+            wanting = [worker for worker in wanting if pace.wants(worker, batching, tail)]
+            for worker in wanting[:len(todo)]:
+                share, (tile_index, rows) = todo.popleft()
+                worker.post(("tile", job, scene_id, share, rects[tile_index], rows, results.place(tile_index)))
+                worker.dealt[share] = (tile_index, rows)
         for worker in workers:  # one write a worker for all it was dealt (and what was posted before)
             if worker.posted and worker.alive and not worker.send():
                 self._lost(worker, todo)
