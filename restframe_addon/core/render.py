@@ -30,7 +30,9 @@ from .scene import RAY_CAMERA, RenderSettings, Scene, render_workers
 from .tracer import TraceCache, no_hits
 from .validation import DOPPLER_MODES, RenderError  # noqa: F401 (public names of this module)
 
-_MAX_VALUES = 3 << 16  # ray colour values per batch: bounds memory whatever the tile size, samples and wavelengths
+# ray colour values per group of samples: bounds memory, and sets which samples of a pixel are summed together
+_MAX_VALUES = 3 << 16
+_MAX_RAYS = 1 << 15  # camera rays per batch: a group's pixels split further so that a batch's arrays stay in cache
 
 
 @dataclass
@@ -257,9 +259,11 @@ def _doppler_grey(prepared: PreparedScene, doppler):
 def _batches(n: int, samples: int, channels: int, share: slice | None = None):
     """(pixels, first sample, sample count) of a tile's batches: at most ``_MAX_VALUES`` colour
     values each, whatever the tile size, samples and wavelengths (pixels split when one sample
-    of the whole tile is already more).  ``share``: a range of the tile's ``n`` pixels; the
-    batches are the whole tile's, cut to it and counted from its start (a pixel's samples are
-    summed in the same groups, so its bits do not depend on how the tile is shared out)."""
+    of the whole tile is already more), and at most ``_MAX_RAYS`` rays (a group of samples split
+    by pixels: each pixel's samples are still summed in the groups ``_MAX_VALUES`` makes).
+    ``share``: a range of the tile's ``n`` pixels; the batches are the whole tile's, cut to it and
+    counted from its start (a pixel's samples are summed in the same groups, so its bits do not
+    depend on how the tile is shared out)."""
     share = share or slice(0, n)
     part_size = n if n * channels <= _MAX_VALUES else max(_MAX_VALUES // channels, 1)
     for start in range(0, n, part_size):
@@ -269,7 +273,10 @@ def _batches(n: int, samples: int, channels: int, share: slice | None = None):
         if mine.stop <= mine.start:
             continue
         for first in range(0, samples, per_batch):
-            yield mine, first, min(per_batch, samples - first)
+            count = min(per_batch, samples - first)
+            step = max(_MAX_RAYS // count, 1)  # (pixels of one batch: the group's sums are the same bits)
+            for lo in range(mine.start, mine.stop, step):
+                yield slice(lo, min(lo + step, mine.stop)), first, count
 
 
 def render_tiles(prepared: PreparedScene, should_stop: Callable[[], bool] = lambda: False,
