@@ -32,7 +32,8 @@ from .validation import DOPPLER_MODES, RenderError  # noqa: F401 (public names o
 
 # ray colour values per group of samples: bounds memory, and sets which samples of a pixel are summed together
 _MAX_VALUES = 3 << 16
-_MAX_RAYS = 1 << 15  # camera rays per batch: a group's pixels split further so that a batch's arrays stay in cache
+# colour values per batch: a group's pixels split further so that a batch's arrays stay in cache (32768 RGB rays)
+_BATCH_VALUES = 3 << 15
 
 
 @dataclass
@@ -259,8 +260,8 @@ def _doppler_grey(prepared: PreparedScene, doppler):
 def _batches(n: int, samples: int, channels: int, share: slice | None = None):
     """(pixels, first sample, sample count) of a tile's batches: at most ``_MAX_VALUES`` colour
     values each, whatever the tile size, samples and wavelengths (pixels split when one sample
-    of the whole tile is already more), and at most ``_MAX_RAYS`` rays (a group of samples split
-    by pixels: each pixel's samples are still summed in the groups ``_MAX_VALUES`` makes).
+    of the whole tile is already more), in batches of at most ``_BATCH_VALUES`` (a group of samples
+    split by pixels: each pixel's samples are still summed in the groups ``_MAX_VALUES`` makes).
     ``share``: a range of the tile's ``n`` pixels; the batches are the whole tile's, cut to it and
     counted from its start (a pixel's samples are summed in the same groups, so its bits do not
     depend on how the tile is shared out)."""
@@ -274,7 +275,7 @@ def _batches(n: int, samples: int, channels: int, share: slice | None = None):
             continue
         for first in range(0, samples, per_batch):
             count = min(per_batch, samples - first)
-            step = max(_MAX_RAYS // count, 1)  # (pixels of one batch: the group's sums are the same bits)
+            step = max(_BATCH_VALUES // (count * channels), 1)  # (pixels: the group's sums are the same bits)
             for lo in range(mine.start, mine.stop, step):
                 yield slice(lo, min(lo + step, mine.stop)), first, count
 

@@ -444,19 +444,19 @@ def test_blas_runs_on_one_thread_while_tiles_render_and_is_restored_after():
 
 
 def test_batches_bound_the_colour_values_and_rays_whatever_the_tile_and_cover_each_sample_once():
-    from restframe_addon.core.render import _MAX_RAYS, _MAX_VALUES, _batches
+    from restframe_addon.core.render import _BATCH_VALUES, _MAX_VALUES, _batches
 
     for n, samples, channels in ((65536, 1, 32), (65536, 4, 3), (65536, 8, 3), (4096, 16, 64), (10, 7, 3)):
         seen = np.zeros((n, samples), dtype=int)
         for part, first, count in _batches(n, samples, channels):
             assert (part.stop - part.start) * count * channels <= max(_MAX_VALUES, channels)
-            assert (part.stop - part.start) * count <= max(_MAX_RAYS, count)
+            assert (part.stop - part.start) * count * channels <= max(_BATCH_VALUES, count * channels)
             seen[part, first:first + count] += 1
         assert np.all(seen == 1)
 
 
-def test_the_rays_per_batch_change_no_pixel(monkeypatch):
-    """``_MAX_RAYS`` splits a group of samples by pixels: each pixel's samples are summed in the
+def test_the_batch_size_changes_no_pixel(monkeypatch):
+    """``_BATCH_VALUES`` splits a group of samples by pixels: each pixel's samples are summed in the
     same groups (``_MAX_VALUES``'), so the image is the same bits whatever it is."""
     from restframe_addon.core import render
 
@@ -472,8 +472,8 @@ def test_the_rays_per_batch_change_no_pixel(monkeypatch):
                   meshes=[Mesh("ball", v, t, velocity=Velocity((0.6, 0.0, 0.0))),
                           Mesh("floor", *quad((0.0, 0.0, -1.2), (6.0, 6.0), normal_axis=2))])
     rendered, grouped = [], []
-    for rays in (1 << 20, 40):  # a batch of every sample of a tile, then of eight pixels' 5 samples
-        monkeypatch.setattr(render, "_MAX_RAYS", rays)
+    for values in (1 << 20, 120):  # a batch of every sample of a tile, then of eight pixels' 5 samples
+        monkeypatch.setattr(render, "_BATCH_VALUES", values)
         rendered.append(render_image(scene, settings((32, 24), tile_size=16, samples=5)))
         grouped.append(groups())
     assert grouped[0][0] == grouped[1][0] and grouped[1][1] > grouped[0][1]  # the same groups, more batches
