@@ -27,7 +27,7 @@ from .passes import (ALL_PASSES, DENOISING_PASSES, EXTRA_PASSES, PASSES, pixel_p
                      ray_doppler)
 from .prepared import PreparedScene, prepare
 from .scene import RAY_CAMERA, RenderSettings, Scene, render_workers
-from .tracer import TraceCache, no_hits
+from .tracer import RunBounds, TraceCache, no_hits
 from .validation import DOPPLER_MODES, RenderError  # noqa: F401 (public names of this module)
 
 # ray colour values per group of samples: bounds memory, and sets which samples of a pixel are summed together
@@ -117,6 +117,7 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     pixel = prepared.pixel_ids(rect)
     n = len(pixel)
     xs = ys = starts = None  # the pixels' coordinates and their strata's starts, for jittered samples
+    tile_runs = {}  # (first pixel, pixel past the last) -> their rays' RunBounds (None: the camera has none)
     shader = prepared.shader
     if empty:
         centre, centre_hits = prepared.missing_rays(n), no_hits(n, read_only=True)
@@ -158,7 +159,13 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
             px, py = sampling.stratified_positions(xs[part], ys[part], pixel[part], first, count, samples,
                                                    None if starts is None else starts[part])
             rays, observed = prepared.sample_rays(px, py, keys=(pix, smp, samples))
-            hits = shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache)
+            runs = None
+            if count == 1 and not prepared.samples_vary:  # a pixel's rays from one event: cull them once a tile
+                runs = tile_runs.get((part.start, part.stop))
+                if runs is None:
+                    bounds = prepared.camera_rays.run_bounds(rect, part, RunBounds.RUN)
+                    runs = tile_runs[part.start, part.stop] = None if bounds is None else RunBounds(*bounds)
+            hits = shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache, runs=runs)
         color, hit, hole = _sample(prepared, rays, hits, pix, smp, cache, observed)
         if summed:
             rgb[part] += _per_pixel(color, m, count)

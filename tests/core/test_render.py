@@ -596,3 +596,32 @@ def test_tiles_that_see_something_are_dealt_first(monkeypatch):
     assert asked == [len(rects)]  # every tile's cone and cull at once, not one call per tile
     tiles = list(tiles_in_threads(prepared, rects, 2, lambda: False))
     assert sorted((t.x0, t.y0, t.x1, t.y1) for t in tiles) == sorted(rects)
+
+
+def test_a_tiles_camera_rays_are_culled_once_for_all_its_samples(monkeypatch):
+    """One sample a batch: the runs near the frames' body boxes are worked out once a tile (from
+    bounds holding every sample's rays, ``CameraRays.run_bounds``), not once a batch; the same
+    bits as culling each batch's own rays."""
+    from restframe_addon.core import render, tracer
+    from restframe_addon.core.camera import CameraRays
+    from restframe_addon.core.prepared import prepare
+
+    v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, 24, 12)
+    scene = Scene(camera=look_at_camera((0, -4, 0.5), (0, 0, 0)), lights=[Light("lamp", "SUN", (1, -3, 2), power=3.0)],
+                  meshes=[Mesh("ball", v, t, velocity=Velocity((0.6, 0.0, 0.0))),
+                          Mesh("floor", *quad((0.0, 0.0, -1.2), (6.0, 6.0), normal_axis=2))])
+    monkeypatch.setattr(render, "_MAX_VALUES", 32 * 32 * 3)  # one sample a batch
+    prepared = prepare(scene, settings((32, 32), tile_size=32, samples=4))
+    culls = []
+    near = tracer._runs_near_bodies
+    monkeypatch.setattr(tracer, "_runs_near_bodies", lambda *args: culls.append(1) or near(*args))
+    once = render.render_tile(prepared, prepared.region)
+    assert len(culls) == 2  # the pixel-centre rays', then the tile's for its 4 batches
+    monkeypatch.setattr(CameraRays, "run_bounds", lambda *args: None)
+    culls.clear()
+    each = render.render_tile(prepared, prepared.region)
+    assert len(culls) == 5
+    for name, values in once.passes.items():
+        np.testing.assert_array_equal(values, each.passes[name], err_msg=name)
+    sky = np.isclose(once.passes["Combined"][..., :3], once.passes["Combined"][-1, -1, :3]).all(axis=-1)
+    assert 0.1 < sky.mean() < 0.9  # (runs of rays that miss everything, and rays that hit)
