@@ -605,7 +605,8 @@ class RunBounds:
 
     def __init__(self, low, high):
         self.bounds = low, high
-        self._kept: dict[tuple, tuple] = {}  # (src, frames, event, rays) -> (runs near each, rays of frames without cones)
+        # (src, frames, event, rays) -> (the runs near each frame, the rays of each frame without cones)
+        self._kept: dict[tuple, tuple] = {}
 
     def near(self, key, compute) -> tuple:
         found = self._kept.get(key)
