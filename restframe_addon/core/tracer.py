@@ -658,6 +658,7 @@ def _cull_bundle(frames: FrameSet, src: int, ks, shared, d, s_lo, s_hi, cache: T
             rays = _rays_of_runs(runs, n) if kept is None else kept.get(k)
             if rays is None:
                 rays = kept[k] = _rays_of_runs(runs, n)
+                rays.flags.writeable = False  # (every later bundle's too)
         if len(rays):
             frames_kept.append(k)
             culled.append(_gathered(rays, n))
