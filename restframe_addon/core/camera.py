@@ -64,6 +64,9 @@ def _panorama_local(camera: Camera, u, v, aspect):
     return d, valid
 
 
+_RUN_MARGIN = 1e-9  # of a unit direction: the rays' rounding (a few ulp) and the bounds' own
+
+
 class CameraRays:
     """Primary rays of one camera at one resolution, its constants worked out once (a tile's
     rays then cost only per-ray arithmetic).
@@ -182,6 +185,39 @@ class CameraRays:
         cosines = np.einsum("ikj,ij->ik", corners, axes)
         angles = np.arccos(np.clip(cosines, -1.0, 1.0).min(axis=1)) * (1.0 + 1e-6) + 1e-9
         return [(axis, float(angle)) if angle < 0.5 * np.pi else None for axis, angle in zip(axes, angles)]
+
+    def run_bounds(self, rect, pixels: slice, run: int):
+        """(low, high), each (3, b): bounds of the direction of every pinhole ray through each run
+        of ``run`` consecutive pixels of ``rect``'s ``pixels`` (row-major, as the tile's rays; the
+        pixels past the last whole run left out), wherever in its pixel the ray is: a tile's
+        camera rays are culled by these once for all its samples (``tracer.trace_nearest``); None
+        for other cameras, and where runs would span two rows.  The image-plane point p is affine
+        in the image position, so over a run's pixels (a rectangle) each axis of p lies between
+        the rectangle's corners'; then ``p / |p|`` lies between the box's ends over the box's
+        nearest and farthest |p|, widened for the rays' own rounding."""
+        x0, y0, x1, y1 = rect
+        width = x1 - x0
+        if self.camera.kind != "PERSP" or width % run or pixels.start % run:
+            return None
+        first, last = pixels.start // width, -(-pixels.stop // width)  # the rows the pixels are in
+        u = np.arange(x0, x1 + 1, run, dtype=np.float64) / self.width  # the runs' ends
+        v = np.arange(y0 + first, y0 + last + 1, dtype=np.float64) / self.height
+        start = pixels.start // run - first * (width // run)
+        kept = slice(start, start + (pixels.stop - pixels.start) // run)
+        low, high = np.empty((3, kept.stop - kept.start)), np.empty((3, kept.stop - kept.start))
+        for axis, (corner, across, up) in enumerate(self.world_plane):
+            at = np.add.outer(corner + up * v, across * u)  # (rows + 1, runs + 1): the runs' corners
+            rows_low, rows_high = np.minimum(at[:-1], at[1:]), np.maximum(at[:-1], at[1:])
+            low[axis] = np.minimum(rows_low[:, :-1], rows_low[:, 1:]).ravel()[kept]
+            high[axis] = np.maximum(rows_high[:, :-1], rows_high[:, 1:]).ravel()[kept]
+        nearest = np.sqrt(np.sum(np.clip(0.0, low, high) ** 2, axis=0))
+        farthest = np.sqrt(np.sum(np.maximum(low * low, high * high), axis=0))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            low = np.minimum(low / nearest, low / farthest)
+            high = np.maximum(high / nearest, high / farthest)
+        spread_out = ~(nearest > 0.0)  # a run's box about the eye: any direction
+        low[:, spread_out], high[:, spread_out] = -1.0, 1.0
+        return low - _RUN_MARGIN, high + _RUN_MARGIN
 
     def _through_lens(self, origins, directions, s_lo, s_hi, valid, pixel, sample, count):
         """The pinhole rays moved to their aperture points and aimed at the points where they

@@ -27,10 +27,13 @@ from .passes import (ALL_PASSES, DENOISING_PASSES, EXTRA_PASSES, PASSES, pixel_p
                      ray_doppler)
 from .prepared import PreparedScene, prepare
 from .scene import RAY_CAMERA, RenderSettings, Scene, render_workers
-from .tracer import TraceCache, no_hits
+from .tracer import RunBounds, TraceCache, no_hits
 from .validation import DOPPLER_MODES, RenderError  # noqa: F401 (public names of this module)
 
-_MAX_VALUES = 3 << 16  # ray colour values per batch: bounds memory whatever the tile size, samples and wavelengths
+# ray colour values per group of samples: bounds memory, and sets which samples of a pixel are summed together
+_MAX_VALUES = 3 << 16
+# colour values per batch: a group's pixels split further so that a batch's arrays stay in cache (32768 RGB rays)
+_BATCH_VALUES = 3 << 15
 
 
 @dataclass
@@ -114,6 +117,7 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     pixel = prepared.pixel_ids(rect)
     n = len(pixel)
     xs = ys = starts = None  # the pixels' coordinates and their strata's starts, for jittered samples
+    tile_runs = {}  # (first pixel, pixel past the last) -> their rays' RunBounds (None: the camera has none)
     shader = prepared.shader
     if empty:
         centre, centre_hits = prepared.missing_rays(n), no_hits(n, read_only=True)
@@ -155,7 +159,13 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
             px, py = sampling.stratified_positions(xs[part], ys[part], pixel[part], first, count, samples,
                                                    None if starts is None else starts[part])
             rays, observed = prepared.sample_rays(px, py, keys=(pix, smp, samples))
-            hits = shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache)
+            runs = None
+            if count == 1 and not prepared.samples_vary:  # a pixel's rays from one event: cull them once a tile
+                runs = tile_runs.get((part.start, part.stop))
+                if runs is None:
+                    bounds = prepared.camera_rays.run_bounds(rect, part, RunBounds.RUN)
+                    runs = tile_runs[part.start, part.stop] = None if bounds is None else RunBounds(*bounds)
+            hits = shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache, runs=runs)
         color, hit, hole = _sample(prepared, rays, hits, pix, smp, cache, observed)
         if summed:
             rgb[part] += _per_pixel(color, m, count)
@@ -257,9 +267,11 @@ def _doppler_grey(prepared: PreparedScene, doppler):
 def _batches(n: int, samples: int, channels: int, share: slice | None = None):
     """(pixels, first sample, sample count) of a tile's batches: at most ``_MAX_VALUES`` colour
     values each, whatever the tile size, samples and wavelengths (pixels split when one sample
-    of the whole tile is already more).  ``share``: a range of the tile's ``n`` pixels; the
-    batches are the whole tile's, cut to it and counted from its start (a pixel's samples are
-    summed in the same groups, so its bits do not depend on how the tile is shared out)."""
+    of the whole tile is already more), in batches of at most ``_BATCH_VALUES`` (a group of samples
+    split by pixels: each pixel's samples are still summed in the groups ``_MAX_VALUES`` makes).
+    ``share``: a range of the tile's ``n`` pixels; the batches are the whole tile's, cut to it and
+    counted from its start (a pixel's samples are summed in the same groups, so its bits do not
+    depend on how the tile is shared out)."""
     share = share or slice(0, n)
     part_size = n if n * channels <= _MAX_VALUES else max(_MAX_VALUES // channels, 1)
     for start in range(0, n, part_size):
@@ -269,7 +281,10 @@ def _batches(n: int, samples: int, channels: int, share: slice | None = None):
         if mine.stop <= mine.start:
             continue
         for first in range(0, samples, per_batch):
-            yield mine, first, min(per_batch, samples - first)
+            count = min(per_batch, samples - first)
+            step = max(_BATCH_VALUES // (count * channels), 1)  # (pixels: the group's sums are the same bits)
+            for lo in range(mine.start, mine.stop, step):
+                yield slice(lo, min(lo + step, mine.stop)), first, count
 
 
 def render_tiles(prepared: PreparedScene, should_stop: Callable[[], bool] = lambda: False,

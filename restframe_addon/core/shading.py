@@ -461,17 +461,17 @@ class Shader:
 
     # ------------------------------------------------------------------ tracing
     def trace(self, src: int, tau0, x0, d, s_lo, s_hi, ray: int, pixel, sample, depth: int,
-              cache: TraceCache | None = None, for_passes: bool = False) -> Hits:
+              cache: TraceCache | None = None, for_passes: bool = False, runs=None) -> Hits:
         """The surfaces rays of type ``ray`` stop at: hidden ones passed, cut-outs passed with the
         chance 1 - alpha (keyed by pixel, sample and depth), or, ``for_passes``, where alpha is
-        below :data:`PASS_ALPHA_THRESHOLD`."""
+        below :data:`PASS_ALPHA_THRESHOLD`; ``runs``: as for :func:`~.tracer.trace_nearest`."""
         if not self.materials.cuts_out:
             see_through = None
         elif for_passes:
             see_through = lambda hits, rays, layer: self.hit_opacity(hits) < PASS_ALPHA_THRESHOLD
         else:
             see_through = self.cutouts(pixel, sample, _cutout_dimension(depth, ray.bit_length()))
-        return trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi, cache, ray, see_through)
+        return trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi, cache, ray, see_through, runs)
 
     def cutouts(self, pixel, sample, dimension: int):
         """A ``see_through`` test for the tracer: the rays of these pixels and samples pass a

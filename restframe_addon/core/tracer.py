@@ -382,7 +382,7 @@ def _direction_in(frames: FrameSet, src: int, k: int, direction) -> tuple:
 
 
 def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None = None,
-                  ray: int | None = None, see_through=None) -> Hits:
+                  ray: int | None = None, see_through=None, runs: "RunBounds | None" = None) -> Hits:
     """The visible (most recent) hit of each backward ray, over all geometry frames.
 
     ``tau0`` (N,), ``x0`` (N, 3), ``d`` (N, 3) unit, in frame ``src``;
@@ -390,8 +390,10 @@ def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: Tr
     ``ray``: the rays' type (a ``RAY_*`` bit; None: every surface counts): surfaces hidden from it
     are passed through.  ``see_through(hits, rays, layer)``: True where the hits (of the rays with
     indices ``rays``; ``layer`` = how many surfaces they passed already) let the ray pass (None: none do).
+    ``runs``: bounds of the directions of the rays' runs that hold for every bundle traced with it
+    (a tile's camera rays, all its samples: :class:`RunBounds`), which then culls them once.
     """
-    hits = _nearest(frames, src, tau0, x0, d, s_lo, s_hi, cache)
+    hits = _nearest(frames, src, tau0, x0, d, s_lo, s_hi, cache, runs)
     hidden = ray is not None and bool(frames.hidden_rays & ray)
     if not hidden and see_through is None:
         return hits
@@ -437,7 +439,8 @@ def _visible(frames: FrameSet, hits: Hits, ray: int) -> np.ndarray:
     return seen
 
 
-def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None) -> Hits:
+def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCache | None,
+             runs: "RunBounds | None" = None) -> Hits:
     """The nearest hit of each ray, whatever surface it is (see :func:`trace_nearest`)."""
     n = len(d)
     s_lo = _per_ray(s_lo, n)
@@ -448,7 +451,7 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
     # rays from one event are culled by the frames' body boxes and bounding cones, a lone frame's
     # too: a ray embree sends past the bounds still costs ~26 ns, more than the culling
     if shared is not None and n:
-        candidates, culled = _cull_bundle(frames, src, candidates, shared, d, s_lo, best, cache)
+        candidates, culled = _cull_bundle(frames, src, candidates, shared, d, s_lo, best, cache, runs)
     else:
         culled = [None] * len(candidates)
     for k, rays in zip(candidates, culled):
@@ -592,7 +595,31 @@ def _shared_origin(tau0, x0):
 _CONE_SAMPLES = 16
 
 
-def _cull_bundle(frames: FrameSet, src: int, ks, shared, d, s_lo, s_hi, cache: TraceCache | None):
+class RunBounds:
+    """Bounds (low, high), each (3, b), of the directions of each run of ``_RUN`` consecutive rays
+    of every bundle from one event traced with it (``camera.CameraRays.run_bounds``: a tile's
+    pixels, wherever in them its samples fall), and the runs near each frame's body box worked
+    out from them once, for all those bundles (:func:`_cull_bundle`)."""
+
+    RUN = 16  # rays per run (``_RUN``)
+
+    def __init__(self, low, high):
+        self.bounds = low, high
+        # (src, frames, event, rays) -> (the runs near each frame, the rays of each frame without cones)
+        self._kept: dict[tuple, tuple] = {}
+
+    def near(self, key, compute) -> tuple:
+        found = self._kept.get(key)
+        if found is None:
+            found = self._kept[key] = (compute(), {})
+        return found
+
+
+_ANY_PATH = (0.0, math.inf)  # the path range of RunBounds' culling: any bundle's whose rays start at s >= 0
+
+
+def _cull_bundle(frames: FrameSet, src: int, ks, shared, d, s_lo, s_hi, cache: TraceCache | None,
+                 tile_runs: RunBounds | None = None):
     """(frames, their rays): the frames of ``ks`` that some ray from one ``shared`` event may hit
     and, for each, the indices of the rays that may (a superset of them; None: every ray).
 
@@ -600,18 +627,27 @@ def _cull_bundle(frames: FrameSet, src: int, ks, shared, d, s_lo, s_hi, cache: T
     frame at once (:func:`_runs_near_bodies`); a frame whose bounding spheres are tighter than its
     box (:func:`_cones_pay`) then keeps only the rays of those runs that point into their cones
     (:func:`_toward`).  A frame left with no ray is left out: nothing is mapped or queried for it.
+    With ``tile_runs`` (:class:`RunBounds` of these rays' runs) the runs near the body boxes, and the
+    rays of frames without cones, are those worked out for the first bundle traced with it (over
+    any path length from 0: a superset, so the same hits).
     """
     n = len(d)
     if len(ks) == 1 and frames.frames[ks[0]].geometry.clusters is None:
         return _cull_for_lone_frame(frames, src, ks[0], shared, d, cache)
     extent = (float(np.max(np.abs(shared[1]))), abs(shared[0]))  # (for the rounding margin of the body boxes)
     path_range = float(np.min(s_lo)), float(np.max(s_hi))  # every ray's, for the body boxes
-    run_bounds = _run_bounds(d)
-    near = _runs_near_bodies(frames, src, ks, cache, extent, shared, run_bounds, path_range)
+    kept = None  # the rays of frames without cones, from tile_runs
+    if tile_runs is not None and tile_runs.bounds[0].shape[1] == n // _RUN and path_range[0] >= 0.0:
+        run_bounds = tile_runs.bounds
+        near, kept = tile_runs.near((src, tuple(ks), shared[0], shared[1].tobytes(), n), lambda: _runs_near_bodies(
+            frames, src, ks, cache, extent, shared, run_bounds, _ANY_PATH))
+    else:
+        run_bounds = _run_bounds(d)
+        near = _runs_near_bodies(frames, src, ks, cache, extent, shared, run_bounds, path_range)
     coned = [k for k, pays in zip(ks, _cones_pay(frames, src, ks, cache)) if pays]
     cones = dict(zip(coned, _frame_cones(frames, src, coned, shared, cache))) if coned else {}
     bundle = None  # the cones of the whole bundle and of its runs, for the first frame with cones
-    kept, culled = [], []
+    frames_kept, culled = [], []
     for k, runs in zip(ks, near):
         rays = None
         if cones.get(k) is not None and len(runs):
@@ -619,11 +655,14 @@ def _cull_bundle(frames: FrameSet, src: int, ks, shared, d, s_lo, s_hi, cache: T
                 bundle = (*_bundle_cone(d), _sub_bundle_cones(run_bounds))
             rays = _toward(cones[k], d, bundle, runs)
         if rays is None:  # (no cones, or the bundle lies in one)
-            rays = _rays_of_runs(runs, n)
+            rays = _rays_of_runs(runs, n) if kept is None else kept.get(k)
+            if rays is None:
+                rays = kept[k] = _rays_of_runs(runs, n)
+                rays.flags.writeable = False  # (every later bundle's too)
         if len(rays):
-            kept.append(k)
+            frames_kept.append(k)
             culled.append(_gathered(rays, n))
-    return kept, culled
+    return frames_kept, culled
 
 
 def _cull_for_lone_frame(frames: FrameSet, src: int, k: int, shared, d, cache: TraceCache | None):
@@ -733,7 +772,7 @@ def _cones_meeting(cones, bundle_axis, bundle_angle: float):
 
 
 _GATHER_SHARE = 0.5  # the share of a bundle's rays above which the culled ones are traced too (see _gathered)
-_RUN = 16  # rays per sub-bundle (consecutive rays: a run of pixels in a row of the tile)
+_RUN = RunBounds.RUN  # rays per sub-bundle (consecutive rays: a run of pixels in a row of the tile)
 _RUN_MARGIN = 1e-6  # radians: a run is dropped whole only this far clear of every cone (rounding)
 
 

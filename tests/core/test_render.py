@@ -443,15 +443,43 @@ def test_blas_runs_on_one_thread_while_tiles_render_and_is_restored_after():
     assert get_threads() == before
 
 
-def test_batches_bound_the_colour_values_whatever_the_tile_and_cover_each_sample_once():
-    from restframe_addon.core.render import _MAX_VALUES, _batches
+def test_batches_bound_the_colour_values_and_rays_whatever_the_tile_and_cover_each_sample_once():
+    from restframe_addon.core.render import _BATCH_VALUES, _MAX_VALUES, _batches
 
-    for n, samples, channels in ((65536, 1, 32), (65536, 4, 3), (4096, 16, 64), (10, 7, 3)):
+    for n, samples, channels in ((65536, 1, 32), (65536, 4, 3), (65536, 8, 3), (4096, 16, 64), (10, 7, 3)):
         seen = np.zeros((n, samples), dtype=int)
         for part, first, count in _batches(n, samples, channels):
             assert (part.stop - part.start) * count * channels <= max(_MAX_VALUES, channels)
+            assert (part.stop - part.start) * count * channels <= max(_BATCH_VALUES, count * channels)
             seen[part, first:first + count] += 1
         assert np.all(seen == 1)
+
+
+def test_the_batch_size_changes_no_pixel(monkeypatch):
+    """``_BATCH_VALUES`` splits a group of samples by pixels: each pixel's samples are summed in the
+    same groups (``_MAX_VALUES``'), so the image is the same bits whatever it is."""
+    from restframe_addon.core import render
+
+    def groups():
+        by_pixel = {}
+        for part, first, count in render._batches(4096, 16, 3):
+            for pixel in range(part.start, part.stop):
+                by_pixel.setdefault(pixel, []).append((first, count))
+        return by_pixel, sum(1 for _ in render._batches(4096, 16, 3))
+
+    v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, 24, 12)
+    scene = Scene(camera=look_at_camera((0, -4, 0), (0, 0, 0)), lights=[Light("lamp", "POINT", (1, -3, 2), power=500.0)],
+                  meshes=[Mesh("ball", v, t, velocity=Velocity((0.6, 0.0, 0.0))),
+                          Mesh("floor", *quad((0.0, 0.0, -1.2), (6.0, 6.0), normal_axis=2))])
+    rendered, grouped = [], []
+    for values in (1 << 20, 120):  # a batch of every sample of a tile, then of eight pixels' 5 samples
+        monkeypatch.setattr(render, "_BATCH_VALUES", values)
+        rendered.append(render_image(scene, settings((32, 24), tile_size=16, samples=5)))
+        grouped.append(groups())
+    assert grouped[0][0] == grouped[1][0] and grouped[1][1] > grouped[0][1]  # the same groups, more batches
+    for name, values in rendered[0].items():
+        np.testing.assert_array_equal(values, rendered[1][name], err_msg=name)
+    assert rendered[0]["Combined"][..., :3].max() > 0
 
 
 def test_a_tile_larger_than_one_batch_renders_as_small_tiles_do():
@@ -568,3 +596,32 @@ def test_tiles_that_see_something_are_dealt_first(monkeypatch):
     assert asked == [len(rects)]  # every tile's cone and cull at once, not one call per tile
     tiles = list(tiles_in_threads(prepared, rects, 2, lambda: False))
     assert sorted((t.x0, t.y0, t.x1, t.y1) for t in tiles) == sorted(rects)
+
+
+def test_a_tiles_camera_rays_are_culled_once_for_all_its_samples(monkeypatch):
+    """One sample a batch: the runs near the frames' body boxes are worked out once a tile (from
+    bounds holding every sample's rays, ``CameraRays.run_bounds``), not once a batch; the same
+    bits as culling each batch's own rays."""
+    from restframe_addon.core import render, tracer
+    from restframe_addon.core.camera import CameraRays
+    from restframe_addon.core.prepared import prepare
+
+    v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, 24, 12)
+    scene = Scene(camera=look_at_camera((0, -4, 0.5), (0, 0, 0)), lights=[Light("lamp", "SUN", (1, -3, 2), power=3.0)],
+                  meshes=[Mesh("ball", v, t, velocity=Velocity((0.6, 0.0, 0.0))),
+                          Mesh("floor", *quad((0.0, 0.0, -1.2), (6.0, 6.0), normal_axis=2))])
+    monkeypatch.setattr(render, "_MAX_VALUES", 32 * 32 * 3)  # one sample a batch
+    prepared = prepare(scene, settings((32, 32), tile_size=32, samples=4))
+    culls = []
+    near = tracer._runs_near_bodies
+    monkeypatch.setattr(tracer, "_runs_near_bodies", lambda *args: culls.append(1) or near(*args))
+    once = render.render_tile(prepared, prepared.region)
+    assert len(culls) == 2  # the pixel-centre rays', then the tile's for its 4 batches
+    monkeypatch.setattr(CameraRays, "run_bounds", lambda *args: None)
+    culls.clear()
+    each = render.render_tile(prepared, prepared.region)
+    assert len(culls) == 5
+    for name, values in once.passes.items():
+        np.testing.assert_array_equal(values, each.passes[name], err_msg=name)
+    sky = np.isclose(once.passes["Combined"][..., :3], once.passes["Combined"][-1, -1, :3]).all(axis=-1)
+    assert 0.1 < sky.mean() < 0.9  # (runs of rays that miss everything, and rays that hit)
