@@ -27,6 +27,7 @@ from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
 from .integrator import PathTracer, scene_world
 from .passes import DEFAULT_PASSES, EXTRA_PASSES, ray_doppler
 from .persistent import GeometryCache
+from .sampling import Samples
 from .scene import RAY_CAMERA, Camera, RenderSettings, Scene, render_workers
 from .shading import MaterialTable, PreparedLight, Shader, prepare_lights
 from .tracer import TraceCache, misses_everything
@@ -338,7 +339,7 @@ def _measure_exposure(prepared: PreparedScene, should_stop) -> float:
         if isinstance(tracer, PathTracer):
             values, _ = tracer.radiance(prepared.frames.camera, *rays, pixel, pixel * 0, lam, cache=cache)
         else:
-            values, _ = tracer.radiance(prepared.frames.camera, *rays, 0, pixel, pixel * 0, lam, cache=cache)
+            values, _ = tracer.radiance(prepared.frames.camera, *rays, 0, Samples(pixel, pixel * 0), lam, cache=cache)
         means.append(float(np.mean(colour.to_rgb(values, lam) @ _LUMINANCE)))
     rendered, reference = means
     return reference / rendered if rendered > 0 and reference > 0 else 1.0

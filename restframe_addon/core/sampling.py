@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import rows
+
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
@@ -27,8 +29,9 @@ def _mix(z: np.ndarray) -> np.ndarray:
     return z
 
 
-def _pixel_halves(pixel: np.ndarray) -> np.ndarray:
-    """The pixel's half of the (pixel, sample) hash's input (xor-ed with :func:`_sample_halves`)."""
+def pixel_halves(pixel: np.ndarray) -> np.ndarray:
+    """The pixel's half of the (pixel, sample) hash's input (xor-ed with :func:`_sample_halves`),
+    to keep across a tile's batches of samples (:func:`block_keys`)."""
     return np.multiply(_as_uint64(pixel), _GOLDEN)
 
 
@@ -48,16 +51,49 @@ def _as_uint64(a: np.ndarray) -> np.ndarray:
 
 def _sample_keys(pixel: np.ndarray, sample: np.ndarray | None) -> np.ndarray:
     """The hash of (pixel, sample) that every dimension's numbers start from (sample None: 0)."""
-    key = _pixel_halves(pixel)
+    key = pixel_halves(pixel)
     key ^= _M2 if sample is None else _sample_halves(sample)  # None: (0 + 1) * _M2
     return _mix(key)
 
 
-def _block_keys(pixel: np.ndarray, first: int, count: int) -> np.ndarray:
-    """:func:`_sample_keys` of samples first .. first + count - 1 of each pixel, pixel-major: each
-    half of the hash's input worked out once (per pixel, per sample number), not once per sample."""
-    key = np.bitwise_xor.outer(_pixel_halves(pixel), _sample_halves(np.arange(first, first + count)))
+def block_keys(halves: np.ndarray, first: int, count: int) -> np.ndarray:
+    """:func:`_sample_keys` of samples first .. first + count - 1 of each pixel (its
+    :func:`pixel_halves`), pixel-major: each half of the hash's input worked out once (per pixel,
+    per sample number), not once per sample."""
+    key = np.bitwise_xor.outer(halves, _sample_halves(np.arange(first, first + count)))
     return _mix(key.ravel())
+
+
+class Samples:
+    """Samples by (pixel id, sample number), one pair per ray, and the (pixel, sample) hash that
+    every dimension of their random numbers starts from: worked out once (or handed in by the
+    camera jitter, which needs it first) and gathered with the rows, not hashed again by each
+    user of the numbers (the lamps' samples)."""
+
+    __slots__ = ("pixel", "sample", "_keys")
+
+    def __init__(self, pixel: np.ndarray, sample: np.ndarray, keys: np.ndarray | None = None):
+        self.pixel, self.sample, self._keys = pixel, sample, keys
+
+    def __len__(self) -> int:
+        return len(self.pixel)
+
+    @property
+    def keys(self) -> np.ndarray:
+        """:func:`_sample_keys` of each (pixel, sample) (read-only: shared with the rows taken)."""
+        if self._keys is None:
+            self._keys = _sample_keys(self.pixel, self.sample)
+        return self._keys
+
+    def uniforms(self, dimensions) -> list[np.ndarray]:
+        """:func:`uniforms` of these samples."""
+        return [_from_keys(self.keys, dimension) for dimension in dimensions]
+
+    def take(self, index) -> "Samples":
+        """The samples at ``index`` (:func:`~.rows.take`: a slice gives views), the hash taken
+        along where it is known."""
+        return Samples(rows.take(self.pixel, index), rows.take(self.sample, index),
+                       None if self._keys is None else rows.take(self._keys, index))
 
 
 def _from_keys(keys: np.ndarray, dimension: int) -> np.ndarray:
@@ -77,8 +113,7 @@ def uniform(pixel: np.ndarray, sample: np.ndarray, dimension: int) -> np.ndarray
 
 def uniforms(pixel: np.ndarray, sample: np.ndarray, dimensions) -> list[np.ndarray]:
     """:func:`uniform` of several dimensions of the same samples (their common hash done once)."""
-    keys = _sample_keys(pixel, sample)
-    return [_from_keys(keys, dimension) for dimension in dimensions]
+    return Samples(pixel, sample).uniforms(dimensions)
 
 
 def stratified_offsets(pixel: np.ndarray, sample: np.ndarray, count: int):
@@ -99,13 +134,14 @@ def stratified_offsets(pixel: np.ndarray, sample: np.ndarray, count: int):
 
 
 def stratified_positions(xs: np.ndarray, ys: np.ndarray, pixel: np.ndarray, first: int, count: int,
-                         samples: int, starts: np.ndarray | None = None):
+                         samples: int, starts: np.ndarray | None = None, keys: np.ndarray | None = None):
     """Image positions of samples first .. first + count - 1 of ``samples`` per pixel (pixel ids
     ``pixel`` at integer coordinates xs, ys), pixel-major: ``xs + x, ys + y`` of
     :func:`stratified_offsets`, the same bits, with the work per pixel and per sample number
     (the strata's start, each half of the hash) done once each, not once per sample.
     ``starts``: the pixels' :func:`strata_starts`, where the caller keeps them across its batches
-    of samples (None: worked out here)."""
+    of samples (None: worked out here); ``keys``: the samples' :func:`block_keys`, where the caller
+    keeps them for the samples' other random numbers (:class:`Samples`; None: worked out here)."""
     if samples == 1:
         return np.repeat(xs + 0.5, count), np.repeat(ys + 0.5, count)
     side = int(np.ceil(np.sqrt(samples)))
@@ -117,7 +153,7 @@ def stratified_positions(xs: np.ndarray, ys: np.ndarray, pixel: np.ndarray, firs
     start = strata_starts(pixel, samples) if starts is None else starts
     column = (table % side).astype(np.float64).take(start, axis=0).ravel()
     row = (table // side).astype(np.float64).take(start, axis=0).ravel()
-    x, y = _jittered(_block_keys(pixel, first, count), column, row, side)
+    x, y = _jittered(block_keys(pixel_halves(pixel), first, count) if keys is None else keys, column, row, side)
     x.reshape(len(pixel), count)[...] += xs[:, None]
     y.reshape(len(pixel), count)[...] += ys[:, None]
     return x, y
