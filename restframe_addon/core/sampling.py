@@ -68,21 +68,46 @@ class Samples:
     """Samples by (pixel id, sample number), one pair per ray, and the (pixel, sample) hash that
     every dimension of their random numbers starts from: worked out once (or handed in by the
     camera jitter, which needs it first) and gathered with the rows, not hashed again by each
-    user of the numbers (the lamps' samples)."""
+    user of the numbers (the lamps' samples).  A :meth:`take` gathers each array when it is
+    first read: the shader takes its hits' samples for the lamps' numbers and the cut-outs, and
+    without cut-outs reads their hash alone."""
 
-    __slots__ = ("pixel", "sample", "_keys")
+    __slots__ = ("_pixel", "_sample", "_keys", "_source", "_index")
 
-    def __init__(self, pixel: np.ndarray, sample: np.ndarray, keys: np.ndarray | None = None):
-        self.pixel, self.sample, self._keys = pixel, sample, keys
+    def __init__(self, pixel: np.ndarray | None, sample: np.ndarray | None, keys: np.ndarray | None = None):
+        self._pixel, self._sample, self._keys = pixel, sample, keys
+        self._source = self._index = None  # (a take: the samples and rows it gathers from when read)
 
-    def __len__(self) -> int:
-        return len(self.pixel)
+    @property
+    def pixel(self) -> np.ndarray:
+        if self._pixel is None:
+            self._pixel = rows.take(self._source.pixel, self._index)
+        return self._pixel
+
+    @property
+    def sample(self) -> np.ndarray:
+        """(One sample number broadcast stays a broadcast: a batch of one sample per pixel.)"""
+        if self._sample is None:
+            sample = self._source.sample
+            if sample.strides == (0,) and len(sample):
+                self._sample = np.broadcast_to(sample[:1], (len(self.pixel),))
+            else:
+                self._sample = rows.take(sample, self._index)
+        return self._sample
 
     @property
     def keys(self) -> np.ndarray:
         """:func:`_sample_keys` of each (pixel, sample) (read-only: shared with the rows taken)."""
-        if self._keys is None:
+        if self._known_keys() is None:
             self._keys = _sample_keys(self.pixel, self.sample)
+        return self._keys
+
+    def _known_keys(self) -> np.ndarray | None:
+        """The hash where gathers of a known one give it (else None: hashing these rows is cheaper)."""
+        if self._keys is None and self._source is not None:
+            keys = self._source._known_keys()
+            if keys is not None:
+                self._keys = rows.take(keys, self._index)
         return self._keys
 
     def uniforms(self, dimensions) -> list[np.ndarray]:
@@ -90,10 +115,10 @@ class Samples:
         return [_from_keys(self.keys, dimension) for dimension in dimensions]
 
     def take(self, index) -> "Samples":
-        """The samples at ``index`` (:func:`~.rows.take`: a slice gives views), the hash taken
-        along where it is known."""
-        return Samples(rows.take(self.pixel, index), rows.take(self.sample, index),
-                       None if self._keys is None else rows.take(self._keys, index))
+        """The samples at ``index`` (:func:`~.rows.take`: a slice gives views), gathered when read."""
+        taken = Samples(None, None)
+        taken._source, taken._index = self, index
+        return taken
 
 
 def _from_keys(keys: np.ndarray, dimension: int) -> np.ndarray:

@@ -470,18 +470,18 @@ class Shader:
         elif for_passes:
             see_through = lambda hits, rays, layer: self.hit_opacity(hits) < PASS_ALPHA_THRESHOLD
         else:
-            see_through = self.cutouts(pixel, sample, _cutout_dimension(depth, ray.bit_length()))
+            see_through = self.cutouts(sampling.Samples(pixel, sample), _cutout_dimension(depth, ray.bit_length()))
         return trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi, cache, ray, see_through)
 
-    def cutouts(self, pixel, sample, dimension: int):
-        """A ``see_through`` test for the tracer: the rays of these pixels and samples pass a
+    def cutouts(self, ids: sampling.Samples, dimension: int):
+        """A ``see_through`` test for the tracer: the rays of the samples ``ids`` pass a
         surface where its alpha is at most a uniform number (sampler ``dimension`` + the
         surfaces passed so far); None without cut-outs."""
         if not self.materials.cuts_out:
             return None
 
         def see_through(hits, rays, layer):
-            return self.hit_opacity(hits) <= sampling.uniform(pixel[rays], sample[rays], dimension + layer)
+            return self.hit_opacity(hits) <= ids.take(rays).uniforms((dimension + layer,))[0]
         return see_through
 
     def hit_materials(self, k: int, prim) -> np.ndarray:
@@ -730,7 +730,7 @@ class Shader:
         origin = np.multiply(rows.take(ng, sel), eps_rays if np.ndim(eps_rays) == 0 else eps_rays[:, None])
         origin += rows.take(position, sel)
         reach = rows.take(s_max, sel) - 2.0 * eps_rays if np.ndim(s_max) else s_max  # sunlight: unbounded
-        tau_sel, pixel_sel, sample_sel = rows.take(tau, sel), rows.take(ids.pixel, sel), rows.take(ids.sample, sel)
+        tau_sel, ids_sel = rows.take(tau, sel), ids.take(sel)  # (the samples gathered if cut-outs ask for them)
         parts = []
         for (k, _), e_frame, start, stop in zip(segments, e_frames, bounds[:-1], bounds[1:]):
             if stop == start:
@@ -739,7 +739,7 @@ class Shader:
             d = e_sel[rays] if e_frame.strides[0] else np.broadcast_to(e_frame[0], (stop - start, 3))
             parts.append(occluded(self.frames, k, tau_sel[rays], origin[rays], d, self.epsilon[k],
                                   reach[rays] if np.ndim(reach) else reach, cache,
-                                  see_through=self.cutouts(pixel_sel[rays], sample_sel[rays], dimension)))
+                                  see_through=self.cutouts(ids_sel.take(rays), dimension)))
         return joined_frames(parts)
 
     def _incident(self, pl: PreparedLight, k, tau, position, xi1, xi2):

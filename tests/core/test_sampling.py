@@ -60,12 +60,16 @@ def test_samples_numbers_from_the_jitters_kept_hash_are_uniforms_bit_for_bit():
     kept = sampling.stratified_positions(xs[part], ys[part], pixel[part], first, count, samples, keys=keys)
     fresh = sampling.stratified_positions(xs[part], ys[part], pixel[part], first, count, samples)
     assert all(np.array_equal(a, b) for a, b in zip(kept, fresh))
-    index = rng.permutation(len(ids))[:333]
+    index = rng.permutation(len(keys))[:333]
     for taken, (p, s) in [(ids, (pix[rows], smp[rows])), (ids.take(index), (pix[rows][index], smp[rows][index])),
                           (ids.take(slice(10, 90)), (pix[rows][10:90], smp[rows][10:90]))]:
         for got, want in zip(taken.uniforms((1000, 1001, 5)), sampling.uniforms(p, s, (1000, 1001, 5))):
             assert np.array_equal(got, want)
-    assert sampling.Samples(pix, smp).take(index)._keys is None  # (none known: none gathered)
+    taken = ids.take(index).take(slice(5, 50))  # a take of a take: gathered when read, the hash alone
+    assert np.array_equal(taken.keys, keys[index][5:50]) and taken._pixel is None and taken._sample is None
+    one = sampling.Samples(pix, np.broadcast_to(np.int64(3), pix.shape)).take(index)
+    assert one.sample.strides == (0,) and np.array_equal(one.sample, np.full(len(index), 3))
+    assert np.array_equal(one.keys, sampling._sample_keys(pix[index], np.full(len(index), 3)))
 
 
 def test_a_jittered_render_hashes_each_samples_key_once(monkeypatch):
