@@ -161,7 +161,7 @@ def stratified_offsets(pixel: np.ndarray, sample: np.ndarray, count: int):
 def stratified_positions(xs: np.ndarray, ys: np.ndarray, pixel: np.ndarray, first: int, count: int,
                          samples: int, starts: np.ndarray | None = None, keys: np.ndarray | None = None):
     """Image positions of samples first .. first + count - 1 of ``samples`` per pixel (pixel ids
-    ``pixel`` at integer coordinates xs, ys), pixel-major: ``xs + x, ys + y`` of
+    ``pixel`` at integer coordinates xs, ys, as floats or integers), pixel-major: ``xs + x, ys + y`` of
     :func:`stratified_offsets`, the same bits, with the work per pixel and per sample number
     (the strata's start, each half of the hash) done once each, not once per sample.
     ``starts``: the pixels' :func:`strata_starts`, where the caller keeps them across its batches

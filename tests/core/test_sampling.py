@@ -21,6 +21,8 @@ def test_stratified_positions_are_the_pixel_corner_plus_stratified_offsets_bit_f
     px, py = sampling.stratified_positions(xs, ys, pixel, first, count, samples)
     assert np.array_equal(px, np.repeat(xs, count) + ox)
     assert np.array_equal(py, np.repeat(ys, count) + oy)
+    floats = sampling.stratified_positions(xs.astype(np.float64), ys.astype(np.float64), pixel, first, count, samples)
+    assert np.array_equal(floats[0], px) and np.array_equal(floats[1], py)  # (render_tile's coordinates)
     # the strata's starts kept for a tile's pixels (render_tile's) and handed in for some of them
     part = slice(100, 200)
     starts = sampling.strata_starts(pixel, samples)
