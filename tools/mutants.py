@@ -104,8 +104,8 @@ MUTANTS = (
            (Patch(SHADING, "        tau_hit = hit_times(hits, order)\n",
                   "        tau_hit = hit_times(hits, order)\n"
                   "        self.shadow_tau = rows.take(hits.tau_frame, order)  # the ray's start: the observation event\n"),
-            Patch(SHADING, "tau_sel, pixel_sel, sample_sel = rows.take(tau, sel),",
-                  "tau_sel, pixel_sel, sample_sel = rows.take(self.shadow_tau, sel),")),
+            Patch(SHADING, "tau_sel, ids_sel = rows.take(tau, sel),",
+                  "tau_sel, ids_sel = rows.take(self.shadow_tau, sel),")),
            (T_LIGHTS,)),
     Mutant("point-light-d2", "point-light irradiance scaled by D^2 instead of D^4",
            (Patch(SHADING, "intensity * self.searchlight_power(doppler, 4) / np.maximum(r, 1e-300) ** 2",

@@ -131,8 +131,11 @@ class CameraRays:
             if grid:
                 return np.add.outer(corner + up * v, across * u).ravel()
             # a zero term left out gives the same bits (u, v finite): corner + (+-0) is the corner
-            # when that is not 0, and a sum that is not -0 plus +-0 is itself
+            # when that is not 0, and a sum that is not -0 plus +-0 is itself; so does a factor of
+            # 1 (1 u is u: a camera whose image's width lies along a world axis)
             if up == 0.0 and corner != 0.0:
+                if across == 1.0:
+                    return np.add(u, corner)
                 point = np.multiply(across, u)
             else:
                 point = np.multiply(up, v)

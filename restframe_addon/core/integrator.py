@@ -197,7 +197,7 @@ class PathTracer:
         if not len(sel):
             return total
         blocked = occluded(self.frames, k, tau[sel], origin[sel], light[sel], eps, np.inf, cache,
-                           see_through=self.shader.cutouts(pixel[sel], sample[sel],
+                           see_through=self.shader.cutouts(sampling.Samples(pixel, sample).take(sel),
                                                            _cutout_dimension(depth, _WORLD_STREAM)))
         sel = sel[~blocked]
         if not len(sel):
@@ -269,7 +269,7 @@ class PathTracer:
                 continue
             e_sel = rows.take(e_k, sel)
             blocked = occluded(self.frames, k, tau[sel], rows.take(origin, sel), e_sel, eps, s_max[sel] - 2.0 * eps,
-                               cache, see_through=shader.cutouts(pixel[sel], sample[sel],
+                               cache, see_through=shader.cutouts(sampling.Samples(pixel, sample).take(sel),
                                                                  _cutout_dimension(depth, 8 + index)))
             if blocked.any():
                 lit = np.flatnonzero(~blocked)
@@ -377,7 +377,8 @@ class PathTracer:
                 continue
             eps = self.shader.epsilon[k]
             reach = doppler * r_j * (1.0 - 1e-6) - 2.0 * eps  # stop short of the emitter itself
-            see_through = self.shader.cutouts(pixel[sel], sample[sel], _cutout_dimension(depth, _EMITTER_STREAM))
+            see_through = self.shader.cutouts(sampling.Samples(pixel, sample).take(sel),
+                                              _cutout_dimension(depth, _EMITTER_STREAM))
             blocked = occluded(self.frames, k, tau[sel], origin[sel], light, eps, reach, cache,
                                see_through=see_through)
             sel, light, doppler, pdf, cos, r_j, tau_j, row = (a[~blocked] for a in

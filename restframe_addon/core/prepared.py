@@ -27,6 +27,7 @@ from .frames import FrameSet, MotionSettings, build_frames, shift_into_frame
 from .integrator import PathTracer, scene_world
 from .passes import DEFAULT_PASSES, EXTRA_PASSES, ray_doppler
 from .persistent import GeometryCache
+from .sampling import Samples
 from .scene import RAY_CAMERA, Camera, RenderSettings, Scene, render_workers
 from .shading import MaterialTable, PreparedLight, Shader, prepare_lights
 from .tracer import TraceCache, misses_everything
@@ -105,10 +106,11 @@ class PreparedScene:
         ]
 
     def pixel_grid(self, rect):
-        """Pixel coordinates and flat image indices of a rectangle of pixels, in row-major order."""
+        """Pixel coordinates and flat image indices of a rectangle of pixels, in row-major order (the
+        coordinates as floats: every batch's jitter adds them, 5x faster than from integers)."""
         x0, y0, x1, y1 = rect
-        xs = np.tile(np.arange(x0, x1, dtype=np.int64), y1 - y0)
-        ys = np.repeat(np.arange(y0, y1, dtype=np.int64), x1 - x0)
+        xs = np.tile(np.arange(x0, x1, dtype=np.float64), y1 - y0)
+        ys = np.repeat(np.arange(y0, y1, dtype=np.float64), x1 - x0)
         return xs, ys, self.pixel_ids(rect)
 
     def pixel_ids(self, rect):
@@ -338,7 +340,7 @@ def _measure_exposure(prepared: PreparedScene, should_stop) -> float:
         if isinstance(tracer, PathTracer):
             values, _ = tracer.radiance(prepared.frames.camera, *rays, pixel, pixel * 0, lam, cache=cache)
         else:
-            values, _ = tracer.radiance(prepared.frames.camera, *rays, 0, pixel, pixel * 0, lam, cache=cache)
+            values, _ = tracer.radiance(prepared.frames.camera, *rays, 0, Samples(pixel, pixel * 0), lam, cache=cache)
         means.append(float(np.mean(colour.to_rgb(values, lam) @ _LUMINANCE)))
     rendered, reference = means
     return reference / rendered if rendered > 0 and reference > 0 else 1.0

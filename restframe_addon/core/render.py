@@ -116,7 +116,8 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
         return Tile(x0, y0, x1, y1, kept)
     pixel = prepared.pixel_ids(rect)
     n = len(pixel)
-    xs = ys = starts = None  # the pixels' coordinates and their strata's starts, for jittered samples
+    # the pixels' coordinates, their strata's starts and halves of the (pixel, sample) hash, for jittered samples
+    xs = ys = starts = halves = None
     tile_runs = {}  # (first pixel, pixel past the last) -> their rays' RunBounds (None: the camera has none)
     shader = prepared.shader
     if empty:
@@ -144,6 +145,7 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
         m = part.stop - part.start
         pix = pixel[part] if count == 1 else np.repeat(pixel[part], count)  # (a view: nothing writes into it)
         smp = np.broadcast_to(np.int64(first), (m,)) if count == 1 else np.tile(np.arange(first, first + count), m)
+        ids = sampling.Samples(pix, smp)
         observed = None  # the Doppler factor of the camera frame seen by each sample's observer (None: 1)
         if samples == 1 and not prepared.samples_vary:  # the one sample is the pixel-centre ray
             rays = tuple(a[part] for a in centre)
@@ -156,8 +158,11 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
             if xs is None:
                 xs, ys, _ = prepared.pixel_grid(rect)
                 starts = sampling.strata_starts(pixel, samples)  # (per pixel: once for all its batches)
+                halves = None if samples == 1 else sampling.pixel_halves(pixel)
+            keys = None if halves is None else sampling.block_keys(halves[part], first, count)
+            ids = sampling.Samples(pix, smp, keys)  # (the jitter's hash kept for the samples' other numbers)
             px, py = sampling.stratified_positions(xs[part], ys[part], pixel[part], first, count, samples,
-                                                   None if starts is None else starts[part])
+                                                   None if starts is None else starts[part], keys)
             rays, observed = prepared.sample_rays(px, py, keys=(pix, smp, samples))
             runs = None
             if count == 1 and not prepared.samples_vary:  # a pixel's rays from one event: cull them once a tile
@@ -166,7 +171,7 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
                     bounds = prepared.camera_rays.run_bounds(rect, part, RunBounds.RUN)
                     runs = tile_runs[part.start, part.stop] = None if bounds is None else RunBounds(*bounds)
             hits = shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache, runs=runs)
-        color, hit, hole = _sample(prepared, rays, hits, pix, smp, cache, observed)
+        color, hit, hole = _sample(prepared, rays, hits, ids, cache, observed)
         if summed:
             rgb[part] += _per_pixel(color, m, count)
         else:
@@ -216,8 +221,8 @@ def _per_pixel(values, m: int, count: int):
     return values.reshape(m, count, *values.shape[1:]).sum(axis=1)
 
 
-def _sample(prepared: PreparedScene, rays, hits, pixel, sample, cache: TraceCache, observed=None):
-    """Colour of camera samples (already traced: ``hits``), whether they hit anything and whether
+def _sample(prepared: PreparedScene, rays, hits, ids: sampling.Samples, cache: TraceCache, observed=None):
+    """Colour of camera samples ``ids`` (already traced: ``hits``), whether they hit anything and whether
     a holdout (None: the scene has none; a holdout's colour is 0); ``observed``: the Doppler factor
     of the camera frame as each sample's observer sees it (an accelerating camera's shutter
     samples), None for 1."""
@@ -230,14 +235,14 @@ def _sample(prepared: PreparedScene, rays, hits, pixel, sample, cache: TraceCach
         rgb = np.repeat(_doppler_grey(prepared, doppler)[:, None], 3, axis=1)
     else:
         colour = prepared.colour
+        pixel, sample = ids.pixel, ids.sample
         lam = colour.camera_wavelengths(pixel, sample)
         traced = lam if observed is None else colour.shift(lam, observed)  # the wavelengths in the camera frame
         if prepared.path_tracer is not None:
             values, hits = prepared.path_tracer.radiance(prepared.frames.camera, *rays, pixel, sample, traced, hits,
                                                          cache)
         else:
-            values, hits = prepared.shader.radiance(prepared.frames.camera, *rays, 0, pixel, sample, traced, hits,
-                                                    cache)
+            values, hits = prepared.shader.radiance(prepared.frames.camera, *rays, 0, ids, traced, hits, cache)
         if observed is not None:
             values = values * prepared.shader.searchlight_power(observed, 4)[:, None]
         rgb = colour.to_rgb(values, lam)

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import rows
+
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
@@ -27,8 +29,9 @@ def _mix(z: np.ndarray) -> np.ndarray:
     return z
 
 
-def _pixel_halves(pixel: np.ndarray) -> np.ndarray:
-    """The pixel's half of the (pixel, sample) hash's input (xor-ed with :func:`_sample_halves`)."""
+def pixel_halves(pixel: np.ndarray) -> np.ndarray:
+    """The pixel's half of the (pixel, sample) hash's input (xor-ed with :func:`_sample_halves`),
+    to keep across a tile's batches of samples (:func:`block_keys`)."""
     return np.multiply(_as_uint64(pixel), _GOLDEN)
 
 
@@ -48,23 +51,80 @@ def _as_uint64(a: np.ndarray) -> np.ndarray:
 
 def _sample_keys(pixel: np.ndarray, sample: np.ndarray | None) -> np.ndarray:
     """The hash of (pixel, sample) that every dimension's numbers start from (sample None: 0)."""
-    key = _pixel_halves(pixel)
+    key = pixel_halves(pixel)
     key ^= _M2 if sample is None else _sample_halves(sample)  # None: (0 + 1) * _M2
     return _mix(key)
 
 
-def _block_keys(pixel: np.ndarray, first: int, count: int) -> np.ndarray:
-    """:func:`_sample_keys` of samples first .. first + count - 1 of each pixel, pixel-major: each
-    half of the hash's input worked out once (per pixel, per sample number), not once per sample."""
-    key = np.bitwise_xor.outer(_pixel_halves(pixel), _sample_halves(np.arange(first, first + count)))
+def block_keys(halves: np.ndarray, first: int, count: int) -> np.ndarray:
+    """:func:`_sample_keys` of samples first .. first + count - 1 of each pixel (its
+    :func:`pixel_halves`), pixel-major: each half of the hash's input worked out once (per pixel,
+    per sample number), not once per sample."""
+    key = np.bitwise_xor.outer(halves, _sample_halves(np.arange(first, first + count)))
     return _mix(key.ravel())
+
+
+class Samples:
+    """Samples by (pixel id, sample number), one pair per ray, and the (pixel, sample) hash that
+    every dimension of their random numbers starts from: worked out once (or handed in by the
+    camera jitter, which needs it first) and gathered with the rows, not hashed again by each
+    user of the numbers (the lamps' samples).  A :meth:`take` gathers each array when it is
+    first read: the shader takes its hits' samples for the lamps' numbers and the cut-outs, and
+    without cut-outs reads their hash alone."""
+
+    __slots__ = ("_pixel", "_sample", "_keys", "_source", "_index")
+
+    def __init__(self, pixel: np.ndarray | None, sample: np.ndarray | None, keys: np.ndarray | None = None):
+        self._pixel, self._sample, self._keys = pixel, sample, keys
+        self._source = self._index = None  # (a take: the samples and rows it gathers from when read)
+
+    @property
+    def pixel(self) -> np.ndarray:
+        if self._pixel is None:
+            self._pixel = rows.take(self._source.pixel, self._index)
+        return self._pixel
+
+    @property
+    def sample(self) -> np.ndarray:
+        """(One sample number broadcast stays a broadcast: a batch of one sample per pixel.)"""
+        if self._sample is None:
+            sample = self._source.sample
+            if sample.strides == (0,) and len(sample):
+                self._sample = np.broadcast_to(sample[:1], (len(self.pixel),))
+            else:
+                self._sample = rows.take(sample, self._index)
+        return self._sample
+
+    @property
+    def keys(self) -> np.ndarray:
+        """:func:`_sample_keys` of each (pixel, sample) (read-only: shared with the rows taken)."""
+        if self._known_keys() is None:
+            self._keys = _sample_keys(self.pixel, self.sample)
+        return self._keys
+
+    def _known_keys(self) -> np.ndarray | None:
+        """The hash where gathers of a known one give it (else None: hashing these rows is cheaper)."""
+        if self._keys is None and self._source is not None:
+            keys = self._source._known_keys()
+            if keys is not None:
+                self._keys = rows.take(keys, self._index)
+        return self._keys
+
+    def uniforms(self, dimensions) -> list[np.ndarray]:
+        """:func:`uniforms` of these samples."""
+        return [_from_keys(self.keys, dimension) for dimension in dimensions]
+
+    def take(self, index) -> "Samples":
+        """The samples at ``index`` (:func:`~.rows.take`: a slice gives views), gathered when read."""
+        taken = Samples(None, None)
+        taken._source, taken._index = self, index
+        return taken
 
 
 def _from_keys(keys: np.ndarray, dimension: int) -> np.ndarray:
     """The numbers of one dimension from :func:`_sample_keys`."""
-    with np.errstate(over="ignore"):
-        z = keys + np.uint64(dimension) * _GOLDEN
-    z = _mix(z)
+    # (the offset modulo 2^64 in Python's integers: no overflow of numpy scalars to silence, 3 us a call)
+    z = _mix(keys + np.uint64(dimension * int(_GOLDEN) % (1 << 64)))
     z >>= np.uint64(11)
     # (exact: z < 2^53 converts without rounding; as int64, the same bits, twice as fast as uint64)
     return np.multiply(z.view(np.int64), np.float64(1.0 / (1 << 53)))
@@ -77,8 +137,7 @@ def uniform(pixel: np.ndarray, sample: np.ndarray, dimension: int) -> np.ndarray
 
 def uniforms(pixel: np.ndarray, sample: np.ndarray, dimensions) -> list[np.ndarray]:
     """:func:`uniform` of several dimensions of the same samples (their common hash done once)."""
-    keys = _sample_keys(pixel, sample)
-    return [_from_keys(keys, dimension) for dimension in dimensions]
+    return Samples(pixel, sample).uniforms(dimensions)
 
 
 def stratified_offsets(pixel: np.ndarray, sample: np.ndarray, count: int):
@@ -99,13 +158,14 @@ def stratified_offsets(pixel: np.ndarray, sample: np.ndarray, count: int):
 
 
 def stratified_positions(xs: np.ndarray, ys: np.ndarray, pixel: np.ndarray, first: int, count: int,
-                         samples: int, starts: np.ndarray | None = None):
+                         samples: int, starts: np.ndarray | None = None, keys: np.ndarray | None = None):
     """Image positions of samples first .. first + count - 1 of ``samples`` per pixel (pixel ids
-    ``pixel`` at integer coordinates xs, ys), pixel-major: ``xs + x, ys + y`` of
+    ``pixel`` at integer coordinates xs, ys, as floats or integers), pixel-major: ``xs + x, ys + y`` of
     :func:`stratified_offsets`, the same bits, with the work per pixel and per sample number
     (the strata's start, each half of the hash) done once each, not once per sample.
     ``starts``: the pixels' :func:`strata_starts`, where the caller keeps them across its batches
-    of samples (None: worked out here)."""
+    of samples (None: worked out here); ``keys``: the samples' :func:`block_keys`, where the caller
+    keeps them for the samples' other random numbers (:class:`Samples`; None: worked out here)."""
     if samples == 1:
         return np.repeat(xs + 0.5, count), np.repeat(ys + 0.5, count)
     side = int(np.ceil(np.sqrt(samples)))
@@ -117,7 +177,7 @@ def stratified_positions(xs: np.ndarray, ys: np.ndarray, pixel: np.ndarray, firs
     start = strata_starts(pixel, samples) if starts is None else starts
     column = (table % side).astype(np.float64).take(start, axis=0).ravel()
     row = (table // side).astype(np.float64).take(start, axis=0).ravel()
-    x, y = _jittered(_block_keys(pixel, first, count), column, row, side)
+    x, y = _jittered(block_keys(pixel_halves(pixel), first, count) if keys is None else keys, column, row, side)
     x.reshape(len(pixel), count)[...] += xs[:, None]
     y.reshape(len(pixel), count)[...] += ys[:, None]
     return x, y

@@ -391,10 +391,10 @@ class Shader:
         return {"Denoising Albedo": albedo, "Denoising Normal": normal}
 
     # ------------------------------------------------------------------ rays
-    def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, depth: int, pixel, sample, lam, hits=None,
+    def radiance(self, src: int, tau0, x0, d, s_lo, s_hi, depth: int, ids: sampling.Samples, lam, hits=None,
                  cache: TraceCache | None = None, ray: int = RAY_CAMERA):
-        """Radiance arriving at events (tau0, x0) of frame src from backward directions d,
-        at the wavelengths ``lam`` of frame src (None in RGB mode); ``hits`` if already traced;
+        """Radiance arriving at events (tau0, x0) of frame src from backward directions d, of the
+        samples ``ids``, at the wavelengths ``lam`` of frame src (None in RGB mode); ``hits`` if already traced;
         ``cache``: the calling thread's :class:`~.tracer.TraceCache` (None: keep nothing);
         ``ray``: the rays' type (``RAY_*``).  Holdout surfaces give 0 (they end the path).
 
@@ -402,7 +402,7 @@ class Shader:
         """
         n = len(d)
         if hits is None:
-            hits = self.trace(src, tau0, x0, d, s_lo, s_hi, ray, pixel, sample, depth, cache)
+            hits = self.trace(src, tau0, x0, d, s_lo, s_hi, ray, ids.pixel, ids.sample, depth, cache)
         values = np.empty((n, self.colour.channels))
         missed = hits.frame < 0
         miss = np.flatnonzero(missed)
@@ -418,7 +418,7 @@ class Shader:
         if held is not None:
             values[held] = 0.0
         for order, segments in self._frame_batches(hits, held, depth, values):
-            self._shade_batch(src, hits, order, segments, depth, pixel, sample, lam, cache, values)
+            self._shade_batch(src, hits, order, segments, depth, ids, lam, cache, values)
         return values, hits
 
     def _frame_batches(self, hits: Hits, held, depth: int, values) -> list:
@@ -436,7 +436,7 @@ class Shader:
         values[black] = 0.0  # black whatever its Doppler factor (it is finite)
         return frame_batches(hits, ~black if keep is None else keep & ~black)
 
-    def _shade_batch(self, src: int, hits: Hits, order, segments, depth: int, pixel, sample, lam, cache, values):
+    def _shade_batch(self, src: int, hits: Hits, order, segments, depth: int, ids, lam, cache, values):
         """Shade the hits ``order`` of the frames ``segments`` ((k, rows of order) each) together into
         ``values``: :meth:`radiance` of one of :meth:`_frame_batches`' batches."""
         emission_only = self._emission_only(depth)
@@ -446,17 +446,17 @@ class Shader:
         d_k = None if emission_only and not spins else rows.take(hits.d_frame, order)
         tau_hit = hit_times(hits, order)
         u, v = rows.take(hits.u, order), rows.take(hits.v, order)
-        pixel, sample, lam = rows.take(pixel, order), rows.take(sample, order), _rows(lam, order)
+        ids, lam = ids.take(order), _rows(lam, order)
         if not spins and all(self.frames.map(src, k).is_identity for k, _ in segments):  # at rest: D = 1
-            rows.put_selection(values, order, self._shade_surfaces(segments, tau_hit, d_k, prim, u, v, depth, pixel,
-                                                                   sample, lam, cache))
+            rows.put_selection(values, order, self._shade_surfaces(segments, tau_hit, d_k, prim, u, v, depth, ids,
+                                                                   lam, cache))
             return
         w = rows.take(hits.w, order)
         # (a frame at rest with the viewer has w = 1: D = 1, and its hits are scaled by 1)
         doppler = joined_frames([hit_doppler(self.frames.frames[k], prim[s], u[s], v[s], tau_hit[s],
                                              None if d_k is None else d_k[s], w[s]) for k, s in segments])
-        local = self._shade_surfaces(segments, tau_hit, d_k, prim, u, v, depth, pixel, sample,
-                                     self.colour.shift(lam, doppler), cache)
+        local = self._shade_surfaces(segments, tau_hit, d_k, prim, u, v, depth, ids, self.colour.shift(lam, doppler),
+                                     cache)
         rows.put_selection(values, order, rows.scale(local, self.searchlight_power(doppler, 4)))
 
     # ------------------------------------------------------------------ tracing
@@ -470,18 +470,18 @@ class Shader:
         elif for_passes:
             see_through = lambda hits, rays, layer: self.hit_opacity(hits) < PASS_ALPHA_THRESHOLD
         else:
-            see_through = self.cutouts(pixel, sample, _cutout_dimension(depth, ray.bit_length()))
+            see_through = self.cutouts(sampling.Samples(pixel, sample), _cutout_dimension(depth, ray.bit_length()))
         return trace_nearest(self.frames, src, tau0, x0, d, s_lo, s_hi, cache, ray, see_through, runs)
 
-    def cutouts(self, pixel, sample, dimension: int):
-        """A ``see_through`` test for the tracer: the rays of these pixels and samples pass a
+    def cutouts(self, ids: sampling.Samples, dimension: int):
+        """A ``see_through`` test for the tracer: the rays of the samples ``ids`` pass a
         surface where its alpha is at most a uniform number (sampler ``dimension`` + the
         surfaces passed so far); None without cut-outs."""
         if not self.materials.cuts_out:
             return None
 
         def see_through(hits, rays, layer):
-            return self.hit_opacity(hits) <= sampling.uniform(pixel[rays], sample[rays], dimension + layer)
+            return self.hit_opacity(hits) <= ids.take(rays).uniforms((dimension + layer,))[0]
         return see_through
 
     def hit_materials(self, k: int, prim) -> np.ndarray:
@@ -553,7 +553,7 @@ class Shader:
                     ns[s] = mapped
         return position, ng, ns, material, back
 
-    def _shade_surfaces(self, segments, tau, d_k, prim, u, v, depth, pixel, sample, lam, cache):
+    def _shade_surfaces(self, segments, tau, d_k, prim, u, v, depth, ids, lam, cache):
         """The values leaving hits toward their rays, in each hit's frame: the hits of several
         frames in one array, ``segments`` = (frame k, its rows) in order; what depends on the frame
         (the geometry, the lamps' light) worked out frame by frame, the rest once for all."""
@@ -571,16 +571,15 @@ class Shader:
                                   for (_, s), uv in zip(segments, uvs)])
         one = _only_material(mat)
         if self.lights and one is not None and not mats.emits[one]:  # the direct light alone
-            values = self._direct(segments, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam, cache)
+            values = self._direct(segments, tau, position, ng, ns, -d_k, base, mat, depth, ids, lam, cache)
         else:
             values = self._emission(segments, tau, prim, mat, lam)
             if self.lights:
-                values += self._direct(segments, tau, position, ng, ns, -d_k, base, mat, depth, pixel, sample, lam,
-                                       cache)
+                values += self._direct(segments, tau, position, ng, ns, -d_k, base, mat, depth, ids, lam, cache)
         if self._bounces(depth):
             for k, s in segments:
                 values[s] += self._secondary(k, tau[s], position[s], ng[s], ns[s], d_k[s], base[s], mat[s], back[s],
-                                             depth, pixel[s], sample[s], _rows(lam, s), cache)
+                                             depth, ids.take(s), _rows(lam, s), cache)
         return values
 
     def _emission_only(self, depth: int) -> bool:
@@ -668,7 +667,7 @@ class Shader:
             value[r] += specular
         return value
 
-    def _direct(self, segments, tau, position, ng, ns, view, base, mat, depth, pixel, sample, lam, cache):
+    def _direct(self, segments, tau, position, ng, ns, view, base, mat, depth, ids, lam, cache):
         """The lamps' light reflected toward ``view`` (n, C): one shadow ray per lamp and hit, of
         the hits of several frames (``segments``: (frame k, its rows), in order).  A selection of
         hits is a slice while it is all of them (views, not gathers)."""
@@ -677,7 +676,7 @@ class Shader:
             dim = 1000 + 100 * depth + 4 * index
             xi1 = xi2 = None  # a point light or sharp sun needs no random numbers
             if light.sampled:
-                xi1, xi2 = sampling.uniforms(pixel, sample, (dim, dim + 1))
+                xi1, xi2 = ids.uniforms((dim, dim + 1))  # (from the camera jitter's hash of the samples)
             incident = [self._incident(light, k, tau[s], position[s], None if xi1 is None else xi1[s],
                                        None if xi2 is None else xi2[s]) for k, s in segments]
             e_k, strength, doppler, s_max, clock = (joined_frames([part[i] for part in incident]) for i in range(5))
@@ -692,7 +691,7 @@ class Shader:
                 continue
             e_sel = rows.take(e_k, sel)
             blocked = self._occluded(segments, sel, tau, position, ng, e_sel, [part[0] for part in incident],
-                                     s_max, pixel, sample, _cutout_dimension(depth, 8 + index), cache)
+                                     s_max, ids, _cutout_dimension(depth, 8 + index), cache)
             weight = rows.take(strength, sel) * rows.take(cos_n, sel)
             shadowed = np.count_nonzero(blocked)
             if shadowed == len(blocked):
@@ -717,8 +716,7 @@ class Shader:
                 rows.put_selection(total, sel, f)
         return np.zeros(base.shape) if total is None else total
 
-    def _occluded(self, segments, sel, tau, position, ng, e_sel, e_frames, s_max, pixel, sample, dimension: int,
-                  cache):
+    def _occluded(self, segments, sel, tau, position, ng, e_sel, e_frames, s_max, ids, dimension: int, cache):
         """Whether the shadow rays of the hits ``sel`` (toward ``e_sel``, at most ``s_max`` long) are
         blocked: asked of the tracer frame by frame (``segments``: (frame k, its rows); ``e_frames``:
         each frame's directions, of which a sharp sun's one broadcast row stays one: the tracer sees
@@ -732,7 +730,7 @@ class Shader:
         origin = np.multiply(rows.take(ng, sel), eps_rays if np.ndim(eps_rays) == 0 else eps_rays[:, None])
         origin += rows.take(position, sel)
         reach = rows.take(s_max, sel) - 2.0 * eps_rays if np.ndim(s_max) else s_max  # sunlight: unbounded
-        tau_sel, pixel_sel, sample_sel = rows.take(tau, sel), rows.take(pixel, sel), rows.take(sample, sel)
+        tau_sel, ids_sel = rows.take(tau, sel), ids.take(sel)  # (the samples gathered if cut-outs ask for them)
         parts = []
         for (k, _), e_frame, start, stop in zip(segments, e_frames, bounds[:-1], bounds[1:]):
             if stop == start:
@@ -741,7 +739,7 @@ class Shader:
             d = e_sel[rays] if e_frame.strides[0] else np.broadcast_to(e_frame[0], (stop - start, 3))
             parts.append(occluded(self.frames, k, tau_sel[rays], origin[rays], d, self.epsilon[k],
                                   reach[rays] if np.ndim(reach) else reach, cache,
-                                  see_through=self.cutouts(pixel_sel[rays], sample_sel[rays], dimension)))
+                                  see_through=self.cutouts(ids_sel.take(rays), dimension)))
         return joined_frames(parts)
 
     def _incident(self, pl: PreparedLight, k, tau, position, xi1, xi2):
@@ -865,7 +863,7 @@ class Shader:
         return tau_j, x_j, lamp, back, clock_zero, forward
 
     # ------------------------------------------------------------------ mirror and glass
-    def _secondary(self, k, tau, position, ng, ns, d_k, base, mat, back, depth, pixel, sample, lam, cache):
+    def _secondary(self, k, tau, position, ng, ns, d_k, base, mat, back, depth, ids, lam, cache):
         mats = self.materials
         values = np.zeros_like(base)
         active = np.flatnonzero(mats.mirror[mat] | mats.glass[mat])
@@ -883,7 +881,7 @@ class Shader:
         eps = self.epsilon[k]
         reflected = d_a + 2.0 * cos_i[:, None] * n_a
         values[active] += reflect_weight * self._bounce(k, tau[active], position[active] + eps * ng_a, reflected,
-                                                        eps, depth, pixel[active], sample[active], _rows(lam, active),
+                                                        eps, depth, ids.take(active), _rows(lam, active),
                                                         cache, RAY_GLOSSY)
         refr = np.flatnonzero(np.any(transmit_weight > 0.0, axis=1))
         if len(refr):
@@ -894,14 +892,14 @@ class Shader:
             transmitted /= np.linalg.norm(transmitted, axis=1, keepdims=True)
             idx = active[refr]
             values[idx] += transmit_weight[refr] * self._bounce(k, tau[idx], position[idx] - eps * ng_a[refr],
-                                                                transmitted, eps, depth, pixel[idx], sample[idx],
+                                                                transmitted, eps, depth, ids.take(idx),
                                                                 _rows(lam, idx), cache, RAY_TRANSMISSION)
         return values
 
-    def _bounce(self, k, tau, origin, d, eps, depth, pixel, sample, lam, cache, ray: int):
+    def _bounce(self, k, tau, origin, d, eps, depth, ids, lam, cache, ray: int):
         if len(d) == 0:
             return np.zeros((0, self.colour.channels))
-        values, _ = self.radiance(k, tau, origin, d, eps, np.inf, depth + 1, pixel, sample, lam, cache=cache, ray=ray)
+        values, _ = self.radiance(k, tau, origin, d, eps, np.inf, depth + 1, ids, lam, cache=cache, ray=ray)
         return values
 
 

@@ -128,6 +128,7 @@ STAGES = (  # (stage, where it is wrapped, attribute): what each stage of the br
     ("camera rays", sampling, "stratified_offsets"),
     ("camera rays", sampling, "stratified_positions"),  # (render_tile's jitter)
     ("camera rays", sampling, "strata_starts"),
+    ("camera rays", sampling, "block_keys"),  # (render_tile's jitter's hash, kept for the lamps' numbers)
     ("hit bookkeeping", shading, "trace_nearest"),
     ("shadow-ray bookkeeping", shading, "occluded"),
     ("hit geometry", shading, "facing_normals"),

@@ -19,10 +19,12 @@ def literal_rays(rays: CameraRays, u, v):
 
 
 @pytest.mark.parametrize("plane", [None, ((-0.0, 0.0, -0.5), (0.0, 0.0, -0.0), (0.3, -0.2, 0.0)),
-                                   ((-0.0, -1.0, 0.0), (0.0, 0.5, 0.25), (-0.7, 0.0, 0.0))])
+                                   ((-0.0, -1.0, 0.0), (0.0, 0.5, 0.25), (-0.7, 0.0, 0.0)),
+                                   ((-0.5, 1.0, 0.0), (0.9, 0.0, 0.08), (-0.0, 1.0, 0.0))])
 def test_pinhole_rays_are_the_bits_of_the_literal_formula(plane):
     """A camera without roll (zero components in its image plane: the terms left out), a rolled
-    one (none), and planes whose corners are 0 or -0 (where adding a zero could flip a sign)."""
+    one (none), planes whose corners are 0 or -0 (where adding a zero could flip a sign), and
+    one whose width lies along a world axis (a factor of 1 left out)."""
     camera = look_at_camera((0.3, -4.0, 1.2), (0.0, 0.0, 0.4))
     rays = CameraRays(camera, (64, 36))
     if plane is not None:

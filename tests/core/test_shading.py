@@ -7,6 +7,7 @@ import pytest
 from shapes import look_at_camera, quad, rotation_x
 
 from restframe_addon.core.render import render_image
+from restframe_addon.core.sampling import Samples
 from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity
 
 WHITE_LAMBERT = Material("white", base_color=(1.0, 1.0, 1.0), specular_ior_level=0.0, roughness=1.0)
@@ -464,7 +465,7 @@ def test_every_frames_hits_shaded_together_give_each_frames_own_bits(mode):
     sample = np.zeros_like(pixel)
     lam = prepared.colour.camera_wavelengths(pixel, sample)
     hits = shader.trace(camera, *rays, RAY_CAMERA, pixel, sample, 0, TraceCache())
-    values, _ = shader.radiance(camera, *rays, 0, pixel, sample, lam, hits, TraceCache())
+    values, _ = shader.radiance(camera, *rays, 0, Samples(pixel, sample), lam, hits, TraceCache())
     passes = pixel_passes(prepared.frames, scene.light_speed, DEFAULT_PASSES, rays, hits, None, TraceCache())
     frames = frames_hit(hits)
     assert len(frames) == 4  # the floor (at rest with the camera) and the three boxes (one spinning)
@@ -472,8 +473,8 @@ def test_every_frames_hits_shaded_together_give_each_frames_own_bits(mode):
     for k in frames:
         mine = np.flatnonzero(hits.frame == k)
         part = tuple(np.take(a, mine, axis=0) if np.ndim(a) else a for a in rays)
-        alone, _ = shader.radiance(camera, *part, 0, pixel[mine], sample[mine], None if lam is None else lam[mine],
-                                   hits.take(mine), TraceCache())
+        alone, _ = shader.radiance(camera, *part, 0, Samples(pixel[mine], sample[mine]),
+                                   None if lam is None else lam[mine], hits.take(mine), TraceCache())
         assert np.array_equal(values[mine], alone)
         alone_passes = pixel_passes(prepared.frames, scene.light_speed, DEFAULT_PASSES, part, hits.take(mine))
         for name in ("Doppler", "Normal", "IndexOB", "Object Time"):

@@ -10,6 +10,7 @@ from shapes import look_at_camera, quad, uv_sphere
 from restframe_addon.core import spectral
 from restframe_addon.core.prepared import prepare
 from restframe_addon.core.render import render_image
+from restframe_addon.core.sampling import Samples
 from restframe_addon.core.scene import Light, Material, Mesh, RenderSettings, Scene, Velocity
 
 with warnings.catch_warnings():
@@ -104,7 +105,8 @@ def centre_values(renderer):
     pixel = np.array([4])
     tau, x, d, s_lo, s_hi = renderer.rays(np.array([1.5]), np.array([1.5]))
     lam = renderer.colour.camera_wavelengths(pixel, pixel * 0)
-    values, hits = renderer.shader.radiance(renderer.frames.camera, tau, x, d, s_lo, s_hi, 0, pixel, pixel * 0, lam)
+    values, hits = renderer.shader.radiance(renderer.frames.camera, tau, x, d, s_lo, s_hi, 0, Samples(pixel, pixel * 0),
+                                            lam)
     return values[0], lam[0], 1.0 / hits.w[0]
 
 
