@@ -314,6 +314,7 @@ class TraceCache:
         self._boxes: dict[tuple, _Boxes] = {}  # (src, some frames) -> theirs
         self._directions: dict[tuple, tuple] = {}  # (src, k, direction's bytes) -> (mapped direction, s'/s)
         self._hit_tables: dict[int, tuple] = {}  # id(geometry) -> (geometry, its rows for hit_geometry)
+        self._flat: dict[int, tuple] = {}  # id(geometry) -> (geometry, _flat_side of it)
 
     def cones(self, keys: list, compute) -> list:
         """The cones kept under each key; ``compute(missing)`` works out, at once, those of the
@@ -373,6 +374,64 @@ class TraceCache:
                 geometry, tuple(np.stack([corner[:, axis], e1[:, axis], e2[:, axis], normal[:, axis]], axis=1)
                                 for axis in range(3)))
         return kept[1]
+
+
+    def flat_side(self, geometry):
+        """:func:`_flat_side` of ``geometry``, worked out at its first shadow rays."""
+        kept = self._flat.get(id(geometry))
+        if kept is None or kept[0] is not geometry:
+            kept = self._flat[id(geometry)] = (geometry, _flat_side(geometry))
+        return kept[1]
+
+
+def _flat_side(geometry):
+    """(axis, least |normal component|) of a body whose vertices all share one coordinate: the
+    axis, and the smallest size of that component of its triangles' normals as embree works
+    them out (the cross product of float32 edges); None for any other body, or one with a
+    degenerate triangle."""
+    flat = np.flatnonzero(geometry.lo == geometry.hi)
+    if len(flat) == 0:
+        return None
+    axis = int(flat[0])
+    b, c = (axis + 1) % 3, (axis + 2) % 3
+    local = (geometry.vertices - geometry.anchor).astype(np.float32)  # embree's vertices (Geometry.anchor)
+    corners = [local[geometry.triangles[:, i]] for i in range(3)]
+    e1, e2 = corners[1] - corners[0], corners[2] - corners[0]
+    least = float(np.min(np.abs(e1[:, b] * e2[:, c] - e1[:, c] * e2[:, b]))) if len(e1) else 0.0
+    return (axis, least) if least > 0.0 else None
+
+
+_FLAT_CLEAR = 2.0 ** -100  # |normal component| x |ray's start or direction component| at least this (float32 normal numbers)
+
+
+def _leave_flat_body(frame: RestFrame, cache: TraceCache | None, origin, d, s_lo) -> bool:
+    """Whether every ray (frame coordinates, ``s_lo`` >= 0) starts on one side of a flat body's plane
+    and runs away from it, so that embree can find none of its triangles (and need not be asked).
+
+    Every vertex of such a body is at the anchor's coordinate, so its float32 coordinate there is
+    exactly 0 and so is that component of every edge: the triangles' normals (the cross product of
+    two edges) are exactly 0 in the other two components, and the signed distance and the
+    denominator of embree's ray-triangle test are single products of the normal's one component
+    with the ray's float32 start and direction there.  With both of one sign and not tiny
+    (``_FLAT_CLEAR``), the hit's path length is negative: no hit, whatever the rounding.  The
+    start a query rounds is the origin less the anchor (less the frame's offset first) plus
+    ``enter d`` with enter >= s_lo >= 0; rounding is monotonic, so the least (greatest) start
+    is that of the least (greatest) origin.
+    """
+    if cache is None or frame.spin is not None or len(d) == 0:
+        return False
+    flat = cache.flat_side(frame.geometry)
+    if flat is None or not float(s_lo[0] if _one_row(s_lo) else s_lo.min()) >= 0.0:
+        return False
+    axis, least = flat
+    clear = max(_FLAT_CLEAR / least, 2.0 ** -120)  # (and a start or direction float32 rounds to a normal number)
+    direction, start = d[:, axis], origin[:, axis]
+    offset, plane = float(frame.offset[axis]), float(frame.geometry.anchor[axis])
+    if float(direction[0] if _one_row(d) else direction.min()) >= clear:
+        return (float(start.min()) - offset) - plane >= clear
+    if float(direction[0] if _one_row(d) else direction.max()) <= -clear:
+        return (float(start.max()) - offset) - plane <= -clear
+    return False
 
 
 def _direction_in(frames: FrameSet, src: int, k: int, direction) -> tuple:
@@ -991,6 +1050,8 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         if w is not None:  # (w = 1 leaves the path lengths as they are)
             lo, hi = lo * w, hi * w
         lo, hi = _ray_range(frame, tau_k, origin, dk, lo, hi)
+        if fmap.is_identity and _leave_flat_body(frame, cache, origin, dk, lo):  # (a floor under its own shadow rays)
+            continue
         hit = _query(frame, tau_k, origin, dk, lo, hi, occlusion=True)
         if not hit.any():
             continue

@@ -112,3 +112,58 @@ def test_a_kept_sun_direction_is_the_caches_own_array():
         assert direction.flags.writeable and d_k is not direction and not d_k.flags.writeable
         assert d_k.tobytes() == want[0].tobytes() and w == want[1]
         assert cache.direction_in(frame_set, frame_set.world, k, direction)[0] is d_k  # kept
+
+
+class _CountingScene:
+    """Stands in for a geometry's embree scene, counting the rays it is asked about."""
+
+    def __init__(self, scene):
+        self.scene, self.rays = scene, 0
+
+    def run(self, origins, directions, **kwargs):
+        self.rays += len(origins)
+        return self.scene.run(origins, directions, **kwargs)
+
+
+@pytest.mark.parametrize("axis, plane, side", [(2, 0.0, 1.0), (2, 0.0, -1.0), (0, 2.5, 1.0), (1, -30.0, -1.0)])
+def test_shadow_rays_leaving_a_flat_body_ask_embree_nothing_and_none_is_blocked(monkeypatch, axis, plane, side):
+    """Rays that start on one side of a flat body (every vertex at one coordinate) and run away
+    from it cannot meet it (tracer._leave_flat_body): embree is not asked, and asked anyway it
+    finds nothing, for starts from far off down to an ulp of the plane (1e-30 where the plane is
+    at 0) and directions down to grazing ones.  One ray on the plane, or toward it, and the
+    bundle is asked as before."""
+    centre = np.zeros(3)
+    centre[axis] = plane
+    mesh = Mesh("floor", *quad(centre, (4.0, 6.0), normal_axis=axis))
+    frame_set = build_frames(Scene(camera=look_at_camera((0.0, -8.0, 5.0), (0.0, 0.0, 0.0)), meshes=[mesh]))
+    frame = frame_set.frames[frame_set.geometry[0]]
+    rng = np.random.default_rng(11)
+    n = 4000
+    x0 = rng.uniform(-1.5, 1.5, (n, 3))
+    height = np.maximum(10.0 ** rng.uniform(-30.0, 0.5, n), 4 * np.spacing(abs(plane)))
+    x0[:, axis] = plane + side * height
+    d = rng.normal(size=(n, 3))
+    d[:, axis] = side * 10.0 ** rng.uniform(-6.0, 0.0, n)
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    tau0 = rng.uniform(-1.0, 1.0, n)
+    counting = _CountingScene(frame.geometry.embree)
+    monkeypatch.setattr(frame.geometry, "embree", counting)
+    s_lo, s_hi = np.zeros(n), np.full(n, np.inf)
+    assert not tracer._query(frame, tau0, x0, d, s_lo, s_hi, occlusion=True).any()  # embree's own answer
+    asked = counting.rays
+    assert not tracer.occluded(frame_set, frame.index, tau0, x0, d, 0.0, np.inf, tracer.TraceCache()).any()
+    assert counting.rays == asked  # not asked again
+    x0[0, axis] = plane  # one ray on the plane, one straight toward it (and blocked)
+    d[1] = 0.0
+    d[1, axis] = -side
+    blocked = tracer.occluded(frame_set, frame.index, tau0, x0, d, 0.0, np.inf, tracer.TraceCache())
+    assert counting.rays > asked and blocked[1] and not blocked[2:].any()
+    assert np.array_equal(blocked, tracer.occluded(frame_set, frame.index, tau0, x0, d, 0.0, np.inf))
+
+
+def test_only_flat_bodies_have_a_flat_side():
+    """The box is not flat; the floor is, across its normal's axis."""
+    frame_set = frames()
+    sides = [tracer._flat_side(frame_set.frames[k].geometry) for k in frame_set.geometry]
+    assert sorted(side is None for side in sides) == [False, True]
+    assert next(side for side in sides if side is not None)[0] == 2
