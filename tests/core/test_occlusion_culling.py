@@ -172,8 +172,8 @@ def test_only_flat_bodies_have_a_flat_side():
 @pytest.mark.parametrize("s_hi", [12.0, np.inf])
 def test_blocks_of_shadow_rays_dropped_whole_hold_no_ray_the_per_ray_test_keeps(monkeypatch, s_hi):
     """``_near_body`` tests blocks of consecutive rays first (``_blocks_near``): the mask must be the
-    per-ray test's, ray for ray, for blocks far off (dropped), passing the box, grazing it, with
-    a NaN start (its block kept), and a ray with a component of e = d + v that is 0."""
+    per-ray test's, ray for ray, for blocks far off (dropped), passing the box, grazing it, of
+    widely spread speeds, with a NaN start (its block kept), and a ray with a component of e = d + v that is 0."""
     frame_set = frames()
     k = next(k for k in frame_set.geometry if k != frame_set.world)
     block = tracer._NEAR_BLOCK
@@ -197,6 +197,11 @@ def test_blocks_of_shadow_rays_dropped_whole_hold_no_ray_the_per_ray_test_keeps(
     s_star = 10.0 ** rng.uniform(3.0, 5.0, block)
     target = CENTRE + np.outer(tau0 - s_star, VELOCITY) + rng.uniform(-0.5, 0.5, (block, 3)) * SIZE
     parts[2] = (tau0, target - s_star[:, None] * d, d)
+    tau0, x0, d = parts[8]  # block 8: rays of widely spread speeds against the box, each of one sign
+    d = -VELOCITY + rng.uniform(0.2, 1.2, (block, 3)) * (1.0, -1.0, 1.0)
+    s_star = rng.uniform(5.0, 8.0, block)
+    target = CENTRE + np.outer(tau0 - s_star, VELOCITY) + rng.uniform(-0.5, 0.5, (block, 3)) * SIZE
+    parts[8] = (tau0, target - s_star[:, None] * d, d)
     tau0, x0, d = (np.concatenate([p[j] for p in parts]) for j in range(3))
     tau0, x0, d = tau0[:-100], x0[:-100], d[:-100]  # and rays past the last whole block
     x0[3 * block + 5] = np.nan
@@ -213,6 +218,6 @@ def test_blocks_of_shadow_rays_dropped_whole_hold_no_ray_the_per_ray_test_keeps(
     assert tested[0] is not None and len(tested[0]) < 0.5 * len(d)  # blocks were dropped
     assert near[3 * block + 5] and near.sum() > 0.2 * block
     assert set(np.flatnonzero(near)) <= set(tested[0])
-    assert {2, 3, 6} <= {int(i) // block for i in tested[0]} and len(tested[0]) < 7 * block  # (3: the NaN's)
+    assert {2, 3, 6, 8} <= {int(i) // block for i in tested[0]} and len(tested[0]) < 7 * block  # (3: the NaN's)
     assert 0.1 * block < near[6 * block:7 * block].sum() < 0.9 * block
     assert near[2 * block:3 * block].all() == np.isinf(s_hi[0])  # (they pass it at s > 1000)
