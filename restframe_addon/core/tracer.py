@@ -314,6 +314,7 @@ class TraceCache:
         self._boxes: dict[tuple, _Boxes] = {}  # (src, some frames) -> theirs
         self._directions: dict[tuple, tuple] = {}  # (src, k, direction's bytes) -> (mapped direction, s'/s)
         self._hit_tables: dict[int, tuple] = {}  # id(geometry) -> (geometry, its rows for hit_geometry)
+        self._flat: dict[int, tuple] = {}  # id(geometry) -> (geometry, _flat_side of it)
 
     def cones(self, keys: list, compute) -> list:
         """The cones kept under each key; ``compute(missing)`` works out, at once, those of the
@@ -373,6 +374,64 @@ class TraceCache:
                 geometry, tuple(np.stack([corner[:, axis], e1[:, axis], e2[:, axis], normal[:, axis]], axis=1)
                                 for axis in range(3)))
         return kept[1]
+
+
+    def flat_side(self, geometry):
+        """:func:`_flat_side` of ``geometry``, worked out at its first shadow rays."""
+        kept = self._flat.get(id(geometry))
+        if kept is None or kept[0] is not geometry:
+            kept = self._flat[id(geometry)] = (geometry, _flat_side(geometry))
+        return kept[1]
+
+
+def _flat_side(geometry):
+    """(axis, least |normal component|) of a body whose vertices all share one coordinate: the
+    axis, and the smallest size of that component of its triangles' normals as embree works
+    them out (the cross product of float32 edges); None for any other body, or one with a
+    degenerate triangle."""
+    flat = np.flatnonzero(geometry.lo == geometry.hi)
+    if len(flat) == 0:
+        return None
+    axis = int(flat[0])
+    b, c = (axis + 1) % 3, (axis + 2) % 3
+    local = (geometry.vertices - geometry.anchor).astype(np.float32)  # embree's vertices (Geometry.anchor)
+    corners = [local[geometry.triangles[:, i]] for i in range(3)]
+    e1, e2 = corners[1] - corners[0], corners[2] - corners[0]
+    least = float(np.min(np.abs(e1[:, b] * e2[:, c] - e1[:, c] * e2[:, b]))) if len(e1) else 0.0
+    return (axis, least) if least > 0.0 else None
+
+
+_FLAT_CLEAR = 2.0 ** -100  # |normal component| x |ray's start or direction component| at least this (float32 normal numbers)
+
+
+def _leave_flat_body(frame: RestFrame, cache: TraceCache | None, origin, d, s_lo) -> bool:
+    """Whether every ray (frame coordinates, ``s_lo`` >= 0) starts on one side of a flat body's plane
+    and runs away from it, so that embree can find none of its triangles (and need not be asked).
+
+    Every vertex of such a body is at the anchor's coordinate, so its float32 coordinate there is
+    exactly 0 and so is that component of every edge: the triangles' normals (the cross product of
+    two edges) are exactly 0 in the other two components, and the signed distance and the
+    denominator of embree's ray-triangle test are single products of the normal's one component
+    with the ray's float32 start and direction there.  With both of one sign and not tiny
+    (``_FLAT_CLEAR``), the hit's path length is negative: no hit, whatever the rounding.  The
+    start a query rounds is the origin less the anchor (less the frame's offset first) plus
+    ``enter d`` with enter >= s_lo >= 0; rounding is monotonic, so the least (greatest) start
+    is that of the least (greatest) origin.
+    """
+    if cache is None or frame.spin is not None or len(d) == 0:
+        return False
+    flat = cache.flat_side(frame.geometry)
+    if flat is None or not float(s_lo[0] if _one_row(s_lo) else s_lo.min()) >= 0.0:
+        return False
+    axis, least = flat
+    clear = max(_FLAT_CLEAR / least, 2.0 ** -120)  # (and a start or direction float32 rounds to a normal number)
+    direction, start = d[:, axis], origin[:, axis]
+    offset, plane = float(frame.offset[axis]), float(frame.geometry.anchor[axis])
+    if float(direction[0] if _one_row(d) else direction.min()) >= clear:
+        return (float(start.min()) - offset) - plane >= clear
+    if float(direction[0] if _one_row(d) else direction.max()) <= -clear:
+        return (float(start.max()) - offset) - plane <= -clear
+    return False
 
 
 def _direction_in(frames: FrameSet, src: int, k: int, direction) -> tuple:
@@ -1030,6 +1089,8 @@ def occluded(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         if w is not None:  # (w = 1 leaves the path lengths as they are)
             lo, hi = lo * w, hi * w
         lo, hi = _ray_range(frame, tau_k, origin, dk, lo, hi)
+        if fmap.is_identity and _leave_flat_body(frame, cache, origin, dk, lo):  # (a floor under its own shadow rays)
+            continue
         hit = _query(frame, tau_k, origin, dk, lo, hi, occlusion=True)
         if not hit.any():
             continue
@@ -1059,34 +1120,99 @@ def _near_body(frames: FrameSet, src: int, k: int, cache, extent, tau0, x0, d, s
     ``extent`` = (largest |coordinate| of the rays' x0, largest |tau0|), or of a bundle they are from.
 
     Relative to the box's centre, moving with velocity v, the ray's event at path length s is
-    at ``x0 - X(tau0) + s (d + v)``: a slab test per ray.  Rays it rejects cannot meet the
-    frame's bounds either (their query would find nothing), so no ray's result changes.
+    at ``x0 - X(tau0) + s (d + v)``: a slab test per ray (:func:`_slabs_hold`), after one per block
+    of rays (:func:`_blocks_near`).  Rays it rejects cannot meet the frame's bounds either (their
+    query would find nothing), so no ray's result changes.
     """
     n = len(d)
     if n == 0:
         return np.zeros(0, dtype=bool)
     t_box, x_box, velocity, widen = _body_box(frames, src, k, cache, extent)
     since = None
-    enter, leave, offset, e, t_a, t_b, near = (np.empty(n) for _ in range(7))
+    offsets, speeds = [], []  # per axis: x0 - X(tau0) and e = d + v
+    for axis in range(3):
+        v = float(velocity[axis])
+        offset, e = np.empty(n), np.empty(n)
+        if v == 0.0:  # (x + 0 * since = x; d + 0 turns -0 into +0, which decides only rays that stay
+            # at a constant coordinate outside the slab: they miss the box either way)
+            np.subtract(x0[:, axis], x_box[axis], out=offset)
+            np.copyto(e, d[:, axis])  # (contiguous: numpy divides by it 2.5x faster than by a strided column)
+        else:
+            since = tau0 - t_box if since is None else since
+            np.multiply(since, v, out=offset)  # the box centre's displacement at the ray's start
+            offset += x_box[axis]
+            np.subtract(x0[:, axis], offset, out=offset)
+            np.add(d[:, axis], v, out=e)
+        offsets.append(offset)
+        speeds.append(e)
+    rays = _blocks_near(offsets, speeds, widen, s_lo, s_hi)
+    if rays is None:
+        return _slabs_hold(offsets, speeds, widen, s_lo, s_hi)
+    near = np.zeros(n, dtype=bool)
+    if len(rays):
+        near[rays] = _slabs_hold([a[rays] for a in offsets], [a[rays] for a in speeds], widen,
+                                 s_lo[:len(rays)] if _one_row(s_lo) else s_lo[rays],
+                                 s_hi[:len(rays)] if _one_row(s_hi) else s_hi[rays])
+    return near
+
+
+def _slabs_hold(offsets, speeds, widen, s_lo, s_hi) -> np.ndarray:
+    """Whether each ray ``offset + s e`` (per axis), ``s_lo <= s <= s_hi``, passes through the box
+    [-widen, widen] (:func:`_near_body`): a mask."""
+    n = len(s_lo)
+    enter, leave, t_a, t_b, near = (np.empty(n) for _ in range(5))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        for axis in range(3):
-            v = float(velocity[axis])
-            if v == 0.0:  # (x + 0 * since = x; d + 0 turns -0 into +0, which decides only rays that stay
-                # at a constant coordinate outside the slab: they miss the box either way)
-                np.subtract(x0[:, axis], x_box[axis], out=offset)
-                np.copyto(e, d[:, axis])  # (contiguous: numpy divides by it 2.5x faster than by a strided column)
-            else:
-                since = tau0 - t_box if since is None else since
-                np.multiply(since, v, out=offset)  # the box centre's displacement at the ray's start
-                offset += x_box[axis]
-                np.subtract(x0[:, axis], offset, out=offset)
-                np.add(d[:, axis], v, out=e)
+        for axis, (offset, e) in enumerate(zip(offsets, speeds)):
             np.divide(np.subtract(-widen[axis], offset, out=t_a), e, out=t_a)
             np.divide(np.subtract(widen[axis], offset, out=t_b), e, out=t_b)
             # fmin/fmax ignore the NaN of 0 / 0 (a ray along a slab face)
             np.fmax(s_lo if axis == 0 else enter, np.fmin(t_a, t_b, out=near), out=enter)
             np.fmin(s_hi if axis == 0 else leave, np.fmax(t_a, t_b, out=near), out=leave)
     return enter <= leave
+
+
+_NEAR_BLOCK = 2048  # consecutive shadow rays (hits of a run of pixels) tested as one by _blocks_near
+_NEAR_SHARE = 0.5  # the share of kept rays above which _near_body tests every ray (no gathers)
+
+
+def _blocks_near(offsets, speeds, widen, s_lo, s_hi):
+    """Indices (increasing) of the rays of :func:`_near_body` whose block of ``_NEAR_BLOCK``
+    consecutive rays may pass through the box, and of the rays past the last whole block; None
+    for every ray (most are kept).
+
+    A block's slab test takes the least and greatest offset and e of its rays per axis: the
+    rays' slab path lengths ``(+-widen - offset) / e`` are each monotonic in offset and, for one
+    sign of e, in e, and so is their rounding, so every ray's lie between the values at the
+    block's corners (unless e may be 0 there: any path length); the block's path range is the
+    bundle's.  A block it drops holds no ray :func:`_slabs_hold` keeps (a NaN keeps its block).
+    """
+    n = len(s_lo)
+    count = n // _NEAR_BLOCK
+    if count < 2:
+        return None
+    whole = count * _NEAR_BLOCK
+    enter = np.full(count, float(s_lo[0] if _one_row(s_lo) else s_lo.min()))
+    leave = np.full(count, float(s_hi[0] if _one_row(s_hi) else s_hi.max()))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for axis, (offset, e) in enumerate(zip(offsets, speeds)):
+            blocks_offset, blocks_e = offset[:whole].reshape(count, -1), e[:whole].reshape(count, -1)
+            o_lo, o_hi, e_lo, e_hi = blocks_offset.min(1), blocks_offset.max(1), blocks_e.min(1), blocks_e.max(1)
+            ends = [np.subtract(bound, o, out=np.empty(count)) for bound in (-widen[axis], widen[axis])
+                    for o in (o_lo, o_hi)]
+            ends = [np.divide(end, speed) for end in ends for speed in (e_lo, e_hi)]
+            near, far = ends[0], ends[0].copy()
+            for end in ends[1:]:
+                np.minimum(near, end, out=near)
+                np.maximum(far, end, out=far)
+            either_way = (e_lo <= 0.0) & (e_hi >= 0.0)  # e may be 0 there: any path length
+            near[either_way], far[either_way] = -np.inf, np.inf
+            np.maximum(enter, near, out=enter)
+            np.minimum(leave, far, out=leave)
+    kept = np.flatnonzero(~(enter > leave))  # (NaN: kept)
+    if len(kept) * _NEAR_BLOCK > _NEAR_SHARE * n:
+        return None
+    rays = (kept[:, None] * _NEAR_BLOCK + np.arange(_NEAR_BLOCK)).ravel()
+    return np.append(rays, np.arange(whole, n)) if whole < n else rays
 
 
 def _body_box(frames: FrameSet, src: int, k: int, cache, extent):
