@@ -365,14 +365,17 @@ class TraceCache:
 
     def hit_table(self, geometry) -> tuple:
         """:func:`hit_geometry`'s rows of every triangle of ``geometry``, one (triangles, 4) table per
-        axis (first corner, the two edges, the unit normal), made at its first lit hit."""
+        axis (first corner, the two edges, the unit normal), and the one unit normal (1, 3) of all
+        its triangles where they have one (a flat mesh: its hits share it), else None; made at its
+        first lit hit."""
         kept = self._hit_tables.get(id(geometry))
         if kept is None or kept[0] is not geometry:
             corner, e1, e2, normal = _triangle_rows(geometry, np.arange(len(geometry.triangles)))
-            kept = self._hit_tables[id(geometry)] = (
-                geometry, tuple(np.stack([corner[:, axis], e1[:, axis], e2[:, axis], normal[:, axis]], axis=1)
-                                for axis in range(3)))
-        return kept[1]
+            tables = tuple(np.stack([corner[:, axis], e1[:, axis], e2[:, axis], normal[:, axis]], axis=1)
+                           for axis in range(3))
+            one = normal[:1] if len(normal) and (normal == normal[:1]).all() else None
+            kept = self._hit_tables[id(geometry)] = (geometry, tables, one)
+        return kept[1:]
 
 
 def _direction_in(frames: FrameSet, src: int, k: int, direction) -> tuple:
@@ -1257,7 +1260,8 @@ def _triangle_rows(geometry, prim):
 def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | None = None):
     """Float64 position, unit geometric normal and unit shading normal at hits of one frame
     (frame coordinates; ``tau``, the hits' frame times, poses a spinning body): new arrays, the
-    caller's to write into (the two normals are one array where the mesh has no corner normals).
+    caller's to write into (the two normals are one array where the mesh has no corner normals),
+    but for a flat mesh's normal (with ``cache``, not spinning): one read-only broadcast row.
     ``cache``: the calling thread's, which keeps the rows of small meshes' triangles."""
     geometry = frame.geometry
     # p0 + u e1 + v e2 one axis at a time in a contiguous column, written once into its column of
@@ -1268,8 +1272,11 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
     n, spins = len(prim), frame.spin is not None
     position, column, term = np.empty((n, 3)), np.empty(n), np.empty(n)
     if cache is not None and len(geometry.triangles) <= _HIT_TABLE_TRIANGLES:  # a gather per axis
-        tables, ng = cache.hit_table(geometry), np.empty((n, 3))
-        axes = (np.take(table, prim, axis=0).T for table in tables)  # (p0, e1, e2, normal) of one axis
+        tables, one = cache.hit_table(geometry)
+        # a flat mesh's one normal (not spun) for all its hits: a read-only broadcast row
+        ng = rows.broadcast(one, n) if one is not None and not spins else np.empty((n, 3))
+        axes = ((p0, e1, e2, None if one is not None and not spins else normal)
+                for p0, e1, e2, normal in (np.take(table, prim, axis=0).T for table in tables))
     else:
         p0, p1, p2, ng = _triangle_rows(geometry, prim)
         axes = [(p0[:, axis], p1[:, axis], p2[:, axis], None) for axis in range(3)]

@@ -420,6 +420,35 @@ def test_hit_geometry_from_a_threads_triangle_rows_is_bit_for_bit_the_per_hit_ge
         assert len(cache._hit_tables) == 1
 
 
+def test_a_flat_meshs_hits_share_its_one_normal_as_a_broadcast_row_turned_as_the_per_hit_normals():
+    """A thread's cache finds that a flat mesh's triangles have one normal: its hits get it as one
+    read-only broadcast row (the same bits as the per-hit normals), which stays one row when the
+    hits are all in front or all behind and becomes the per-hit turned rows when they are on both
+    sides; a curved mesh's normals stay per hit."""
+    from restframe_addon.core import passes, rows
+
+    vertices, triangles = grid()
+    rng = np.random.default_rng(4)
+    prim = rng.integers(0, len(triangles), 3000)
+    u, v = (rng.random(len(prim), dtype=np.float32) * 0.5 for _ in range(2))
+    frame = build_frames(grid_scene((vertices, triangles))).frames[0]
+    per_hit = tracer.hit_geometry(frame, prim, u, v)
+    kept = tracer.hit_geometry(frame, prim, u, v, cache=tracer.TraceCache())
+    assert rows.is_broadcast(kept[1]) and kept[2] is kept[1] and not per_hit[1].strides[0] == 0
+    for a, b in zip(per_hit, kept):
+        np.testing.assert_array_equal(a, b)
+    d = rng.normal(size=(len(prim), 3))
+    for sides in (-np.abs(d[:, 2:]), np.abs(d[:, 2:]), d[:, 2:]):  # front, back, both
+        d_k = np.hstack([d[:, :2], sides])
+        expected = passes._turned_to_viewer(per_hit[1].copy(), per_hit[1].copy(), d_k)
+        turned = passes._turned_to_viewer(kept[1], kept[1], d_k)
+        assert turned[1] is turned[0] and rows.is_broadcast(turned[0]) == (len(np.unique(turned[2])) == 1)
+        for a, b in zip(expected, turned):
+            np.testing.assert_array_equal(a, b)
+    sphere = build_frames(grid_scene(shuffled_sphere())).frames[0]
+    assert not rows.is_broadcast(tracer.hit_geometry(sphere, prim % 50, u, v, cache=tracer.TraceCache())[1])
+
+
 def test_padded_vertices_are_the_float64_offsets_rounded_once_in_embrees_layout():
     vertices = np.random.default_rng(3).normal(size=(1001, 3)) * 1e3
     anchor = np.array([0.1, -2.5, 7.0])
