@@ -729,7 +729,10 @@ class Shader:
         # each frame's surface offset a row of its rays (the same products as by the one number)
         eps = np.array([self.epsilon[k] for k, _ in segments])
         eps_rays = eps[0] if len(segments) == 1 else np.repeat(eps, np.diff(bounds))
-        origin = np.multiply(rows.take(ng, sel), eps_rays if np.ndim(eps_rays) == 0 else eps_rays[:, None])
+        if rows.is_broadcast(ng) and np.ndim(eps_rays) == 0:  # a flat mesh's one normal: one offset row
+            origin = rows.filled(ng[0] * eps_rays, len(e_sel))
+        else:
+            origin = np.multiply(rows.take(ng, sel), eps_rays if np.ndim(eps_rays) == 0 else eps_rays[:, None])
         origin += rows.take(position, sel)
         reach = rows.take(s_max, sel) - 2.0 * eps_rays if np.ndim(s_max) else s_max  # sunlight: unbounded
         tau_sel, pixel_sel, sample_sel = rows.take(tau, sel), rows.take(pixel, sel), rows.take(sample, sel)
