@@ -449,6 +449,27 @@ def test_a_flat_meshs_hits_share_its_one_normal_as_a_broadcast_row_turned_as_the
     assert not rows.is_broadcast(tracer.hit_geometry(sphere, prim % 50, u, v, cache=tracer.TraceCache())[1])
 
 
+def test_hit_uvs_from_a_threads_uv_tables_are_bit_for_bit_the_per_hit_uvs():
+    """A thread's cache keeps a small mesh's corner UVs as 1-D tables (one gather per corner and
+    component into contiguous columns): the same bits as interpolating the gathered corner rows,
+    for float32 (the tracer's) and float64 barycentrics; one table per mesh, made once."""
+    from restframe_addon.core.shading import hit_uv
+
+    vertices, triangles = shuffled_sphere()
+    rng = np.random.default_rng(6)
+    corner_uvs = rng.random((len(triangles), 3, 2)) * 3.0 - 1.0
+    frame = build_frames(grid_scene((vertices, triangles), corner_uvs=corner_uvs)).frames[0]
+    prim = rng.integers(0, len(triangles), 4000).astype(np.int32)
+    cache = tracer.TraceCache()
+    for dtype in (np.float32, np.float64):
+        u, v = (rng.random(len(prim)).astype(dtype) * 0.5 for _ in range(2))
+        kept = hit_uv(frame, prim, u, v, cache)
+        np.testing.assert_array_equal(kept, hit_uv(frame, prim, u, v))
+        assert kept.dtype == np.float64 and kept[:, 0].flags.c_contiguous
+    assert len(cache._uv_tables) == 1
+    assert hit_uv(build_frames(grid_scene((vertices, triangles))).frames[0], prim, u, v, cache) is None
+
+
 def test_padded_vertices_are_the_float64_offsets_rounded_once_in_embrees_layout():
     vertices = np.random.default_rng(3).normal(size=(1001, 3)) * 1e3
     anchor = np.array([0.1, -2.5, 7.0])
