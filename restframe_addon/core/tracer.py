@@ -365,19 +365,19 @@ class TraceCache:
         return kept
 
     def hit_table(self, geometry) -> tuple:
-        """:func:`hit_geometry`'s rows of every triangle of ``geometry``, one (triangles, 4) table per
-        axis (first corner, the two edges, the unit normal), and the one unit normal (1, 3) of all
-        its triangles where they have one (a flat mesh: its hits share it), else None; made at its
+        """:func:`hit_geometry`'s numbers of every triangle of ``geometry``: per axis, contiguous
+        (triangles,) tables of the first corner and the two edges (1-D gathers into contiguous
+        columns: the gathered rows of all four were read with a 32-byte stride, twice as slow),
+        the unit normals (triangles, 3) (one row gather), and the one unit normal (1, 3) of all its
+        triangles where they have one (a flat mesh: its hits share it), else None; made at its
         first lit hit."""
         kept = self._hit_tables.get(id(geometry))
         if kept is None or kept[0] is not geometry:
             corner, e1, e2, normal = _triangle_rows(geometry, np.arange(len(geometry.triangles)))
-            tables = tuple(np.stack([corner[:, axis], e1[:, axis], e2[:, axis], normal[:, axis]], axis=1)
-                           for axis in range(3))
+            columns = tuple(tuple(np.ascontiguousarray(a[:, axis]) for a in (corner, e1, e2)) for axis in range(3))
             one = normal[:1] if len(normal) and (normal == normal[:1]).all() else None
-            kept = self._hit_tables[id(geometry)] = (geometry, tables, one)
+            kept = self._hit_tables[id(geometry)] = (geometry, columns, normal, one)
         return kept[1:]
-
 
     def uv_table(self, geometry) -> tuple | None:
         """``shading.hit_uv``'s UVs of every triangle of a small mesh ``geometry`` (at most
@@ -1287,24 +1287,24 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
     v = np.asarray(v, dtype=np.float64)
     n, spins = len(prim), frame.spin is not None
     position, column, term = np.empty((n, 3)), np.empty(n), np.empty(n)
-    if cache is not None and len(geometry.triangles) <= _HIT_TABLE_TRIANGLES:  # a gather per axis
-        tables, one = cache.hit_table(geometry)
+    if cache is not None and len(geometry.triangles) <= _HIT_TABLE_TRIANGLES:  # 1-D gathers per axis
+        tables, normals, one = cache.hit_table(geometry)
+        index = np.asarray(prim, dtype=np.intp)  # (converted once, not by each gather)
         # a flat mesh's one normal (not spun) for all its hits: a read-only broadcast row
-        ng = rows.broadcast(one, n) if one is not None and not spins else np.empty((n, 3))
-        axes = ((p0, e1, e2, None if one is not None and not spins else normal)
-                for p0, e1, e2, normal in (np.take(table, prim, axis=0).T for table in tables))
+        ng = rows.broadcast(one, n) if one is not None and not spins else np.take(normals, index, axis=0, mode="clip")
+        gathered = np.empty((3, n))
+        axes = ([np.take(table, index, out=out, mode="clip") for table, out in zip(axis_tables, gathered)]
+                for axis_tables in tables)  # (in range: clip only skips the check)
     else:
         p0, p1, p2, ng = _triangle_rows(geometry, prim)
-        axes = [(p0[:, axis], p1[:, axis], p2[:, axis], None) for axis in range(3)]
-    for axis, (p0, e1, e2, normal) in enumerate(axes):
+        axes = [(p0[:, axis], p1[:, axis], p2[:, axis]) for axis in range(3)]
+    for axis, (p0, e1, e2) in enumerate(axes):
         np.multiply(u, e1, out=column)
         column += p0
         column += np.multiply(v, e2, out=term)
         if not spins:
             column += frame.offset[axis]
         position[:, axis] = column
-        if normal is not None:
-            ng[:, axis] = normal
     if geometry.corner_normals is None:
         ns = ng
     else:
