@@ -368,15 +368,19 @@ class TraceCache:
         """:func:`hit_geometry`'s numbers of every triangle of ``geometry``: per axis, contiguous
         (triangles,) tables of the first corner and the two edges (1-D gathers into contiguous
         columns: the gathered rows of all four were read with a 32-byte stride, twice as slow),
-        the unit normals (triangles, 3) (one row gather), and the one unit normal (1, 3) of all its
-        triangles where they have one (a flat mesh: its hits share it), else None; made at its
-        first lit hit."""
+        the unit normals (triangles, 3) (one row gather), the one unit normal (1, 3) of all its
+        triangles where they have one (a flat mesh: its hits share it), else None, and per axis
+        the three corners' normals (triangles,) of a smooth mesh (else None); made at its first
+        lit hit."""
         kept = self._hit_tables.get(id(geometry))
         if kept is None or kept[0] is not geometry:
             corner, e1, e2, normal = _triangle_rows(geometry, np.arange(len(geometry.triangles)))
             columns = tuple(tuple(np.ascontiguousarray(a[:, axis]) for a in (corner, e1, e2)) for axis in range(3))
             one = normal[:1] if len(normal) and (normal == normal[:1]).all() else None
-            kept = self._hit_tables[id(geometry)] = (geometry, columns, normal, one)
+            smooth = geometry.corner_normals
+            corners = None if smooth is None else tuple(
+                tuple(np.ascontiguousarray(smooth[:, k, axis]) for k in range(3)) for axis in range(3))
+            kept = self._hit_tables[id(geometry)] = (geometry, columns, normal, one, corners)
         return kept[1:]
 
     def uv_table(self, geometry) -> tuple | None:
@@ -1288,16 +1292,20 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
     n, spins = len(prim), frame.spin is not None
     position, column, term = np.empty((n, 3)), np.empty(n), np.empty(n)
     if cache is not None and len(geometry.triangles) <= _HIT_TABLE_TRIANGLES:  # 1-D gathers per axis
-        tables, normals, one = cache.hit_table(geometry)
+        tables, normals, one, corner_tables = cache.hit_table(geometry)
         index = np.asarray(prim, dtype=np.intp)  # (converted once, not by each gather)
         # a flat mesh's one normal (not spun) for all its hits: a read-only broadcast row
         ng = rows.broadcast(one, n) if one is not None and not spins else np.take(normals, index, axis=0, mode="clip")
         gathered = np.empty((3, n))
-        axes = ([np.take(table, index, out=out, mode="clip") for table, out in zip(axis_tables, gathered)]
-                for axis_tables in tables)  # (in range: clip only skips the check)
+        gather = lambda tables: ([np.take(table, index, out=out, mode="clip") for table, out in zip(axis_tables, gathered)]
+                                 for axis_tables in tables)  # (in range: clip only skips the check)
+        axes = gather(tables)
+        corners = None if corner_tables is None else gather(corner_tables)
     else:
         p0, p1, p2, ng = _triangle_rows(geometry, prim)
         axes = [(p0[:, axis], p1[:, axis], p2[:, axis]) for axis in range(3)]
+        cn = None if geometry.corner_normals is None else rows.take(geometry.corner_normals, prim)
+        corners = None if cn is None else [(cn[:, 0, axis], cn[:, 1, axis], cn[:, 2, axis]) for axis in range(3)]
     for axis, (p0, e1, e2) in enumerate(axes):
         np.multiply(u, e1, out=column)
         column += p0
@@ -1305,11 +1313,16 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
         if not spins:
             column += frame.offset[axis]
         position[:, axis] = column
-    if geometry.corner_normals is None:
+    if corners is None:
         ns = ng
-    else:
-        cn = rows.take(geometry.corner_normals, prim)
-        ns = rows.normalized(rows.add_scaled(rows.add_scaled(rows.scale(cn[:, 0], 1.0 - u - v), u, cn[:, 1]), v, cn[:, 2]))
+    else:  # the corners' normals weighted by (1 - u - v, u, v), axis by axis as the position
+        first, ns = 1.0 - u - v, np.empty((n, 3))
+        for axis, (n0, n1, n2) in enumerate(corners):
+            np.multiply(n0, first, out=column)
+            column += np.multiply(u, n1, out=term)
+            column += np.multiply(v, n2, out=term)
+            ns[:, axis] = column
+        ns = rows.normalized(ns)
     if spins:
         position, ng = frame.to_frame(position, ng, tau)
         _, ns = frame.to_frame(position, ns, tau)

@@ -10,7 +10,7 @@ from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 from shapes import look_at_camera, uv_sphere
 
-from restframe_addon.core import embree_direct, frames, tracer
+from restframe_addon.core import embree_direct, frames, rows, tracer
 from restframe_addon.core.frames import build_frames
 from restframe_addon.core.motion import Trajectory
 from restframe_addon.core.scene import Mesh, Scene, Velocity
@@ -412,6 +412,10 @@ def test_hit_geometry_from_a_threads_triangle_rows_is_bit_for_bit_the_per_hit_ge
         frame = build_frames(grid_scene((vertices, triangles), **options)).frames[0]
         cache = tracer.TraceCache()
         per_hit = tracer.hit_geometry(frame, prim, u, v)
+        if options:  # the corners' normals weighted as rows (the products and sums, axis by axis)
+            cn, wu, wv = frame.geometry.corner_normals[prim], u.astype(np.float64), v.astype(np.float64)
+            weighted = rows.add_scaled(rows.add_scaled(rows.scale(cn[:, 0], 1.0 - wu - wv), wu, cn[:, 1]), wv, cn[:, 2])
+            np.testing.assert_array_equal(per_hit[2], rows.normalized(weighted))
         for _ in range(2):  # the rows made, then kept
             kept = tracer.hit_geometry(frame, prim, u, v, cache=cache)
             for a, b in zip(per_hit, kept):
@@ -425,7 +429,7 @@ def test_a_flat_meshs_hits_share_its_one_normal_as_a_broadcast_row_turned_as_the
     read-only broadcast row (the same bits as the per-hit normals), which stays one row when the
     hits are all in front or all behind and becomes the per-hit turned rows when they are on both
     sides; a curved mesh's normals stay per hit."""
-    from restframe_addon.core import passes, rows
+    from restframe_addon.core import passes
 
     vertices, triangles = grid()
     rng = np.random.default_rng(4)
