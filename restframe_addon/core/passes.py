@@ -140,8 +140,16 @@ def facing_normals(frames: FrameSet, segments, prim, u, v, d_k, tau_hit=None, ca
 
 def _turned_to_viewer(ng, ns, d_k):
     """Geometric and shading normals (hit_geometry's own arrays: turned in place) facing the
-    viewer, and whether the back was hit."""
+    viewer, and whether the back was hit.  A flat mesh's one broadcast normal stays one row
+    while every hit is on the same side (a new array if they are on both)."""
     back = rows.dot(ng, d_k) > 0.0
+    if rows.is_broadcast(ng):  # (flat shading: ns is ng)
+        if not back.any():
+            return ng, ng, back
+        if back.all():
+            ng = rows.broadcast(-ng[:1], len(ng))
+            return ng, ng, back
+        ng = ns = np.array(ng)
     for normals in (ng,) if ns is ng else (ng, ns):
         for axis in range(3):
             np.negative(normals[:, axis], out=normals[:, axis], where=back)

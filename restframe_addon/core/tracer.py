@@ -315,6 +315,7 @@ class TraceCache:
         self._directions: dict[tuple, tuple] = {}  # (src, k, direction's bytes) -> (mapped direction, s'/s)
         self._hit_tables: dict[int, tuple] = {}  # id(geometry) -> (geometry, its rows for hit_geometry)
         self._flat: dict[int, tuple] = {}  # id(geometry) -> (geometry, _flat_side of it)
+        self._uv_tables: dict[int, tuple] = {}  # id(geometry) -> (geometry, its corners' UVs for hit_uv)
 
     def cones(self, keys: list, compute) -> list:
         """The cones kept under each key; ``compute(missing)`` works out, at once, those of the
@@ -365,14 +366,36 @@ class TraceCache:
         return kept
 
     def hit_table(self, geometry) -> tuple:
-        """:func:`hit_geometry`'s rows of every triangle of ``geometry``, one (triangles, 4) table per
-        axis (first corner, the two edges, the unit normal), made at its first lit hit."""
+        """:func:`hit_geometry`'s numbers of every triangle of ``geometry``: per axis, contiguous
+        (triangles,) tables of the first corner and the two edges (1-D gathers into contiguous
+        columns: the gathered rows of all four were read with a 32-byte stride, twice as slow),
+        the unit normals (triangles, 3) (one row gather), the one unit normal (1, 3) of all its
+        triangles where they have one (a flat mesh: its hits share it), else None, and per axis
+        the three corners' normals (triangles,) of a smooth mesh (else None); made at its first
+        lit hit."""
         kept = self._hit_tables.get(id(geometry))
         if kept is None or kept[0] is not geometry:
             corner, e1, e2, normal = _triangle_rows(geometry, np.arange(len(geometry.triangles)))
-            kept = self._hit_tables[id(geometry)] = (
-                geometry, tuple(np.stack([corner[:, axis], e1[:, axis], e2[:, axis], normal[:, axis]], axis=1)
-                                for axis in range(3)))
+            columns = tuple(tuple(np.ascontiguousarray(a[:, axis]) for a in (corner, e1, e2)) for axis in range(3))
+            one = normal[:1] if len(normal) and (normal == normal[:1]).all() else None
+            smooth = geometry.corner_normals
+            corners = None if smooth is None else tuple(
+                tuple(np.ascontiguousarray(smooth[:, k, axis]) for k in range(3)) for axis in range(3))
+            kept = self._hit_tables[id(geometry)] = (geometry, columns, normal, one, corners)
+        return kept[1:]
+
+    def uv_table(self, geometry) -> tuple | None:
+        """``shading.hit_uv``'s UVs of every triangle of a small mesh ``geometry`` (at most
+        ``_HIT_TABLE_TRIANGLES``; else None), one contiguous (triangles,) table per corner of each
+        component (U of the three corners, then V), made at its first lit hit: 1-D gathers into
+        contiguous columns instead of six strided passes over (n, 3, 2) gathered rows."""
+        if geometry.corner_uvs is None or len(geometry.triangles) > _HIT_TABLE_TRIANGLES:
+            return None
+        kept = self._uv_tables.get(id(geometry))
+        if kept is None or kept[0] is not geometry:
+            uvs = geometry.corner_uvs
+            kept = self._uv_tables[id(geometry)] = (
+                geometry, tuple(tuple(np.ascontiguousarray(uvs[:, corner, c]) for corner in range(3)) for c in range(2)))
         return kept[1]
 
 
@@ -1422,7 +1445,8 @@ def _triangle_rows(geometry, prim):
 def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | None = None):
     """Float64 position, unit geometric normal and unit shading normal at hits of one frame
     (frame coordinates; ``tau``, the hits' frame times, poses a spinning body): new arrays, the
-    caller's to write into (the two normals are one array where the mesh has no corner normals).
+    caller's to write into (the two normals are one array where the mesh has no corner normals),
+    but for a flat mesh's normal (with ``cache``, not spinning): one read-only broadcast row.
     ``cache``: the calling thread's, which keeps the rows of small meshes' triangles."""
     geometry = frame.geometry
     # p0 + u e1 + v e2 one axis at a time in a contiguous column, written once into its column of
@@ -1432,26 +1456,38 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
     v = np.asarray(v, dtype=np.float64)
     n, spins = len(prim), frame.spin is not None
     position, column, term = np.empty((n, 3)), np.empty(n), np.empty(n)
-    if cache is not None and len(geometry.triangles) <= _HIT_TABLE_TRIANGLES:  # a gather per axis
-        tables, ng = cache.hit_table(geometry), np.empty((n, 3))
-        axes = (np.take(table, prim, axis=0).T for table in tables)  # (p0, e1, e2, normal) of one axis
+    if cache is not None and len(geometry.triangles) <= _HIT_TABLE_TRIANGLES:  # 1-D gathers per axis
+        tables, normals, one, corner_tables = cache.hit_table(geometry)
+        index = np.asarray(prim, dtype=np.intp)  # (converted once, not by each gather)
+        # a flat mesh's one normal (not spun) for all its hits: a read-only broadcast row
+        ng = rows.broadcast(one, n) if one is not None and not spins else np.take(normals, index, axis=0, mode="clip")
+        gathered = np.empty((3, n))
+        gather = lambda tables: ([np.take(table, index, out=out, mode="clip") for table, out in zip(axis_tables, gathered)]
+                                 for axis_tables in tables)  # (in range: clip only skips the check)
+        axes = gather(tables)
+        corners = None if corner_tables is None else gather(corner_tables)
     else:
         p0, p1, p2, ng = _triangle_rows(geometry, prim)
-        axes = [(p0[:, axis], p1[:, axis], p2[:, axis], None) for axis in range(3)]
-    for axis, (p0, e1, e2, normal) in enumerate(axes):
+        axes = [(p0[:, axis], p1[:, axis], p2[:, axis]) for axis in range(3)]
+        cn = None if geometry.corner_normals is None else rows.take(geometry.corner_normals, prim)
+        corners = None if cn is None else [(cn[:, 0, axis], cn[:, 1, axis], cn[:, 2, axis]) for axis in range(3)]
+    for axis, (p0, e1, e2) in enumerate(axes):
         np.multiply(u, e1, out=column)
         column += p0
         column += np.multiply(v, e2, out=term)
         if not spins:
             column += frame.offset[axis]
         position[:, axis] = column
-        if normal is not None:
-            ng[:, axis] = normal
-    if geometry.corner_normals is None:
+    if corners is None:
         ns = ng
-    else:
-        cn = rows.take(geometry.corner_normals, prim)
-        ns = rows.normalized(rows.add_scaled(rows.add_scaled(rows.scale(cn[:, 0], 1.0 - u - v), u, cn[:, 1]), v, cn[:, 2]))
+    else:  # the corners' normals weighted by (1 - u - v, u, v), axis by axis as the position
+        first, ns = 1.0 - u - v, np.empty((n, 3))
+        for axis, (n0, n1, n2) in enumerate(corners):
+            np.multiply(n0, first, out=column)
+            column += np.multiply(u, n1, out=term)
+            column += np.multiply(v, n2, out=term)
+            ns[:, axis] = column
+        ns = rows.normalized(ns)
     if spins:
         position, ng = frame.to_frame(position, ng, tau)
         _, ns = frame.to_frame(position, ns, tau)

@@ -10,7 +10,7 @@ from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 from shapes import look_at_camera, uv_sphere
 
-from restframe_addon.core import embree_direct, frames, tracer
+from restframe_addon.core import embree_direct, frames, rows, tracer
 from restframe_addon.core.frames import build_frames
 from restframe_addon.core.motion import Trajectory
 from restframe_addon.core.scene import Mesh, Scene, Velocity
@@ -412,12 +412,66 @@ def test_hit_geometry_from_a_threads_triangle_rows_is_bit_for_bit_the_per_hit_ge
         frame = build_frames(grid_scene((vertices, triangles), **options)).frames[0]
         cache = tracer.TraceCache()
         per_hit = tracer.hit_geometry(frame, prim, u, v)
+        if options:  # the corners' normals weighted as rows (the products and sums, axis by axis)
+            cn, wu, wv = frame.geometry.corner_normals[prim], u.astype(np.float64), v.astype(np.float64)
+            weighted = rows.add_scaled(rows.add_scaled(rows.scale(cn[:, 0], 1.0 - wu - wv), wu, cn[:, 1]), wv, cn[:, 2])
+            np.testing.assert_array_equal(per_hit[2], rows.normalized(weighted))
         for _ in range(2):  # the rows made, then kept
             kept = tracer.hit_geometry(frame, prim, u, v, cache=cache)
             for a, b in zip(per_hit, kept):
                 np.testing.assert_array_equal(a, b)
             kept[1][:] = 0.0  # the caller's own arrays: the kept rows are not touched
         assert len(cache._hit_tables) == 1
+
+
+def test_a_flat_meshs_hits_share_its_one_normal_as_a_broadcast_row_turned_as_the_per_hit_normals():
+    """A thread's cache finds that a flat mesh's triangles have one normal: its hits get it as one
+    read-only broadcast row (the same bits as the per-hit normals), which stays one row when the
+    hits are all in front or all behind and becomes the per-hit turned rows when they are on both
+    sides; a curved mesh's normals stay per hit."""
+    from restframe_addon.core import passes
+
+    vertices, triangles = grid()
+    rng = np.random.default_rng(4)
+    prim = rng.integers(0, len(triangles), 3000)
+    u, v = (rng.random(len(prim), dtype=np.float32) * 0.5 for _ in range(2))
+    frame = build_frames(grid_scene((vertices, triangles))).frames[0]
+    per_hit = tracer.hit_geometry(frame, prim, u, v)
+    kept = tracer.hit_geometry(frame, prim, u, v, cache=tracer.TraceCache())
+    assert rows.is_broadcast(kept[1]) and kept[2] is kept[1] and not per_hit[1].strides[0] == 0
+    for a, b in zip(per_hit, kept):
+        np.testing.assert_array_equal(a, b)
+    d = rng.normal(size=(len(prim), 3))
+    for sides in (-np.abs(d[:, 2:]), np.abs(d[:, 2:]), d[:, 2:]):  # front, back, both
+        d_k = np.hstack([d[:, :2], sides])
+        expected = passes._turned_to_viewer(per_hit[1].copy(), per_hit[1].copy(), d_k)
+        turned = passes._turned_to_viewer(kept[1], kept[1], d_k)
+        assert turned[1] is turned[0] and rows.is_broadcast(turned[0]) == (len(np.unique(turned[2])) == 1)
+        for a, b in zip(expected, turned):
+            np.testing.assert_array_equal(a, b)
+    sphere = build_frames(grid_scene(shuffled_sphere())).frames[0]
+    assert not rows.is_broadcast(tracer.hit_geometry(sphere, prim % 50, u, v, cache=tracer.TraceCache())[1])
+
+
+def test_hit_uvs_from_a_threads_uv_tables_are_bit_for_bit_the_per_hit_uvs():
+    """A thread's cache keeps a small mesh's corner UVs as 1-D tables (one gather per corner and
+    component into contiguous columns): the same bits as interpolating the gathered corner rows,
+    for float32 (the tracer's) and float64 barycentrics; one table per mesh, made once."""
+    from restframe_addon.core.shading import hit_uv
+
+    vertices, triangles = shuffled_sphere()
+    rng = np.random.default_rng(6)
+    corner_uvs = rng.random((len(triangles), 3, 2)) * 3.0 - 1.0
+    frame = build_frames(grid_scene((vertices, triangles), corner_uvs=corner_uvs)).frames[0]
+    prim = rng.integers(0, len(triangles), 4000).astype(np.int32)
+    cache = tracer.TraceCache()
+    for dtype in (np.float32, np.float64):
+        u, v = (rng.random(len(prim)).astype(dtype) * 0.5 for _ in range(2))
+        kept = hit_uv(frame, prim, u, v, cache)
+        np.testing.assert_array_equal(kept, hit_uv(frame, prim, u, v))
+        assert kept.dtype == np.float64 and kept[:, 0].flags.c_contiguous
+    assert len(cache._uv_tables) == 1
+    assert hit_uv(build_frames(grid_scene((vertices, triangles))).frames[0], prim, u, v, cache) is None
 
 
 def test_padded_vertices_are_the_float64_offsets_rounded_once_in_embrees_layout():

@@ -409,6 +409,27 @@ def test_rows_take_gathers_rows_as_fancy_indexing_does_in_either_layout():
                 assert rows.take(a, np.arange(7)).flags.f_contiguous  # the caller's layout kept
 
 
+def test_rows_of_a_broadcast_row_are_taken_as_one_row_and_dotted_as_its_rows_are():
+    """rows.take of one broadcast row (or number) gives it again as the selected rows, no gather;
+    rows.dot of a broadcast row and rows (either side) gives the same bits as of its rows written
+    out (the matrix-vector product's sum, ``(a0 b0 + a1 b1) + a2 b2``: fails if BLAS sums otherwise)."""
+    from restframe_addon.core import rows
+
+    rng = np.random.default_rng(8)
+    row, b = rng.normal(size=(1, 3)), rng.normal(size=(70000, 3))
+    one = rows.broadcast(row, len(b))
+    assert rows.is_broadcast(one) and not one.flags.writeable and not rows.is_broadcast(b)
+    for index in (rng.choice(len(b), 900, replace=False), rng.random(len(b)) < 0.3, slice(5, 60)):
+        taken = rows.take(one, index)
+        assert rows.is_broadcast(taken)
+        np.testing.assert_array_equal(taken, np.repeat(row, len(b), axis=0)[index])
+    number = rows.take(rows.broadcast(np.array([7]), 10), np.arange(4))
+    assert number.shape == (4,) and rows.is_broadcast(number) and (number == 7).all()
+    written = np.repeat(row, len(b), axis=0)
+    np.testing.assert_array_equal(rows.dot(one, b), rows.dot(written, b))
+    np.testing.assert_array_equal(rows.dot(b, one), rows.dot(b, written))
+
+
 def test_rows_put_assigns_rows_as_fancy_indexing_does():
     """rows.put (whole rows copied by np.put) gives what ``a[index] = new`` gives, and rows.assign
     (column by column between layouts) what ``a[...] = new`` gives: (n, 3) and (n, 16) rows, a
