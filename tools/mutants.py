@@ -143,11 +143,16 @@ MUTANTS = (
            (Patch(SHADING, "self.frames.frames[k].object_clock(tau[s], prim[s])", "tau[s]"),),
            (T_OBSERVERS,)),
     Mutant("texture-uv-swapped", "texture coordinates interpolated with the barycentrics swapped",
+           (Patch(SHADING, "weights = [np.asarray(w, dtype=np.float64) for w in (first, u, v)]",
+                  "weights = [np.asarray(w, dtype=np.float64) for w in (first, v, u)]"),),
+           (T_OBSERVERS,)),
+    Mutant("texture-uv-swapped-large-mesh",
+           "texture coordinates of a mesh too large for UV tables interpolated with the barycentrics swapped",
            (Patch(SHADING, "column += np.multiply(u, cuv[:, 1, c], out=term)\n"
                            "        column += np.multiply(v, cuv[:, 2, c], out=term)\n",
                   "column += np.multiply(v, cuv[:, 1, c], out=term)\n"
                   "        column += np.multiply(u, cuv[:, 2, c], out=term)\n"),),
-           (T_OBSERVERS,)),
+           ("tests/core/test_frames.py::test_hit_uvs_from_a_threads_uv_tables_are_bit_for_bit_the_per_hit_uvs",)),
     Mutant("doppler-pass-inverted", "D replaced by 1/D in the Doppler pass",
            (Patch(PASSES, 'values["Doppler"] = [hit_doppler(', 'values["Doppler"] = [1.0 / hit_doppler('),),
            (f"{T_RENDER}::test_doppler_head_on_approach_on_the_axis_ray",)),
