@@ -4,7 +4,8 @@
     tools/dev.sh tests/bench/ab_keys.py /tmp/base --repeats 15   # this checkout against /tmp/base
 
 What render_tile and the shader do with a batch's samples, for every batch of one moving_sphere
-render (960x540, 8 samples, one sample a batch), each checkout's own code: "camera" = the tiles'
+render (960x540, 8 samples, in each checkout's render_tile batches: one sample of 32 768 pixels
+since cull15), each checkout's own code: "camera" = the tiles'
 pixel grids and strata starts, then per batch the jitter (with this checkout: the (pixel, sample)
 hash kept for the batch) and the pinhole rays through it; "shader" = what the shader's hits take
 of the samples (the orders and lit selections recorded from a render) and the lamp's two random
@@ -30,9 +31,9 @@ def _load(root: str) -> dict:
     sys.path.insert(0, root)
     for name in [name for name in sys.modules if name.split(".")[0] == "restframe_addon"]:
         del sys.modules[name]
-    from restframe_addon.core import camera, malloc, rows, sampling
+    from restframe_addon.core import camera, malloc, render, rows, sampling
     sys.path.pop(0)
-    return {"camera": camera, "rows": rows, "sampling": sampling, "malloc": malloc}
+    return {"camera": camera, "rows": rows, "sampling": sampling, "malloc": malloc, "render": render}
 
 
 def _record():
@@ -67,7 +68,7 @@ def _record():
 
 
 def _camera(side: dict, prepared, rects):
-    """The tiles' jitter and camera rays, one sample a batch; with Samples: the hash kept."""
+    """The tiles' jitter and camera rays in render_tile's batches; with Samples: the hash kept."""
     sampling, cameras = side["sampling"], side["camera"].CameraRays(prepared.scene.camera, prepared.settings.resolution)
     kept = hasattr(sampling, "Samples")
     out = []
@@ -79,10 +80,10 @@ def _camera(side: dict, prepared, rects):
         ys = np.repeat(np.arange(y0, y1, dtype=dtype), x1 - x0)
         starts = sampling.strata_starts(pixel, SAMPLES)
         halves = sampling.pixel_halves(pixel) if kept else None
-        for first in range(SAMPLES):
-            keys = sampling.block_keys(halves, first, 1) if kept else None
-            px, py = (sampling.stratified_positions(xs, ys, pixel, first, 1, SAMPLES, starts, keys) if kept else
-                      sampling.stratified_positions(xs, ys, pixel, first, 1, SAMPLES, starts))
+        for part, first, count in side["render"]._batches(len(pixel), SAMPLES, 3):  # (render_tile's batches)
+            keys = sampling.block_keys(halves[part], first, count) if kept else None
+            args = (xs[part], ys[part], pixel[part], first, count, SAMPLES, starts[part])
+            px, py = sampling.stratified_positions(*args, keys) if kept else sampling.stratified_positions(*args)
             out.append(cameras(px, py)[1:4])
     return out
 
