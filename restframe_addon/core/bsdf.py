@@ -160,11 +160,11 @@ def ggx_single_scattering(n, view, light, alpha):
     return single, (cos_v > 0.0) & (cos_l > 0.0), cos_vh
 
 
-def ggx_reflection(n, view, light, alpha, f0, f90, cos_l=None):
+def ggx_reflection(n, view, light, alpha, f0, f90, cos_l=None, cos_v=None):
     """GGX specular BRDF value f (n, C), without the cosine: D G2 F / (4 cos_v cos_l), Schlick
     Fresnel from f0 (n, C) to f90 (n,) at the half vector.  0 where either direction is below;
-    ``cos_l`` = n . light where the caller has it."""
-    cos_v = rows.dot(n, view)
+    ``cos_l`` = n . light and ``cos_v`` = n . view where the caller has them."""
+    cos_v = rows.dot(n, view) if cos_v is None else cos_v
     cos_l = rows.dot(n, light) if cos_l is None else cos_l
     single, cos_vh = ggx_single(cos_v, cos_l, rows.dot(view, light), alpha)
     if not (len(cos_v) and cos_v.min() > 0.0 and cos_l.min() > 0.0):  # (a NaN's min fails too: masked)

@@ -447,8 +447,12 @@ def test_a_flat_meshs_hits_share_its_one_normal_as_a_broadcast_row_turned_as_the
         expected = passes._turned_to_viewer(per_hit[1].copy(), per_hit[1].copy(), d_k)
         turned = passes._turned_to_viewer(kept[1], kept[1], d_k)
         assert turned[1] is turned[0] and rows.is_broadcast(turned[0]) == (len(np.unique(turned[2])) == 1)
-        for a, b in zip(expected, turned):
+        for a, b in zip(expected[:3], turned[:3]):
             np.testing.assert_array_equal(a, b)
+        # the cosines with the view, from the turn's dot products: those the shader would make itself
+        assert expected[3] is None and (turned[3] is None) == (not rows.is_broadcast(turned[0]))
+        if turned[3] is not None:
+            np.testing.assert_array_equal(turned[3], rows.dot(turned[1], -d_k))
     sphere = build_frames(grid_scene(shuffled_sphere())).frames[0]
     assert not rows.is_broadcast(tracer.hit_geometry(sphere, prim % 50, u, v, cache=tracer.TraceCache())[1])
 

@@ -288,7 +288,7 @@ def test_ggx_from_cosines_changes_images_by_at_most_one_float32_step(monkeypatch
 
     from restframe_addon.core import shading
 
-    def half_vector_reflection(n, view, light, alpha, f0, f90, cos_l=None):
+    def half_vector_reflection(n, view, light, alpha, f0, f90, cos_l=None, cos_v=None):
         single, cos_vh = half_vector_ggx(n, view, light, alpha)
         schlick = (1.0 - cos_vh) ** 5
         return (f0 * (1.0 - schlick)[:, None] + (f90 * schlick)[:, None]) * single[:, None]
