@@ -58,12 +58,15 @@ def fresnel_dielectric(cos_i, eta):
 
 
 def fresnel_schlick(cos_i, f0, f90):
-    """Schlick's reflectance from ``f0`` (n, C) at normal incidence to ``f90`` (n,) at grazing."""
-    s = 1.0 - rows.clipped(cos_i, 0.0, 1.0)
+    """Schlick's reflectance from ``f0`` (n, C) at normal incidence to ``f90`` (n,) at grazing
+    (a new array; the temporaries reused in place: each fresh one costs page faults)."""
+    s = np.subtract(1.0, rows.clipped(cos_i, 0.0, 1.0))
     schlick = s * s
     schlick *= schlick
     schlick *= s  # (s^5 by multiplications: pow costs as much as ten of them)
-    return rows.scale(f0, 1.0 - schlick) + (f90 * schlick)[:, None]
+    out = rows.scale(f0, np.subtract(1.0, schlick, out=s))
+    out += np.multiply(schlick, f90, out=schlick)[:, None]
+    return out
 
 
 def fresnel_f82_tint(cos_i, f0, tint):
@@ -169,7 +172,8 @@ def ggx_reflection(n, view, light, alpha, f0, f90, cos_l=None, cos_v=None):
     single, cos_vh = ggx_single(cos_v, cos_l, rows.dot(view, light), alpha)
     if not (len(cos_v) and cos_v.min() > 0.0 and cos_l.min() > 0.0):  # (a NaN's min fails too: masked)
         np.copyto(single, 0.0, where=~((cos_v > 0.0) & (cos_l > 0.0)))
-    return rows.scale(fresnel_schlick(cos_vh, f0, f90), single)
+    value = fresnel_schlick(cos_vh, f0, f90)
+    return rows.scale(value, single, out=value)  # (its own array: in place)
 
 
 # ---------------------------------------------------------------------------- local frames
