@@ -142,11 +142,12 @@ def facing_normals(frames: FrameSet, segments, prim, u, v, d_k, tau_hit=None, ca
 def _turned_to_viewer(ng, ns, d_k):
     """Geometric and shading normals (hit_geometry's own arrays: turned in place) facing the
     viewer, whether the back was hit, and the cosines ns . (-d_k) with the view where they come
-    from the turn's own dot products (else None).  A flat mesh's one broadcast normal stays one
-    row while every hit is on the same side (a new array if they are on both); then the cosines
-    are its dot products (all behind) or their negations (all in front): ``rows.dot`` of the
-    broadcast row and the negated directions makes the same products and sums up to their sign
-    (the sign of an exact 0 aside, which no user of a cosine with the view tells apart)."""
+    from the turn's own dot products (else None: a flat mesh's hits on both sides).  A flat
+    mesh's one broadcast normal stays one row while every hit is on the same side (a new array
+    if they are on both); then the cosines are its dot products (all behind) or their negations
+    (all in front).  ``rows.dot`` of the negated directions makes the same products and sums up
+    to their sign (the sign of an exact 0 aside, which no user of a cosine with the view tells
+    apart), row by row in either of its ways (a row's sum does not depend on the other rows)."""
     dot = rows.dot(ng, d_k)
     back = dot > 0.0
     if rows.is_broadcast(ng):  # (flat shading: ns is ng)
@@ -161,10 +162,13 @@ def _turned_to_viewer(ng, ns, d_k):
             np.negative(normals[:, axis], out=normals[:, axis], where=back)
     if ns is ng:  # flat: the turned normal faces the viewer (or grazes it)
         return ng, ng, back, None
-    away = rows.dot(ns, d_k) >= 0.0
+    toward = rows.dot(ns, d_k)
+    away = toward >= 0.0
+    cos_view = np.negative(toward, out=toward)  # (the same products, negated, as ns . (-d_k))
     if away.any():
         ns[away] = rows.take(ng, away)
-    return ng, ns, back, None
+        cos_view[away] = np.where(back[away], dot[away], -dot[away])  # the turned ng's: +-(ng . d_k)
+    return ng, ns, back, cos_view
 
 
 def ray_doppler(frames: FrameSet, hits: Hits) -> np.ndarray:
