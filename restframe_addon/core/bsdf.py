@@ -96,10 +96,11 @@ def ggx_ndf(cos_h, alpha):
 
 
 def _ggx_ndf_of_squared(c2, alpha):
-    """GGX D(h) (n.h > 0) from c2 = (n.h)^2 in [0, 1]: a^2 / (pi (1 - c2 + a^2 c2)^2), in place."""
+    """GGX D(h) (n.h > 0) from c2 = (n.h)^2 in [0, 1]: a^2 / (pi (1 - c2 + a^2 c2)^2), in place
+    (c2 overwritten)."""
     a2 = alpha**2
     d = np.subtract(1.0, c2)
-    d += a2 * c2
+    d += np.multiply(c2, a2, out=c2)
     d *= d
     d *= np.pi
     return np.divide(a2, d, out=d)

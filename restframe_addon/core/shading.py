@@ -662,7 +662,7 @@ class Shader:
             return value
         m = mat[r] if one is None else slice(one, one + 1)
         f0 = mats.f0_dielectric[m][:, None]  # a grey F0 (one column) unless metallic
-        if np.any(mats.metallic[m] > 0.0):
+        if (mats.metallic[one] > 0.0) if one is not None else np.any(mats.metallic[m] > 0.0):
             f0 = rows.scale(base[r], mats.metallic[m]) + f0
         else:
             f0 = np.broadcast_to(f0, (len(value) if one is not None else len(r), 1))
@@ -770,9 +770,10 @@ class Shader:
         n = len(tau)
         x_axis, y_axis, z_axis = pl.axes[:, 0], pl.axes[:, 1], pl.axes[:, 2]
         if light.kind == "SUN":  # the path length is unbounded (one number for all hits)
-            e_j = np.broadcast_to(z_axis, (n, 3))
             if light.sun_angle > 0.0:
                 e_j = _cone_sample(z_axis, 0.5 * light.sun_angle, xi1, xi2)
+            else:
+                e_j = np.broadcast_to(z_axis, (n, 3))
             to_surface = self.frames.map(pl.frame, k)
             clock = None
             if pl.keyed is not None:  # the plane wave passed the lamp's place (P - x).e before reaching x
