@@ -58,12 +58,15 @@ def fresnel_dielectric(cos_i, eta):
 
 
 def fresnel_schlick(cos_i, f0, f90):
-    """Schlick's reflectance from ``f0`` (n, C) at normal incidence to ``f90`` (n,) at grazing."""
-    s = 1.0 - rows.clipped(cos_i, 0.0, 1.0)
+    """Schlick's reflectance from ``f0`` (n, C) at normal incidence to ``f90`` (n,) at grazing
+    (a new array; the temporaries reused in place: each fresh one costs page faults)."""
+    s = np.subtract(1.0, rows.clipped(cos_i, 0.0, 1.0))
     schlick = s * s
     schlick *= schlick
     schlick *= s  # (s^5 by multiplications: pow costs as much as ten of them)
-    return rows.scale(f0, 1.0 - schlick) + (f90 * schlick)[:, None]
+    out = rows.scale(f0, np.subtract(1.0, schlick, out=s))
+    out += np.multiply(schlick, f90, out=schlick)[:, None]
+    return out
 
 
 def fresnel_f82_tint(cos_i, f0, tint):
@@ -93,10 +96,11 @@ def ggx_ndf(cos_h, alpha):
 
 
 def _ggx_ndf_of_squared(c2, alpha):
-    """GGX D(h) (n.h > 0) from c2 = (n.h)^2 in [0, 1]: a^2 / (pi (1 - c2 + a^2 c2)^2), in place."""
+    """GGX D(h) (n.h > 0) from c2 = (n.h)^2 in [0, 1]: a^2 / (pi (1 - c2 + a^2 c2)^2), in place
+    (c2 overwritten)."""
     a2 = alpha**2
     d = np.subtract(1.0, c2)
-    d += a2 * c2
+    d += np.multiply(c2, a2, out=c2)
     d *= d
     d *= np.pi
     return np.divide(a2, d, out=d)
@@ -160,16 +164,17 @@ def ggx_single_scattering(n, view, light, alpha):
     return single, (cos_v > 0.0) & (cos_l > 0.0), cos_vh
 
 
-def ggx_reflection(n, view, light, alpha, f0, f90, cos_l=None):
+def ggx_reflection(n, view, light, alpha, f0, f90, cos_l=None, cos_v=None):
     """GGX specular BRDF value f (n, C), without the cosine: D G2 F / (4 cos_v cos_l), Schlick
     Fresnel from f0 (n, C) to f90 (n,) at the half vector.  0 where either direction is below;
-    ``cos_l`` = n . light where the caller has it."""
-    cos_v = rows.dot(n, view)
+    ``cos_l`` = n . light and ``cos_v`` = n . view where the caller has them."""
+    cos_v = rows.dot(n, view) if cos_v is None else cos_v
     cos_l = rows.dot(n, light) if cos_l is None else cos_l
     single, cos_vh = ggx_single(cos_v, cos_l, rows.dot(view, light), alpha)
     if not (len(cos_v) and cos_v.min() > 0.0 and cos_l.min() > 0.0):  # (a NaN's min fails too: masked)
         np.copyto(single, 0.0, where=~((cos_v > 0.0) & (cos_l > 0.0)))
-    return rows.scale(fresnel_schlick(cos_vh, f0, f90), single)
+    value = fresnel_schlick(cos_vh, f0, f90)
+    return rows.scale(value, single, out=value)  # (its own array: in place)
 
 
 # ---------------------------------------------------------------------------- local frames

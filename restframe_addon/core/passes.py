@@ -130,7 +130,8 @@ def facing_normals(frames: FrameSet, segments, prim, u, v, d_k, tau_hit=None, ca
     was hit, at hits of one or more frames (``segments``: (frame k, its rows); frame
     coordinates): the geometry frame by frame, joined, turned at once.  A shading normal turned
     away from the viewer falls back to the geometric one.  Read-only for the caller: with flat
-    shading the two normals are one array.  ``cache``: the calling thread's (see hit_geometry)."""
+    shading the two normals are one array.  ``cache``: the calling thread's (see hit_geometry).
+    Also the cosines ns . (-d_k) where the turn gives them exactly, else None (see _turned_to_viewer)."""
     geometry = [hit_geometry(frames.frames[k], prim[s], u[s], v[s], None if tau_hit is None else tau_hit[s], cache)
                 for k, s in segments]
     position, ng = (joined_frames([part[i] for part in geometry]) for i in range(2))
@@ -140,25 +141,34 @@ def facing_normals(frames: FrameSet, segments, prim, u, v, d_k, tau_hit=None, ca
 
 def _turned_to_viewer(ng, ns, d_k):
     """Geometric and shading normals (hit_geometry's own arrays: turned in place) facing the
-    viewer, and whether the back was hit.  A flat mesh's one broadcast normal stays one row
-    while every hit is on the same side (a new array if they are on both)."""
-    back = rows.dot(ng, d_k) > 0.0
+    viewer, whether the back was hit, and the cosines ns . (-d_k) with the view where they come
+    from the turn's own dot products (else None: a flat mesh's hits on both sides).  A flat
+    mesh's one broadcast normal stays one row while every hit is on the same side (a new array
+    if they are on both); then the cosines are its dot products (all behind) or their negations
+    (all in front).  ``rows.dot`` of the negated directions makes the same products and sums up
+    to their sign (the sign of an exact 0 aside, which no user of a cosine with the view tells
+    apart), row by row in either of its ways (a row's sum does not depend on the other rows)."""
+    dot = rows.dot(ng, d_k)
+    back = dot > 0.0
     if rows.is_broadcast(ng):  # (flat shading: ns is ng)
         if not back.any():
-            return ng, ng, back
+            return ng, ng, back, np.negative(dot, out=dot)
         if back.all():
             ng = rows.broadcast(-ng[:1], len(ng))
-            return ng, ng, back
+            return ng, ng, back, dot
         ng = ns = np.array(ng)
     for normals in (ng,) if ns is ng else (ng, ns):
         for axis in range(3):
             np.negative(normals[:, axis], out=normals[:, axis], where=back)
     if ns is ng:  # flat: the turned normal faces the viewer (or grazes it)
-        return ng, ng, back
-    away = rows.dot(ns, d_k) >= 0.0
+        return ng, ng, back, None
+    toward = rows.dot(ns, d_k)
+    away = toward >= 0.0
+    cos_view = np.negative(toward, out=toward)  # (the same products, negated, as ns . (-d_k))
     if away.any():
         ns[away] = rows.take(ng, away)
-    return ng, ns, back
+        cos_view[away] = np.where(back[away], dot[away], -dot[away])  # the turned ng's: +-(ng . d_k)
+    return ng, ns, back, cos_view
 
 
 def ray_doppler(frames: FrameSet, hits: Hits) -> np.ndarray:

@@ -147,14 +147,16 @@ def norm(a) -> np.ndarray:
     return np.sqrt(dot(a, a))
 
 
-def scale(a, s, columns: bool = False) -> np.ndarray:
+def scale(a, s, columns: bool = False, out=None) -> np.ndarray:
     """Each row of a (n, C) times its own scalar s (n,): column by column for few columns;
-    ``columns``: into an array whose columns are contiguous (for more work column by column)."""
+    ``columns``: into an array whose columns are contiguous (for more work column by column);
+    ``out``: into this array (a itself: in place, no new array)."""
     a = np.asarray(a)
     if a.shape[1] > 4:  # long rows (spectra): numpy's broadcast is fast there
-        return a * s[:, None]
+        return np.multiply(a, s[:, None], out=out)
     dtype = np.result_type(a, s)
-    out = np.empty(a.shape[::-1], dtype=dtype).T if columns else np.empty(a.shape, dtype=dtype)
+    if out is None:
+        out = np.empty(a.shape[::-1], dtype=dtype).T if columns else np.empty(a.shape, dtype=dtype)
     for axis in range(a.shape[1]):
         np.multiply(a[:, axis], s, out=out[:, axis])
     return out

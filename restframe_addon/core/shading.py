@@ -533,7 +533,12 @@ class Shader:
 
     def frames_surface_info(self, segments, prim, u, v, d_k, tau_hit=None, cache: TraceCache | None = None):
         """:meth:`surface_info` at hits of several frames (``segments``: (frame k, its rows))."""
-        position, ng, ns, back = facing_normals(self.frames, segments, prim, u, v, d_k, tau_hit, cache)
+        return self._surfaces(segments, prim, u, v, d_k, tau_hit, cache)[:5]
+
+    def _surfaces(self, segments, prim, u, v, d_k, tau_hit, cache):
+        """:meth:`frames_surface_info` and the cosines ns . (-d_k) where facing_normals has them
+        (None with a normal map applied, or where it has not)."""
+        position, ng, ns, back, cos_view = facing_normals(self.frames, segments, prim, u, v, d_k, tau_hit, cache)
         material = self._frames_materials(segments, prim)
         if self.materials.normal_mapped:
             own = False  # (ns may be ng, or the geometry's: copied before a normal map writes into it)
@@ -550,7 +555,9 @@ class Shader:
                     if not own:
                         ns, own = ns.copy(), True
                     ns[s] = mapped
-        return position, ng, ns, material, back
+                if mapped is not plain:
+                    cos_view = None
+        return position, ng, ns, material, back, cos_view
 
     def _shade_surfaces(self, segments, tau, d_k, prim, u, v, depth, ids, lam, cache):
         """The values leaving hits toward their rays, in each hit's frame: the hits of several
@@ -560,7 +567,7 @@ class Shader:
         if self._emission_only(depth):  # no normals, texture or base colour needed
             mat = self._frames_materials(segments, prim)
             return self._emission(segments, tau, prim, mat, lam)
-        position, ng, ns, mat, back = self.frames_surface_info(segments, prim, u, v, d_k, tau, cache)
+        position, ng, ns, mat, back, cos_view = self._surfaces(segments, prim, u, v, d_k, tau, cache)
         uvs = [hit_uv(self.frames.frames[k], prim[s], u[s], v[s], cache) for k, s in segments]
         if all(uv is None for uv in uvs) or all(uv is not None for uv in uvs):
             base = self.colour.base_color(mat, None if uvs[0] is None else joined_frames(uvs), lam,
@@ -570,11 +577,13 @@ class Shader:
                                   for (_, s), uv in zip(segments, uvs)])
         one = _only_material(mat)
         if self.lights and one is not None and not mats.emits[one]:  # the direct light alone
-            values = self._direct(segments, tau, position, ng, ns, -d_k, base, mat, depth, ids, lam, cache)
+            values = self._direct(segments, tau, position, ng, ns, -d_k, base, mat, depth, ids, lam, cache,
+                                  cos_view)
         else:
             values = self._emission(segments, tau, prim, mat, lam)
             if self.lights:
-                values += self._direct(segments, tau, position, ng, ns, -d_k, base, mat, depth, ids, lam, cache)
+                values += self._direct(segments, tau, position, ng, ns, -d_k, base, mat, depth, ids, lam, cache,
+                                  cos_view)
         if self._bounces(depth):
             for k, s in segments:
                 values[s] += self._secondary(k, tau[s], position[s], ng[s], ns[s], d_k[s], base[s], mat[s], back[s],
@@ -635,10 +644,10 @@ class Shader:
         return ns
 
     # ------------------------------------------------------------------ direct light
-    def brdf(self, ns, view, light, base, mat, cos_l=None):
+    def brdf(self, ns, view, light, base, mat, cos_l=None, cos_v=None):
         """The surfaces' non-delta BSDF f (n, C) (without the cosine), in their rest frame: the
         diffuse lobe and, on rough surfaces with a specular lobe, GGX highlights (``layered``: as
-        :class:`LayeredLobes`; ``cos_l``: ns . light where the caller has it).  Mirror reflection
+        :class:`LayeredLobes`; ``cos_l``, ``cos_v``: ns . light and ns . view where the caller has them).  Mirror reflection
         and refraction are delta lobes, traced instead (DIRECT: ``_secondary``)."""
         mats = self.materials
         if self.layered:
@@ -653,12 +662,12 @@ class Shader:
             return value
         m = mat[r] if one is None else slice(one, one + 1)
         f0 = mats.f0_dielectric[m][:, None]  # a grey F0 (one column) unless metallic
-        if np.any(mats.metallic[m] > 0.0):
+        if (mats.metallic[one] > 0.0) if one is not None else np.any(mats.metallic[m] > 0.0):
             f0 = rows.scale(base[r], mats.metallic[m]) + f0
         else:
             f0 = np.broadcast_to(f0, (len(value) if one is not None else len(r), 1))
         specular = ggx_reflection(ns[r], view[r], light[r], mats.alpha[m], f0, mats.f90[m],
-                                  None if cos_l is None else cos_l[r])
+                                  None if cos_l is None else cos_l[r], None if cos_v is None else cos_v[r])
         if one is not None and value.shape[1] <= 4:  # column by column (see rows)
             for c in range(value.shape[1]):
                 value[:, c] += specular[:, min(c, specular.shape[1] - 1)]
@@ -666,10 +675,10 @@ class Shader:
             value[r] += specular
         return value
 
-    def _direct(self, segments, tau, position, ng, ns, view, base, mat, depth, ids, lam, cache):
+    def _direct(self, segments, tau, position, ng, ns, view, base, mat, depth, ids, lam, cache, cos_view=None):
         """The lamps' light reflected toward ``view`` (n, C): one shadow ray per lamp and hit, of
-        the hits of several frames (``segments``: (frame k, its rows), in order).  A selection of
-        hits is a slice while it is all of them (views, not gathers)."""
+        the hits of several frames (``segments``: (frame k, its rows), in order; ``cos_view``:
+        ns . view if known).  A selection of hits is a slice while it is all of them (views, not gathers)."""
         total = None
         for index, light in enumerate(self.lights):
             dim = 1000 + 100 * depth + 4 * index
@@ -702,7 +711,7 @@ class Shader:
             elif shadowed:  # a few: cheaper to shade them too, with no light
                 weight[blocked] = 0.0
             f = self.brdf(rows.take(ns, sel), rows.take(view, sel), e_sel, rows.take(base, sel), rows.take(mat, sel),
-                          rows.take(cos_n, sel))
+                          rows.take(cos_n, sel), None if cos_view is None else rows.take(cos_view, sel))
             emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), rows.take(doppler, sel)), len(f),
                                         None if clock is None else rows.take(clock, sel))
             f = _weighted_product(f, emitted, weight)
@@ -761,9 +770,10 @@ class Shader:
         n = len(tau)
         x_axis, y_axis, z_axis = pl.axes[:, 0], pl.axes[:, 1], pl.axes[:, 2]
         if light.kind == "SUN":  # the path length is unbounded (one number for all hits)
-            e_j = np.broadcast_to(z_axis, (n, 3))
             if light.sun_angle > 0.0:
                 e_j = _cone_sample(z_axis, 0.5 * light.sun_angle, xi1, xi2)
+            else:
+                e_j = np.broadcast_to(z_axis, (n, 3))
             to_surface = self.frames.map(pl.frame, k)
             clock = None
             if pl.keyed is not None:  # the plane wave passed the lamp's place (P - x).e before reaching x

@@ -447,8 +447,18 @@ def test_a_flat_meshs_hits_share_its_one_normal_as_a_broadcast_row_turned_as_the
         expected = passes._turned_to_viewer(per_hit[1].copy(), per_hit[1].copy(), d_k)
         turned = passes._turned_to_viewer(kept[1], kept[1], d_k)
         assert turned[1] is turned[0] and rows.is_broadcast(turned[0]) == (len(np.unique(turned[2])) == 1)
-        for a, b in zip(expected, turned):
+        for a, b in zip(expected[:3], turned[:3]):
             np.testing.assert_array_equal(a, b)
+        # the cosines with the view, from the turn's dot products: those the shader would make itself
+        assert (turned[3] is None) == (not rows.is_broadcast(turned[0]))
+        for normals, cos_view in ((expected[1], expected[3]), (turned[1], turned[3])):
+            if cos_view is not None:
+                np.testing.assert_array_equal(cos_view, rows.dot(normals, -d_k))
+    # smooth shading normals: the cosines of the turned ones, those turned away replaced by ng's
+    ns = rows.normalized(per_hit[1] + rng.normal(scale=0.6, size=(len(prim), 3)))
+    ng_turned, ns_turned, back, cos_view = passes._turned_to_viewer(per_hit[1].copy(), ns, d_k)
+    assert back.any() and not back.all() and (ns_turned == ng_turned).all(axis=1).any()
+    np.testing.assert_array_equal(cos_view, rows.dot(ns_turned, -d_k))
     sphere = build_frames(grid_scene(shuffled_sphere())).frames[0]
     assert not rows.is_broadcast(tracer.hit_geometry(sphere, prim % 50, u, v, cache=tracer.TraceCache())[1])
 

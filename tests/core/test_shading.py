@@ -288,7 +288,7 @@ def test_ggx_from_cosines_changes_images_by_at_most_one_float32_step(monkeypatch
 
     from restframe_addon.core import shading
 
-    def half_vector_reflection(n, view, light, alpha, f0, f90, cos_l=None):
+    def half_vector_reflection(n, view, light, alpha, f0, f90, cos_l=None, cos_v=None):
         single, cos_vh = half_vector_ggx(n, view, light, alpha)
         schlick = (1.0 - cos_vh) ** 5
         return (f0 * (1.0 - schlick)[:, None] + (f90 * schlick)[:, None]) * single[:, None]
@@ -453,6 +453,25 @@ def test_rows_put_assigns_rows_as_fancy_indexing_does():
                 np.testing.assert_array_equal(target, expected)
                 rows.assign(target[:200], new)
                 np.testing.assert_array_equal(target[:200], new)
+
+
+def test_rows_scale_in_place_gives_the_rows_times_their_scalars():
+    """rows.scale(a, s, out=a) (GGX's Fresnel term times the lobe, no new array) is ``a * s[:, None]``
+    bit for bit, for one, three and sixteen columns, and returns a itself."""
+    from restframe_addon.core import bsdf, rows
+
+    rng = np.random.default_rng(5)
+    s = rng.random(300)
+    for columns in (1, 3, 16):
+        a = rng.random((300, columns))
+        expected = a * s[:, None]
+        assert rows.scale(a, s, out=a) is a
+        np.testing.assert_array_equal(a, expected)
+    cos_i, f0, f90 = rng.random(300) * 1.2 - 0.1, rng.random((300, 3)), rng.random(300)
+    s5 = (1.0 - np.clip(cos_i, 0.0, 1.0)) ** 2
+    s5 = s5 * s5 * (1.0 - np.clip(cos_i, 0.0, 1.0))
+    np.testing.assert_array_equal(bsdf.fresnel_schlick(cos_i, f0, f90),
+                                  f0 * (1.0 - s5)[:, None] + (f90 * s5)[:, None])
 
 
 @pytest.mark.parametrize("mode", ["OFF", "SPECTRAL"])
