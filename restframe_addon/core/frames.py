@@ -103,6 +103,7 @@ class Geometry:
     tri_visibility: np.ndarray | None = None  # (M,) uint8 RAY_* bits of the rays that see each triangle; None: all
     tri_holdout: np.ndarray | None = None  # (M,) bool: holdout triangles; None: none
     radius: float = 0.0  # distance from the local origin (a moving body's pivot) to its farthest used vertex
+    clock: float | None = None  # every triangle's tri_clock when they share one (a lone mesh's), else None
     extent: float = field(init=False)  # the longest side of the bounds
 
     def __post_init__(self):
@@ -211,8 +212,11 @@ class RestFrame:
         return 1e-5 * self.geometry.extent + 1e-14 * reach + segment
 
     def object_clock(self, tau, prim):
-        """The body's own clock (c*t units, 0 at its origin event) at frame times tau of hits."""
-        return tau + self.clock_offset + self.geometry.tri_clock[prim]
+        """The body's own clock (c*t units, 0 at its origin event) at frame times tau (an array)
+        of hits on triangles prim (as long): without a gather when the triangles share one clock
+        (the same sums: 0.23 ms a call for the floor's 45k hits)."""
+        clock = self.geometry.clock
+        return tau + self.clock_offset + (self.geometry.tri_clock[prim] if clock is None else clock)
 
     def pose(self, tau):
         """Rotations (n, 3, 3) of a spinning body at frame times tau: its Blender pose at clock 0."""
@@ -631,6 +635,7 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
         tri_material=_joined([p["material"] for p in parts], new="material" in parts[0]["new"]),
         tri_object_index=_joined([p["object_index"] for p in parts], new=True),  # (_mesh_part's np.full)
         tri_clock=_joined([p["clock"] for p in parts], new=True),
+        clock=float(parts[0]["clock"][0]) if len(parts) == 1 else None,  # (_mesh_part's np.full of one clock)
         corner_normals=normals, corner_uvs=uvs, lo=lo, hi=hi, anchor=anchor, embree=scene,
         piece_start=piece_start, tri_visibility=visibility, tri_holdout=holdout,
     )

@@ -507,3 +507,19 @@ def test_a_lone_meshs_arrays_are_copied_once_and_never_shared_with_the_scene(mon
     materials[:] = 1
     np.testing.assert_array_equal(geometry.triangles, t)
     assert not geometry.tri_material.any()
+
+
+def test_a_bodys_clock_at_hits_is_the_same_with_one_clock_for_all_triangles_as_gathered():
+    """A lone mesh's triangles share one clock (``Geometry.clock``): the object clock at hits is
+    the same bits as the gather from the per-triangle clocks; several meshes in a frame gather."""
+    v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, 8, 4)
+    camera = look_at_camera((0, -4, 0), (0, 0, 0))
+    lone = build_frames(Scene(camera=camera, meshes=[Mesh("ball", v, t, velocity=Velocity((0.5, 0.2, 0)),
+                                                          pivot=(0.3, -0.2, 0.1))])).frames[-1]
+    assert lone.geometry.clock is not None and np.all(lone.geometry.tri_clock == lone.geometry.clock)
+    rng = np.random.default_rng(5)
+    prim, tau = rng.integers(0, len(t), 100), rng.normal(size=100)
+    gathered = tau + lone.clock_offset + lone.geometry.tri_clock[prim]
+    assert lone.object_clock(tau, prim).tobytes() == gathered.tobytes()
+    two = build_frames(Scene(camera=camera, meshes=[Mesh("a", v, t), Mesh("b", v + 3.0, t)])).frames[-1]
+    assert two.geometry.clock is None
