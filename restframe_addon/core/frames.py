@@ -545,7 +545,7 @@ def _mesh_part(mesh, boost: Boost, warnings: list[str], relative_to=None):
     triangles, materials = triangles[keep], materials[keep]
     new = tuple(name for name, array, given in (("material", materials, mesh.material_indices),
                                                 ("triangles", triangles, mesh.triangles))
-                if not (isinstance(given, np.ndarray) and np.may_share_memory(array, given)))  # (names: a digest's)
+                if not (isinstance(given, np.ndarray) and np.may_share_memory(array, given)))  # (a tuple: parts_key digests it)
     if relative_to is None:
         placed = vertices + shift_into_frame(boost, mesh.pivot)
         clock = -clock_shift(boost, mesh.pivot)
