@@ -103,6 +103,7 @@ class Geometry:
     tri_visibility: np.ndarray | None = None  # (M,) uint8 RAY_* bits of the rays that see each triangle; None: all
     tri_holdout: np.ndarray | None = None  # (M,) bool: holdout triangles; None: none
     radius: float = 0.0  # distance from the local origin (a moving body's pivot) to its farthest used vertex
+    clock: float | None = None  # every triangle's tri_clock when they share one (a lone mesh's), else None
     extent: float = field(init=False)  # the longest side of the bounds
 
     def __post_init__(self):
@@ -211,8 +212,11 @@ class RestFrame:
         return 1e-5 * self.geometry.extent + 1e-14 * reach + segment
 
     def object_clock(self, tau, prim):
-        """The body's own clock (c*t units, 0 at its origin event) at frame times tau of hits."""
-        return tau + self.clock_offset + self.geometry.tri_clock[prim]
+        """The body's own clock (c*t units, 0 at its origin event) at frame times tau (an array)
+        of hits on triangles prim (as long): without a gather when the triangles share one clock
+        (the same sums: 0.23 ms a call for the floor's 45k hits)."""
+        clock = self.geometry.clock
+        return tau + self.clock_offset + (self.geometry.tri_clock[prim] if clock is None else clock)
 
     def pose(self, tau):
         """Rotations (n, 3, 3) of a spinning body at frame times tau: its Blender pose at clock 0."""
@@ -514,7 +518,8 @@ def _add_clusters(geometries: list[Geometry], should_stop) -> None:
 
 def _mesh_part(mesh, boost: Boost, warnings: list[str], relative_to=None):
     """Valid triangles of a mesh, placed in its shared frame (or relative to a pivot): the
-    vertices in a new array, the other arrays possibly views of the mesh's."""
+    vertices in a new array, the other arrays possibly views of the mesh's; ``"new"``: which of the
+    triangles and material numbers are not (a lone part's are then used as they are, not copied again)."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
     triangles = np.asarray(mesh.triangles, dtype=np.int64).reshape(-1, 3)
     if len(triangles) == 0:
@@ -537,6 +542,10 @@ def _mesh_part(mesh, boost: Boost, warnings: list[str], relative_to=None):
         if mesh.material_indices is None
         else np.asarray(mesh.material_indices, dtype=np.int32)
     )
+    triangles, materials = triangles[keep], materials[keep]
+    new = tuple(name for name, array, given in (("material", materials, mesh.material_indices),
+                                                ("triangles", triangles, mesh.triangles))
+                if not (isinstance(given, np.ndarray) and np.may_share_memory(array, given)))  # (a tuple: parts_key digests it)
     if relative_to is None:
         placed = vertices + shift_into_frame(boost, mesh.pivot)
         clock = -clock_shift(boost, mesh.pivot)
@@ -545,14 +554,15 @@ def _mesh_part(mesh, boost: Boost, warnings: list[str], relative_to=None):
         clock = 0.0
     return {
         "vertices": placed,
-        "triangles": triangles[keep],
-        "material": materials[keep],
+        "triangles": triangles,
+        "material": materials,
         "object_index": np.full(count, mesh.object_index, dtype=np.int32),
         "clock": np.full(count, clock),
         "normals": None if mesh.corner_normals is None else np.asarray(mesh.corner_normals, np.float64)[keep],
         "uvs": None if mesh.corner_uvs is None else np.asarray(mesh.corner_uvs, np.float64)[keep],
         "visibility": int(mesh.visibility) & RAY_ALL,
         "holdout": bool(mesh.holdout),
+        "new": new,
     }
 
 
@@ -584,7 +594,8 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     offsets = np.cumsum([0] + [len(p["vertices"]) for p in parts[:-1]])
     # (a lone part's vertices are its own: _mesh_part places them in a new array)
     vertices = parts[0]["vertices"] if len(parts) == 1 else np.concatenate([p["vertices"] for p in parts])
-    triangles = _joined([p["triangles"] + o if o else p["triangles"] for p, o in zip(parts, offsets)])
+    triangles = _joined([p["triangles"] + o if o else p["triangles"] for p, o in zip(parts, offsets)],
+                        new="triangles" in parts[0]["new"])
     normals = uvs = None
     if any(p["normals"] is not None for p in parts):
         normals = np.concatenate([p["normals"] if p["normals"] is not None else _flat_normals(p) for p in parts])
@@ -621,18 +632,21 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     return Geometry(
         radius=radius,
         vertices=vertices, triangles=triangles,
-        tri_material=_joined([p["material"] for p in parts]),
-        tri_object_index=_joined([p["object_index"] for p in parts]),
-        tri_clock=_joined([p["clock"] for p in parts]),
+        tri_material=_joined([p["material"] for p in parts], new="material" in parts[0]["new"]),
+        tri_object_index=_joined([p["object_index"] for p in parts], new=True),  # (_mesh_part's np.full)
+        tri_clock=_joined([p["clock"] for p in parts], new=True),
+        clock=float(parts[0]["clock"][0]) if len(parts) == 1 else None,  # (_mesh_part's np.full of one clock)
         corner_normals=normals, corner_uvs=uvs, lo=lo, hi=hi, anchor=anchor, embree=scene,
         piece_start=piece_start, tri_visibility=visibility, tri_holdout=holdout,
     )
 
 
-def _joined(arrays: list[np.ndarray]) -> np.ndarray:
-    """The arrays one after the other: a copy of the one array of a lone part (its arrays may be
-    views of the scene's), not two."""
-    return np.array(arrays[0]) if len(arrays) == 1 else np.concatenate(arrays)
+def _joined(arrays: list[np.ndarray], new: bool = False) -> np.ndarray:
+    """The arrays one after the other: the one array of a lone part as it is if ``new`` (made
+    for this build), else a copy (it may be a view of the scene's), not two."""
+    if len(arrays) == 1:
+        return arrays[0] if new else np.array(arrays[0])
+    return np.concatenate(arrays)
 
 
 def _commit(scene) -> None:

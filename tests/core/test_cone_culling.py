@@ -320,6 +320,33 @@ def test_a_lone_frame_is_culled_too(monkeypatch):
         assert np.array_equal(getattr(culled, f.name)[hit], getattr(everything, f.name)[hit]), f.name
 
 
+@pytest.mark.parametrize("share", [0.45, 0.6])
+def test_a_lone_moving_frames_bundle_is_gathered_up_to_its_boosted_share(monkeypatch, share):
+    """A lone moving body's camera bundle whose cull keeps a share of its rays between
+    ``_GATHER_SHARE`` and ``_BOOSTED_GATHER_SHARE`` has only those rays boosted and queried (each
+    ray traced whole would cost its boost too), under ``_GATHER_SHARE`` too; the very same hits as tracing every ray."""
+    v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, 24, 12)
+    frame_set = build_frames(Scene(camera=look_at_camera(tuple(EYE), (0.0, 0.0, 0.0)),
+                                   meshes=[Mesh("ball", v, t, velocity=Velocity((0.5, 0.2, 0.0)))]))
+    wide = camera_bundle()
+    toward = wide[tracer.trace_nearest(frame_set, frame_set.world, *from_the_eye(wide), wide, 1e-6, np.inf).frame >= 0]
+    away = -wide  # (each outside the ball's cone)
+    m = len(toward)
+    d = np.concatenate([toward, away[:int(m * (1 - share) / share)]])
+    tau0, x0 = from_the_eye(d)
+    queried = queried_rays(monkeypatch)
+    culled = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
+    assert queried == [m] and (culled.frame[:m] >= 0).all()
+    queried[:] = []
+    unculled(monkeypatch)
+    everything = tracer.trace_nearest(frame_set, frame_set.world, tau0, x0, d, 1e-6, np.inf)
+    assert queried == [len(d)]
+    hit = culled.frame >= 0
+    assert np.array_equal(hit, everything.frame >= 0)
+    for f in fields(culled):
+        assert np.array_equal(getattr(culled, f.name)[hit], getattr(everything, f.name)[hit]), f.name
+
+
 @pytest.mark.parametrize("ufunc", [np.minimum, np.maximum])
 def test_per_run_reductions_are_those_of_each_run(ufunc):
     values = np.random.default_rng(2).normal(size=(37 * tracer._RUN, 3))  # runs along the first axis

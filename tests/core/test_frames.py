@@ -492,3 +492,44 @@ def test_padded_vertices_are_the_float64_offsets_rounded_once_in_embrees_layout(
     np.testing.assert_array_equal(padded[:, :3], (vertices - anchor).astype(np.float32))
     assert not padded[:, 3].any()
     assert embree_direct._padded(padded) is padded  # laid out already: not copied again
+
+
+@pytest.mark.parametrize("dtype", [np.int32, np.int64])
+def test_a_lone_meshs_arrays_are_copied_once_and_never_shared_with_the_scene(monkeypatch, dtype):
+    """A body of one mesh keeps the per-triangle arrays its build made (no second copy: the
+    object numbers, the clocks, triangles converted to int64), and copies those that are still
+    the scene's (int64 triangles, int32 material numbers): changing the scene later changes no
+    geometry."""
+    v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, 8, 4)
+    triangles, materials = t.astype(dtype), np.zeros(len(t), dtype=np.int32)
+    scene = Scene(camera=look_at_camera((0, -4, 0), (0, 0, 0)),
+                  meshes=[Mesh("ball", v, triangles, material_indices=materials, velocity=Velocity((0.5, 0, 0)))])
+    parts = []
+    made = frames._mesh_part
+    monkeypatch.setattr(frames, "_mesh_part", lambda *args, **kwargs: parts.append(made(*args, **kwargs)) or parts[-1])
+    geometry = build_frames(scene).frames[-1].geometry
+    (part,) = parts
+    assert geometry.tri_object_index is part["object_index"] and geometry.tri_clock is part["clock"]
+    assert np.shares_memory(geometry.triangles, part["triangles"]) == (dtype == np.int32)
+    assert not np.shares_memory(geometry.triangles, triangles) and not np.shares_memory(geometry.tri_material, materials)
+    np.testing.assert_array_equal(geometry.triangles, t)
+    triangles[:] = 0
+    materials[:] = 1
+    np.testing.assert_array_equal(geometry.triangles, t)
+    assert not geometry.tri_material.any()
+
+
+def test_a_bodys_clock_at_hits_is_the_same_with_one_clock_for_all_triangles_as_gathered():
+    """A lone mesh's triangles share one clock (``Geometry.clock``): the object clock at hits is
+    the same bits as the gather from the per-triangle clocks; several meshes in a frame gather."""
+    v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, 8, 4)
+    camera = look_at_camera((0, -4, 0), (0, 0, 0))
+    lone = build_frames(Scene(camera=camera, meshes=[Mesh("ball", v, t, velocity=Velocity((0.5, 0.2, 0)),
+                                                          pivot=(0.3, -0.2, 0.1))])).frames[-1]
+    assert lone.geometry.clock is not None and np.all(lone.geometry.tri_clock == lone.geometry.clock)
+    rng = np.random.default_rng(5)
+    prim, tau = rng.integers(0, len(t), 100), rng.normal(size=100)
+    gathered = tau + lone.clock_offset + lone.geometry.tri_clock[prim]
+    assert lone.object_clock(tau, prim).tobytes() == gathered.tobytes()
+    two = build_frames(Scene(camera=camera, meshes=[Mesh("a", v, t), Mesh("b", v + 3.0, t)])).frames[-1]
+    assert two.geometry.clock is None

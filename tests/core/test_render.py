@@ -579,7 +579,7 @@ def test_tiles_that_see_nothing_are_rendered_once_per_shape(threads):
 
 def test_tiles_that_see_something_are_dealt_first(monkeypatch):
     """The render threads take the tiles that see something first, then the short ones that see
-    nothing (which even out the threads' ends), each tile once, all found in one pass."""
+    nothing (which even out the threads' ends), each tile once, all found in one pass (one thread: in their order, also found in one pass)."""
     from restframe_addon.core.prepared import prepare
     from restframe_addon.core.render import UnseenTiles, seen_first, tiles_in_threads
 
@@ -596,6 +596,10 @@ def test_tiles_that_see_something_are_dealt_first(monkeypatch):
     assert asked == [len(rects)]  # every tile's cone and cull at once, not one call per tile
     tiles = list(tiles_in_threads(prepared, rects, 2, lambda: False))
     assert sorted((t.x0, t.y0, t.x1, t.y1) for t in tiles) == sorted(rects)
+    asked.clear()
+    tiles = list(tiles_in_threads(prepared, rects, 1, lambda: False))
+    assert [(t.x0, t.y0, t.x1, t.y1) for t in tiles] == rects  # one thread: in their order,
+    assert asked == [len(rects)]  # and their emptiness found at once too
 
 
 def test_a_tiles_camera_rays_are_culled_once_for_all_its_samples(monkeypatch):
