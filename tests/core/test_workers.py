@@ -340,18 +340,49 @@ def test_render_stats_account_for_every_share(pool):
 
 
 def test_shares_come_back_in_the_results_image_and_it_is_removed(pool, monkeypatch):
-    """Every share, bands too, is written in place (nothing comes through the pipes); the tiles
-    outlive the render's file, and no worker keeps it mapped."""
+    """Every share, bands too, is written in place (nothing comes through the pipes), and no
+    worker keeps the image mapped.  A whole render's image is kept for the next render of its
+    size, which takes it (its pages stay mapped here) once no tile of it is held; while one is,
+    the next render makes its own and removes the kept file (the held tiles outlive it,
+    unchanged); a render of another size removes it too."""
     monkeypatch.setattr(workers, "_MIN_SHARE_PIXELS", 1)
     prepared = prepare(busy_scene(Velocity((0.0, 0.4, 0.0))), settings(tile_size=12, samples=2))
+    others = set(_results_files(os.getpid())) - {image.path for image in pool._kept}  # other pools' images
     tiles = list(pool.render(prepared, lambda: False, 2))
     stats = pool.last_stats
     assert stats.shares > len(prepared.tiles()) and stats.in_place == stats.shares
-    assert not _results_files(os.getpid())
+    (first,) = [image.path for image in pool._kept]
+    assert set(_results_files(os.getpid())) - others == {first}
     for pid in pool.pids:
         with open(f"/proc/{pid}/maps") as maps:
             assert "restframe-tiles-" not in maps.read()
-    assert_same_passes(assemble(prepared, tiles), in_threads(prepared))
+    expected = assemble(prepared, tiles)
+    assert_same_passes(expected, in_threads(prepared))
+    again = assemble(prepared, pool.render(prepared, lambda: False, 2))  # the first render's tiles are held
+    (second,) = [image.path for image in pool._kept]
+    assert second != first and set(_results_files(os.getpid())) - others == {second}
+    assert_same_passes(assemble(prepared, tiles), expected) and assert_same_passes(again, expected)
+    del tiles
+    assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), expected)
+    assert [image.path for image in pool._kept] == [second]  # taken again: no tile of it was held
+    smaller = prepare(busy_scene(), settings(tile_size=12, resolution=(12, 6)))
+    list(pool.render(smaller, lambda: False, 2))
+    assert second not in _results_files(os.getpid()) and len(pool._kept) == 1
+
+
+def test_a_stopped_render_keeps_no_results_image(pool):
+    """A render stopped early may have shares out, which a worker could still write: its image
+    is removed, not kept for the next render."""
+    prepared = prepare(busy_scene(), settings(tile_size=6))
+    list(pool.render(prepared, lambda: False, 2))
+    (kept,) = [image.path for image in pool._kept]
+    for _ in pool.render(prepared, lambda: True, 2):
+        pass
+    assert pool._kept == [] and kept not in _results_files(os.getpid())
+    renders = iter(pool.render(prepared, lambda: False, 2))
+    next(renders)
+    renders.close()  # the caller stopped iterating
+    assert pool._kept == []
 
 
 def test_a_results_image_that_cannot_be_removed_yet_goes_with_the_next_render(pool, monkeypatch):
@@ -364,18 +395,22 @@ def test_a_results_image_that_cannot_be_removed_yet_goes_with_the_next_render(po
         remove(path)
 
     prepared = prepare(busy_scene(), settings(tile_size=12))
+    held = list(pool.render(prepared, lambda: False, 2))  # kept, but held: not taken again
+    (first,) = [image.path for image in pool._kept]
     monkeypatch.setattr(os, "remove", refuse)
     list(pool.render(prepared, lambda: False, 2))
-    assert len(_results_files(os.getpid())) == 1 and pool._unremoved == _results_files(os.getpid())
+    assert pool._unremoved == [first] and first in _results_files(os.getpid())
     monkeypatch.setattr(os, "remove", remove)
+    del held
     list(pool.render(prepared, lambda: False, 2))
-    assert not _results_files(os.getpid()) and pool._unremoved == []
+    assert first not in _results_files(os.getpid()) and pool._unremoved == []
 
 
 def test_without_room_for_a_results_image_the_results_come_through_the_pipes(pool, monkeypatch):
     monkeypatch.setattr(workers, "_RESULTS_FOLDERS", ("/nonexistent-folder",))
     monkeypatch.setattr(workers, "_MIN_SHARE_PIXELS", 1)
-    prepared = prepare(busy_scene(Velocity((0.0, 0.4, 0.0))), settings(tile_size=12, samples=2))
+    # a size of its own: an image kept from an earlier render of this pool would be taken again
+    prepared = prepare(busy_scene(Velocity((0.0, 0.4, 0.0))), settings(tile_size=12, samples=2, resolution=(30, 18)))
     assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
     assert pool.last_stats.in_place == 0 and pool.last_stats.shares > len(prepared.tiles())
 
