@@ -91,6 +91,9 @@ _WATCHDOG = 0.2  # seconds between a worker's checks that its parent lives
 # where a render's results image is made: shared memory first (Linux), else the temporary folder
 _RESULTS_FOLDERS = ("/dev/shm", tempfile.gettempdir())
 _ALIGN = 64  # bytes: where each array of a scene's file starts (as numpy aligns its own)
+# a finished render's results image is kept for the next one of its size only up to this many bytes:
+# its ~1 ms of page faults saved is worth a small image's shared memory, not a large one's held between renders
+_KEPT_RESULTS_BYTES = 64 << 20
 _IN_BAND_BYTES = 1 << 16  # smaller arrays are copied into the scene's pickle (a write and padding each would cost more)
 _FRAME = struct.Struct("<Q")  # a worker's message on its pipe: the length of its pickle, then the pickle
 # Windows cannot wait on pipes with select: a reader thread per worker reads its pipe there
@@ -761,7 +764,8 @@ class WorkerPool:
             if len(done) < len(rects):  # Esc, an error, or the caller stopped iterating: free the workers at once
                 for worker in workers:
                     worker.send(("cancel", job))
-            if results.path is not None and len(done) == len(rects) and not any(worker.dealt for worker in workers):
+            if (results.path is not None and results.values.nbytes <= _KEPT_RESULTS_BYTES and len(done) == len(rects)
+                    and not any(worker.dealt for worker in workers)):
                 self._kept.append(results)  # no share of it is out: for the next render of its size
             elif results.path is not None and not _remove(results.path):  # mapped here while the tiles live
                 self._unremoved.append(results.path)  # Windows: removed once they are gone

@@ -385,6 +385,19 @@ def test_a_stopped_render_keeps_no_results_image(pool):
     assert pool._kept == []
 
 
+def test_a_large_results_image_is_not_kept_between_renders(pool, monkeypatch):
+    """Keeping a finished render's image saves page faults, not worth holding a large image's
+    shared memory until the next render: above ``_KEPT_RESULTS_BYTES`` its file goes at once."""
+    prepared = prepare(busy_scene(), settings(tile_size=6))
+    list(pool.render(prepared, lambda: False, 2))
+    (kept,) = pool._kept
+    path = kept.path
+    monkeypatch.setattr(workers, "_KEPT_RESULTS_BYTES", kept.values.nbytes - 1)
+    del kept
+    list(pool.render(prepared, lambda: False, 2))  # (takes the kept image, then lets it go)
+    assert pool._kept == [] and path not in _results_files(os.getpid())
+
+
 def test_a_results_image_that_cannot_be_removed_yet_goes_with_the_next_render(pool, monkeypatch):
     """As on Windows, where a file stays while the tiles that map it live."""
     remove = os.remove
