@@ -86,13 +86,10 @@ class Samples:
 
     @property
     def sample(self) -> np.ndarray:
-        """(One sample number broadcast stays a broadcast: a batch of one sample per pixel.)"""
+        """(One sample number broadcast stays a broadcast, as rows.take keeps it: a batch of one
+        sample per pixel.)"""
         if self._sample is None:
-            sample = self._source.sample
-            if sample.strides == (0,) and len(sample):
-                self._sample = np.broadcast_to(sample[:1], (len(self.pixel),))
-            else:
-                self._sample = rows.take(sample, self._index)
+            self._sample = rows.take(self._source.sample, self._index)
         return self._sample
 
     @property

@@ -488,8 +488,8 @@ class Shader:
         """Material numbers (rows of the MaterialTable) of triangles ``prim`` of frame k (read-only:
         one number broadcast where all the frame's triangles have it)."""
         one = self._one_material.get(k)
-        if one is not None:  # (the view made directly: np.broadcast_to costs 5x as much)
-            return np.ndarray((len(prim),), one.dtype, one, strides=(0,))
+        if one is not None:
+            return rows.broadcast(one, len(prim))
         return self.materials.clamp(np.take(self.frames.frames[k].geometry.tri_material, prim))
 
     def _frames_materials(self, segments, prim) -> np.ndarray:
