@@ -1016,9 +1016,9 @@ def serve(commands, results, parent_pid: int):
 
     def send(message, hold=False):
         """Send ``message`` to the parent with those held before it, in one write; ``hold``: only
-        with the next (a scene's "built", which the parent reads with the first share: one
-        wake-up and one read of its pipe fewer a worker and render, 16 workers' built arriving
-        one by one woke its loop 3-4 times an F12)."""
+        with the next (a scene's "built", which the parent then reads with the first share's note:
+        a read fewer a worker and render, and no wake-up of its loop for a "built" alone, 2-4 an
+        F12 on 16 workers)."""
         payload = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
         held.append(_FRAME.pack(len(payload)) + payload)
         if hold:

@@ -211,7 +211,7 @@ def streaming_for_tiles(measured):
 
 TWO_CORES_GOAL = 1.9  # two cores at least this many times one core (worker processes)
 MEASURED_WORKERS = 16  # the worker processes of the measured strict rows (the projection's cores)
-# F12s on them whose least parent CPU the measured rows count: one moved 13-33 ms for moving_sphere
+# F12s on them whose least parent CPU the measured rows count: one moved 12-33 ms for moving_sphere
 # between runs of the same code (serial17, docs/speed.md), 3 of them 13-17 ms
 MEASURED_RENDERS = 3
 PROJECTION_GOAL = 12.0  # the strict serial share projects at least this many times on 16 cores
