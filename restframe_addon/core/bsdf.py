@@ -95,15 +95,12 @@ def ggx_ndf(cos_h, alpha):
     return np.where(cos_h > 0.0, _ggx_ndf_of_squared(np.minimum(cos_h**2, 1.0), alpha), 0.0)
 
 
-def _ggx_ndf_of_squared(c2, alpha, dtype=None):
+def _ggx_ndf_of_squared(c2, alpha):
     """GGX D(h) (n.h > 0) from c2 = (n.h)^2 in [0, 1]: a^2 / (pi (1 - c2 + a^2 c2)^2), in place
-    (c2 overwritten); ``dtype``: D in that precision from 1 - c2 + a^2 c2 in c2's (its
-    cancellation near the peak of a sharp lobe needs float64; the rest is products)."""
+    (c2 overwritten)."""
     a2 = alpha**2
     d = np.subtract(1.0, c2)
     d += np.multiply(c2, a2, out=c2)
-    if dtype is not None:
-        d, a2 = d.astype(dtype), np.asarray(a2, dtype)
     d *= d
     d *= np.pi
     return np.divide(a2, d, out=d)
@@ -142,7 +139,7 @@ def ggx_visibility(cos_v, cos_l, alpha):
     return np.divide(1.0, s_v, out=s_v)
 
 
-def ggx_single(cos_v, cos_l, cos_vl, alpha, dtype=None):
+def ggx_single(cos_v, cos_l, cos_vl, alpha):
     """One GGX lobe's D G2 / (4 cos_v cos_l) (without Fresnel; valid where both directions are
     above the surface) and the half vector's cosine with the view (for the caller's Fresnel term)
     from the cosines of the normal with view and light and of view with light: h = (v + l) / |v + l|
@@ -154,9 +151,7 @@ def ggx_single(cos_v, cos_l, cos_vl, alpha, dtype=None):
     c2 *= c2
     c2 /= half
     c2 *= 0.5
-    single = _ggx_ndf_of_squared(np.minimum(c2, 1.0, out=c2), alpha, dtype)
-    if dtype is not None:  # (well conditioned from here: products, quotients, square roots of sums)
-        cos_v, cos_l, alpha, half = (np.asarray(a, dtype) for a in (cos_v, cos_l, alpha, half))
+    single = _ggx_ndf_of_squared(np.minimum(c2, 1.0, out=c2), alpha)
     single *= ggx_visibility(cos_v, cos_l, alpha)
     half *= 0.5
     return single, np.sqrt(half, out=half)
@@ -169,19 +164,15 @@ def ggx_single_scattering(n, view, light, alpha):
     return single, (cos_v > 0.0) & (cos_l > 0.0), cos_vh
 
 
-def ggx_reflection(n, view, light, alpha, f0, f90, cos_l=None, cos_v=None, dtype=None):
+def ggx_reflection(n, view, light, alpha, f0, f90, cos_l=None, cos_v=None):
     """GGX specular BRDF value f (n, C), without the cosine: D G2 F / (4 cos_v cos_l), Schlick
     Fresnel from f0 (n, C) to f90 (n,) at the half vector.  0 where either direction is below;
-    ``cos_l`` = n . light and ``cos_v`` = n . view where the caller has them; ``dtype``: the
-    value in that precision (:func:`ggx_single`)."""
+    ``cos_l`` = n . light and ``cos_v`` = n . view where the caller has them."""
     cos_v = rows.dot(n, view) if cos_v is None else cos_v
     cos_l = rows.dot(n, light) if cos_l is None else cos_l
-    single, cos_vh = ggx_single(cos_v, cos_l, rows.dot(view, light), alpha, dtype)
+    single, cos_vh = ggx_single(cos_v, cos_l, rows.dot(view, light), alpha)
     if not (len(cos_v) and cos_v.min() > 0.0 and cos_l.min() > 0.0):  # (a NaN's min fails too: masked)
         np.copyto(single, 0.0, where=~((cos_v > 0.0) & (cos_l > 0.0)))
-    if dtype is not None:  # (a broadcast row stays one)
-        f0 = rows.broadcast(np.asarray(f0[:1], dtype), len(f0)) if rows.is_broadcast(f0) else np.asarray(f0, dtype)
-        f90 = np.asarray(f90, dtype)
     value = fresnel_schlick(cos_vh, f0, f90)
     return rows.scale(value, single, out=value)  # (its own array: in place)
 

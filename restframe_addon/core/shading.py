@@ -667,11 +667,8 @@ class Shader:
         else:
             f0 = np.broadcast_to(f0, (len(value) if one is not None else len(r), 1))
         specular = ggx_reflection(ns[r], view[r], light[r], mats.alpha[m], f0, mats.f90[m],
-                                  None if cos_l is None else cos_l[r], None if cos_v is None else cos_v[r],
-                                  COLOUR_DTYPE)
+                                  None if cos_l is None else cos_l[r], None if cos_v is None else cos_v[r])
         if one is not None and value.shape[1] <= 4:  # column by column (see rows)
-            if specular.shape[1] == 1:  # (widened once, not by each column's sum)
-                specular = specular.astype(value.dtype)
             for c in range(value.shape[1]):
                 value[:, c] += specular[:, min(c, specular.shape[1] - 1)]
         else:
@@ -1050,10 +1047,6 @@ def _cone_sample(axis, half_angle, xi1, xi2):
 # float32 trigonometry is 15x faster than float64 in numpy; a sample's angle about a cone's axis
 # or a disc's centre needs no more than its 6e-8 (tests/core/test_shading.py checks the images)
 UNIT_CIRCLE_DTYPE = np.float32
-
-
-# the precision of the GGX highlights' arithmetic past the half vector's cosine (docs/physics.md#precision)
-COLOUR_DTYPE = np.float32
 
 
 def unit_circle(xi):
