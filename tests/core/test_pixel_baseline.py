@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-_SPEC = importlib.util.spec_from_file_location("pixel_baseline", Path(__file__).parents[2] / "tools" / "pixel_baseline.py")
+_TOOL = Path(__file__).parents[2] / "tools" / "pixel_baseline.py"
+_SPEC = importlib.util.spec_from_file_location("pixel_baseline", _TOOL)
 pixel_baseline = importlib.util.module_from_spec(_SPEC)
 _SPEC.loader.exec_module(pixel_baseline)
 
