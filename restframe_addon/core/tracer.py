@@ -215,12 +215,16 @@ def _clipped_query(geometry, origin, d, enter, leave, occlusion: bool):
 
 
 def _embree_query(geometry, origin, d, length, occlusion: bool):
-    """One embree call: rays from local origins (relative to the anchor) up to path length
-    ``length`` (negative: no query).  Returns (t, prim, u, v), t = inf on a miss, or the blocked mask."""
-    o32 = np.empty(d.shape, dtype=np.float32)
-    for axis in range(3):  # a shared origin is a broadcast view: filling by columns is fastest
-        o32[:, axis] = origin[..., axis]
-    return _embree_run(geometry, o32, d, length.astype(np.float32), occlusion)
+    """One embree call: rays from one shared local origin (3,) (relative to the anchor) up to path
+    length ``length`` (negative: no query).  Returns (t, prim, u, v), t = inf on a miss, or the blocked mask.
+
+    The origin goes to embree as one float32 row broadcast to every ray (embreex reads each ray's
+    origin through the array's strides), and a length the same for every ray as one number filled
+    in: no pass converts n copies of the same numbers (the same roundings)."""
+    n = len(d)
+    o32 = rows.broadcast(np.asarray(origin, dtype=np.float32)[None], n)
+    lengths = np.full(n, length[0], np.float32) if n and _one_row(length) else length.astype(np.float32)
+    return _embree_run(geometry, o32, d, lengths, occlusion)
 
 
 def _embree_run(geometry, o32, d, dists, occlusion: bool):
@@ -561,6 +565,12 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         s = rest if w is None else rest / (w if found is None else rows.take(w, found))
         # ties keep the earlier frame
         nearer = s < (best if found is None else best[found if rays is None else rays[found]])
+        if first and nearer.all():  # every ray hit, nearer than its bound (a floor under the camera): nothing to select
+            hits = Hits(frame=np.full(n, k, np.int32), s=s, s_frame=s if w is None else t,
+                        w=np.broadcast_to(1.0, (n,)) if w is None else w, prim=prim, u=u, v=v, d_frame=dk, tau_frame=tau_k)
+            borrowed = True
+            best = s  # (min(best, s) is s; hits.s and best stay equal, each later frame writing both alike)
+            continue
         if first:
             s = np.where(nearer, s, np.inf)
             # s_frame, w, d_frame and tau_frame shared (s, a broadcast 1, the rays' own arrays) until a
@@ -708,7 +718,8 @@ def _cull_bundle(frames: FrameSet, src: int, ks, shared, d, s_lo, s_hi, cache: T
     if len(ks) == 1 and frames.frames[ks[0]].geometry.clusters is None:
         return _cull_for_lone_frame(frames, src, ks[0], shared, d, cache)
     extent = (float(np.max(np.abs(shared[1]))), abs(shared[0]))  # (for the rounding margin of the body boxes)
-    path_range = float(np.min(s_lo)), float(np.max(s_hi))  # every ray's, for the body boxes
+    # every ray's path range, for the body boxes (of a bound broadcast to every ray, its one number: no pass)
+    path_range = tuple(float(v[0] if _one_row(v) else reduce(v)) for v, reduce in ((s_lo, np.min), (s_hi, np.max)))
     kept = None  # the rays of frames without cones, from tile_runs
     if tile_runs is not None and tile_runs.bounds[0].shape[1] == n // _RUN and path_range[0] >= 0.0:
         run_bounds = tile_runs.bounds
