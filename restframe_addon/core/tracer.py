@@ -792,9 +792,12 @@ def _cones_pay(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> list
     more tightly than its box, by mean projected area (over all directions: pi r^2 for a sphere,
     2 (ab + bc + ca) for a box of half-extents a, b, c).  Else they drop few of the rays the box
     keeps, for a per-frame cost of many rays' maps and queries (a row of the 11x11 bars: spheres
-    4x the box)."""
+    4x the box).  Kept with the frames' boxes (a thread's, for all its bundles)."""
+    boxes = _boxes(frames, src, ks, cache)
+    if boxes.cones_pay is not None:
+        return boxes.cones_pay
     pays = []
-    for k, (a, b, c) in zip(ks, _boxes(frames, src, ks, cache).half.tolist()):
+    for k, (a, b, c) in zip(ks, boxes.half.tolist()):
         frame = frames.frames[k]
         if frame.spin is not None:
             squares = frame.geometry.radius ** 2
@@ -804,6 +807,7 @@ def _cones_pay(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> list
             pays.append(False)
             continue
         pays.append(math.pi * squares < 2.0 * (a * b + b * c + c * a))
+    boxes.cones_pay = pays
     return pays
 
 
@@ -1285,12 +1289,13 @@ class _Boxes:
     (3, m): a bundle's slab test, :func:`_may_meet`, then takes the extremes of three rows, not of
     m short ones).  Made by :func:`_boxes_of_sources`."""
 
-    __slots__ = _BOX_FIELDS + ("_parallel",)
+    __slots__ = _BOX_FIELDS + ("_parallel", "cones_pay")
 
     def __init__(self, fields: dict):
         for name, value in fields.items():
             setattr(self, name, value)
         self._parallel: dict[bytes, tuple] = {}
+        self.cones_pay: list[bool] | None = None  # :func:`_cones_pay` of these frames, once worked out (read only)
 
     def widened(self, extent) -> np.ndarray:
         """Half-extents (m, 3) widened for rounding, for rays whose (largest |coordinate| of x0,
