@@ -477,6 +477,8 @@ def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: Tr
     indices ``rays``; ``layer`` = how many surfaces they passed already) let the ray pass (None: none do).
     ``runs``: bounds of the directions of the rays' runs that hold for every bundle traced with it
     (a tile's camera rays, all its samples: :class:`RunBounds`), which then culls them once.
+    The hits' arrays are for reading: some are the rays' own, or read-only views (no frame left
+    after the cull: :func:`no_hits` of the bundle, read-only).
     """
     hits = _nearest(frames, src, tau0, x0, d, s_lo, s_hi, cache, runs)
     hidden = ray is not None and bool(frames.hidden_rays & ray)
@@ -596,7 +598,7 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
             keep = found[nearer]  # (in this frame's rays)
             _update(hits, best, keep if rays is None else rays[keep], k, s[nearer], rest[nearer],
                     None if w is None else w[keep], prim[keep], u[keep], v[keep], rows.take(dk, keep), tau_k[keep])
-    return no_hits(n) if hits is None else hits
+    return no_hits(n, read_only=True) if hits is None else hits  # (no frame left after the cull: nothing to write)
 
 
 _MASKED_SHARE = 0.5  # hits of a later frame among all rays above which _nearest merges by masks, not indices
