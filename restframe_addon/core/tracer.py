@@ -720,15 +720,17 @@ def _cull_bundle(frames: FrameSet, src: int, ks, shared, d, s_lo, s_hi, cache: T
     if len(ks) == 1 and frames.frames[ks[0]].geometry.clusters is None:
         return _cull_for_lone_frame(frames, src, ks[0], shared, d, cache)
     extent = (float(np.max(np.abs(shared[1]))), abs(shared[0]))  # (for the rounding margin of the body boxes)
-    # every ray's path range, for the body boxes (of a bound broadcast to every ray, its one number: no pass)
-    path_range = tuple(float(v[0] if _one_row(v) else reduce(v)) for v, reduce in ((s_lo, np.min), (s_hi, np.max)))
+    # every ray's path range, for the body boxes (of a bound broadcast to every ray, its one number: no
+    # pass; the greatest only where tile_runs' any path length from 0 does not stand in for it)
+    lowest = float(s_lo[0] if _one_row(s_lo) else np.min(s_lo))
     kept = None  # the rays of frames without cones, from tile_runs
-    if tile_runs is not None and tile_runs.bounds[0].shape[1] == n // _RUN and path_range[0] >= 0.0:
+    if tile_runs is not None and tile_runs.bounds[0].shape[1] == n // _RUN and lowest >= 0.0:
         run_bounds = tile_runs.bounds
         near, kept = tile_runs.near((src, tuple(ks), shared[0], shared[1].tobytes(), n), lambda: _runs_near_bodies(
             frames, src, ks, cache, extent, shared, run_bounds, _ANY_PATH))
     else:
         run_bounds = _run_bounds(d)
+        path_range = lowest, float(s_hi[0] if _one_row(s_hi) else np.max(s_hi))
         near = _runs_near_bodies(frames, src, ks, cache, extent, shared, run_bounds, path_range)
     coned = [k for k, pays in zip(ks, _cones_pay(frames, src, ks, cache)) if pays]
     cones = dict(zip(coned, _frame_cones(frames, src, coned, shared, cache))) if coned else {}
