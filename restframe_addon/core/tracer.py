@@ -376,11 +376,15 @@ class TraceCache:
         the unit normals (triangles, 3) (one row gather), the one unit normal (1, 3) of all its
         triangles where they have one (a flat mesh: its hits share it), else None, and per axis
         the three corners' normals (triangles,) of a smooth mesh (else None); made at its first
-        lit hit."""
+        lit hit.  An axis along which every corner and edge is +0 (a flat mesh's, its vertices at
+        the anchor's coordinate there) has None for its tables: its hits' coordinate is
+        ``u 0 + 0 + v 0 = +0`` whatever their finite u, v, so nothing is gathered for it."""
         kept = self._hit_tables.get(id(geometry))
         if kept is None or kept[0] is not geometry:
             corner, e1, e2, normal = _triangle_rows(geometry, np.arange(len(geometry.triangles)))
-            columns = tuple(tuple(np.ascontiguousarray(a[:, axis]) for a in (corner, e1, e2)) for axis in range(3))
+            columns = tuple(None if not np.any(corner[:, axis]) and not np.any(e1[:, axis]) and not np.any(e2[:, axis])
+                            and not np.signbit(corner[:, axis]).any()
+                            else tuple(np.ascontiguousarray(a[:, axis]) for a in (corner, e1, e2)) for axis in range(3))
             one = normal[:1] if len(normal) and (normal == normal[:1]).all() else None
             smooth = geometry.corner_normals
             corners = None if smooth is None else tuple(
@@ -1477,8 +1481,9 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
         # a flat mesh's one normal (not spun) for all its hits: a read-only broadcast row
         ng = rows.broadcast(one, n) if one is not None and not spins else np.take(normals, index, axis=0, mode="clip")
         gathered = np.empty((3, n))
-        gather = lambda tables: ([np.take(table, index, out=out, mode="clip") for table, out in zip(axis_tables, gathered)]
-                                 for axis_tables in tables)  # (in range: clip only skips the check)
+        gather = lambda tables: (None if axis_tables is None else  # (in range: clip only skips the check)
+                                 [np.take(table, index, out=out, mode="clip") for table, out in zip(axis_tables, gathered)]
+                                 for axis_tables in tables)
         axes = gather(tables)
         corners = None if corner_tables is None else gather(corner_tables)
     else:
@@ -1486,7 +1491,11 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
         axes = [(p0[:, axis], p1[:, axis], p2[:, axis]) for axis in range(3)]
         cn = None if geometry.corner_normals is None else rows.take(geometry.corner_normals, prim)
         corners = None if cn is None else [(cn[:, 0, axis], cn[:, 1, axis], cn[:, 2, axis]) for axis in range(3)]
-    for axis, (p0, e1, e2) in enumerate(axes):
+    for axis, corner_and_edges in enumerate(axes):
+        if corner_and_edges is None:  # every corner and edge +0 on this axis (hit_table): the sum is +0
+            position[:, axis] = 0.0 if spins else 0.0 + float(frame.offset[axis])
+            continue
+        p0, e1, e2 = corner_and_edges
         np.multiply(u, e1, out=column)
         column += p0
         column += np.multiply(v, e2, out=term)

@@ -68,3 +68,30 @@ def test_a_bundle_left_with_no_frame_gets_read_only_misses():
         value = getattr(hits, f.name)
         assert not value.flags.writeable
         np.testing.assert_array_equal(value, getattr(expected, f.name))
+
+
+def test_a_flat_meshs_hits_on_its_flat_axis_are_the_per_hit_sums_bit_for_bit():
+    """A thread's kept triangle tables leave out the axis along which a flat mesh's corners and
+    edges are all +0: its hits' coordinate there is the per-hit sum's +0 (plus the frame's offset),
+    whatever the signs of u and v."""
+    rng = np.random.default_rng(7)
+    for axis in range(3):
+        # a static plane and a moving one (boosted along the plane: its coordinate across stays),
+        # through the frame's origin (the axis left out) and off it
+        for plane, velocity in ((0.0, (0.0, 0.0, 0.0)), (-2.5, (0.0, 0.0, 0.0)), (0.0, (0.3, -0.2, 0.1)),
+                                (1.25, (0.3, -0.2, 0.1))):
+            centre, velocity = np.zeros(3), np.array(velocity)
+            centre[axis], velocity[axis] = plane, 0.0
+            mesh = Mesh("quad", *quad(tuple(centre), (3.0, 2.0), normal_axis=axis), velocity=Velocity(tuple(velocity)),
+                        pivot=tuple(centre + 0.75))
+            frame_set = build_frames(Scene(camera=look_at_camera(EYE, (0.0, 0.0, 0.0)), meshes=[mesh]))
+            frame = frame_set.frames[frame_set.geometry[0]]
+            cache = tracer.TraceCache()
+            assert (cache.hit_table(frame.geometry)[0][axis] is None) == (plane == 0.0)
+            prim = rng.integers(0, 2, 2000)
+            u, v = (rng.uniform(-1e-7, 1.0, len(prim)).astype(np.float32) for _ in range(2))
+            u[:3], v[3:6] = -0.0, -1e-30
+            per_hit = tracer.hit_geometry(frame, prim, u, v)
+            kept = tracer.hit_geometry(frame, prim, u, v, cache=cache)
+            for a, b in zip(per_hit, kept):
+                assert np.asarray(a).tobytes() == np.ascontiguousarray(np.broadcast_to(b, np.shape(a))).tobytes()
