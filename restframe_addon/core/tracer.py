@@ -378,13 +378,14 @@ class TraceCache:
         the three corners' normals (triangles,) of a smooth mesh (else None); made at its first
         lit hit.  An axis along which every corner and edge is +0 (a flat mesh's, its vertices at
         the anchor's coordinate there) has None for its tables: its hits' coordinate is
-        ``u 0 + 0 + v 0 = +0`` whatever their finite u, v, so nothing is gathered for it."""
+        ``u 0 + 0 + v 0 = +0`` whatever their finite u, v, so nothing is gathered for it; a table
+        of one number (a quad's first corner, shared by its two triangles) is that number."""
         kept = self._hit_tables.get(id(geometry))
         if kept is None or kept[0] is not geometry:
             corner, e1, e2, normal = _triangle_rows(geometry, np.arange(len(geometry.triangles)))
             columns = tuple(None if not np.any(corner[:, axis]) and not np.any(e1[:, axis]) and not np.any(e2[:, axis])
                             and not np.signbit(corner[:, axis]).any()
-                            else tuple(np.ascontiguousarray(a[:, axis]) for a in (corner, e1, e2)) for axis in range(3))
+                            else tuple(_one_or_table(a[:, axis]) for a in (corner, e1, e2)) for axis in range(3))
             one = normal[:1] if len(normal) and (normal == normal[:1]).all() else None
             smooth = geometry.corner_normals
             corners = None if smooth is None else tuple(
@@ -1451,6 +1452,15 @@ def _segments_meet_boxes(origin, direction, t_max: float, lo, hi, parallel) -> n
 _HIT_TABLE_TRIANGLES = 1 << 16
 
 
+def _one_or_table(values):
+    """A contiguous table of ``values``, or its one number (a float) where every entry has the
+    same bits: adding or multiplying by it rounds as by the gathered copies, without the gather."""
+    bits = values.view(np.int64)
+    if len(values) and (bits == bits[0]).all():
+        return float(values[0])
+    return np.ascontiguousarray(values)
+
+
 def _triangle_rows(geometry, prim):
     """The first corner, the two edges out of it and the unit normal (Geometry.face_normals, from
     the edges at hand) of triangles ``prim``: four new (n, 3) arrays."""
@@ -1482,7 +1492,8 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
         ng = rows.broadcast(one, n) if one is not None and not spins else np.take(normals, index, axis=0, mode="clip")
         gathered = np.empty((3, n))
         gather = lambda tables: (None if axis_tables is None else  # (in range: clip only skips the check)
-                                 [np.take(table, index, out=out, mode="clip") for table, out in zip(axis_tables, gathered)]
+                                 [table if isinstance(table, float) else np.take(table, index, out=out, mode="clip")
+                                  for table, out in zip(axis_tables, gathered)]
                                  for axis_tables in tables)
         axes = gather(tables)
         corners = None if corner_tables is None else gather(corner_tables)
