@@ -167,7 +167,7 @@ class Boost:
         toward = (d @ n) < 0.0  # d close to -n: h is small, use d + n (exact there)
         # half the sign (+1 toward -n, else -1): times 2 n it is +-n, and times |diff|^2 it is
         # sign |diff|^2 / 2, each rounded as sign times the halved square was (scaling by +-1/2 or
-        # by 2 rounds once either way): two passes fewer
+        # by 2 rounds once either way): two float passes fewer, one over the bools more
         half_sign = np.subtract(toward, 0.5, out=np.empty(shape))
         # d + n or d - n: the small difference vector
         diff = [d[..., i] for i in range(3)]
