@@ -165,21 +165,22 @@ class Boost:
         shape = d.shape[:-1]
         moving = [i for i in range(3) if n[i] != 0.0]  # axes along which n has a component
         toward = (d @ n) < 0.0  # d close to -n: h is small, use d + n (exact there)
-        sign = np.multiply(toward, 2.0, out=np.empty(shape))
-        sign -= 1.0  # +1 toward -n, else -1
+        # half the sign (+1 toward -n, else -1): times 2 n it is +-n, and times |diff|^2 it is
+        # sign |diff|^2 / 2, each rounded as sign times the halved square was (scaling by +-1/2 or
+        # by 2 rounds once either way): two float passes fewer, one over the bools more
+        half_sign = np.subtract(toward, 0.5, out=np.empty(shape))
         # d + n or d - n: the small difference vector
         diff = [d[..., i] for i in range(3)]
         for i in moving:
-            diff[i] = np.multiply(sign, n[i], out=np.empty(shape))
+            diff[i] = np.multiply(half_sign, 2.0 * n[i], out=np.empty(shape))
             diff[i] += d[..., i]
         scratch, spare = np.empty(shape), np.empty(shape)
-        half_s2 = np.multiply(diff[0], diff[0], out=np.empty(shape))
+        s2 = np.multiply(diff[0], diff[0], out=np.empty(shape))
         for i in (1, 2):
-            half_s2 += np.multiply(diff[i], diff[i], out=scratch)
-        half_s2 *= 0.5
-        # h = 1 + n.d: half_s2 toward -n, else 2 - half_s2 (as (1 - sign) + sign half_s2)
-        along = np.multiply(sign, half_s2, out=half_s2)  # the part of the difference along n
-        h = np.subtract(1.0, sign, out=sign)
+            s2 += np.multiply(diff[i], diff[i], out=scratch)
+        # h = 1 + n.d: |diff|^2 / 2 toward -n, else 2 - |diff|^2 / 2 (as (1 - sign) + sign |diff|^2 / 2)
+        along = np.multiply(half_sign, s2, out=s2)  # the part of the difference along n
+        h = np.multiply(np.logical_not(toward), 2.0, out=half_sign)  # 1 - sign
         h += along
         # d_perp = d - (n.d) n, from the difference vector for accuracy
         perp = diff

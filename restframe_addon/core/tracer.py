@@ -215,12 +215,16 @@ def _clipped_query(geometry, origin, d, enter, leave, occlusion: bool):
 
 
 def _embree_query(geometry, origin, d, length, occlusion: bool):
-    """One embree call: rays from local origins (relative to the anchor) up to path length
-    ``length`` (negative: no query).  Returns (t, prim, u, v), t = inf on a miss, or the blocked mask."""
-    o32 = np.empty(d.shape, dtype=np.float32)
-    for axis in range(3):  # a shared origin is a broadcast view: filling by columns is fastest
-        o32[:, axis] = origin[..., axis]
-    return _embree_run(geometry, o32, d, length.astype(np.float32), occlusion)
+    """One embree call: rays from one shared local origin (3,) (relative to the anchor) up to path
+    length ``length`` (negative: no query).  Returns (t, prim, u, v), t = inf on a miss, or the blocked mask.
+
+    The origin goes to embree as one float32 row broadcast to every ray (embreex reads each ray's
+    origin through the array's strides), and a length the same for every ray as one number filled
+    in: no pass converts n copies of the same numbers (the same roundings)."""
+    n = len(d)
+    o32 = rows.broadcast(np.asarray(origin, dtype=np.float32)[None], n)
+    lengths = np.full(n, length[0], np.float32) if n and _one_row(length) else length.astype(np.float32)
+    return _embree_run(geometry, o32, d, lengths, occlusion)
 
 
 def _embree_run(geometry, o32, d, dists, occlusion: bool):
@@ -372,11 +376,16 @@ class TraceCache:
         the unit normals (triangles, 3) (one row gather), the one unit normal (1, 3) of all its
         triangles where they have one (a flat mesh: its hits share it), else None, and per axis
         the three corners' normals (triangles,) of a smooth mesh (else None); made at its first
-        lit hit."""
+        lit hit.  An axis along which every corner and edge is +0 (a flat mesh's, its vertices at
+        the anchor's coordinate there) has None for its tables: its hits' coordinate is
+        ``u 0 + 0 + v 0 = +0`` whatever their finite u, v, so nothing is gathered for it; a table
+        of one number (a quad's first corner, shared by its two triangles) is that number."""
         kept = self._hit_tables.get(id(geometry))
         if kept is None or kept[0] is not geometry:
             corner, e1, e2, normal = _triangle_rows(geometry, np.arange(len(geometry.triangles)))
-            columns = tuple(tuple(np.ascontiguousarray(a[:, axis]) for a in (corner, e1, e2)) for axis in range(3))
+            columns = tuple(None if not np.any(corner[:, axis]) and not np.any(e1[:, axis]) and not np.any(e2[:, axis])
+                            and not np.signbit(corner[:, axis]).any()
+                            else tuple(_one_or_table(a[:, axis]) for a in (corner, e1, e2)) for axis in range(3))
             one = normal[:1] if len(normal) and (normal == normal[:1]).all() else None
             smooth = geometry.corner_normals
             corners = None if smooth is None else tuple(
@@ -473,6 +482,8 @@ def trace_nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: Tr
     indices ``rays``; ``layer`` = how many surfaces they passed already) let the ray pass (None: none do).
     ``runs``: bounds of the directions of the rays' runs that hold for every bundle traced with it
     (a tile's camera rays, all its samples: :class:`RunBounds`), which then culls them once.
+    The hits' arrays are for reading: some are the rays' own, or read-only views (no frame left
+    after the cull: :func:`no_hits` of the bundle, read-only).
     """
     hits = _nearest(frames, src, tau0, x0, d, s_lo, s_hi, cache, runs)
     hidden = ray is not None and bool(frames.hidden_rays & ray)
@@ -561,6 +572,12 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         s = rest if w is None else rest / (w if found is None else rows.take(w, found))
         # ties keep the earlier frame
         nearer = s < (best if found is None else best[found if rays is None else rays[found]])
+        if first and nearer.all():  # every ray hit, nearer than its bound (a floor under the camera): nothing to select
+            hits = Hits(frame=np.full(n, k, np.int32), s=s, s_frame=s if w is None else t,
+                        w=np.broadcast_to(1.0, (n,)) if w is None else w, prim=prim, u=u, v=v, d_frame=dk, tau_frame=tau_k)
+            borrowed = True
+            best = s  # (min(best, s) is s; hits.s and best stay equal, each later frame writing both alike)
+            continue
         if first:
             s = np.where(nearer, s, np.inf)
             # s_frame, w, d_frame and tau_frame shared (s, a broadcast 1, the rays' own arrays) until a
@@ -586,7 +603,7 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
             keep = found[nearer]  # (in this frame's rays)
             _update(hits, best, keep if rays is None else rays[keep], k, s[nearer], rest[nearer],
                     None if w is None else w[keep], prim[keep], u[keep], v[keep], rows.take(dk, keep), tau_k[keep])
-    return no_hits(n) if hits is None else hits
+    return no_hits(n, read_only=True) if hits is None else hits  # (no frame left after the cull: nothing to write)
 
 
 _MASKED_SHARE = 0.5  # hits of a later frame among all rays above which _nearest merges by masks, not indices
@@ -708,14 +725,17 @@ def _cull_bundle(frames: FrameSet, src: int, ks, shared, d, s_lo, s_hi, cache: T
     if len(ks) == 1 and frames.frames[ks[0]].geometry.clusters is None:
         return _cull_for_lone_frame(frames, src, ks[0], shared, d, cache)
     extent = (float(np.max(np.abs(shared[1]))), abs(shared[0]))  # (for the rounding margin of the body boxes)
-    path_range = float(np.min(s_lo)), float(np.max(s_hi))  # every ray's, for the body boxes
+    # every ray's path range, for the body boxes (of a bound broadcast to every ray, its one number: no
+    # pass; the greatest only where tile_runs' any path length from 0 does not stand in for it)
+    lowest = float(s_lo[0] if _one_row(s_lo) else np.min(s_lo))
     kept = None  # the rays of frames without cones, from tile_runs
-    if tile_runs is not None and tile_runs.bounds[0].shape[1] == n // _RUN and path_range[0] >= 0.0:
+    if tile_runs is not None and tile_runs.bounds[0].shape[1] == n // _RUN and lowest >= 0.0:
         run_bounds = tile_runs.bounds
         near, kept = tile_runs.near((src, tuple(ks), shared[0], shared[1].tobytes(), n), lambda: _runs_near_bodies(
             frames, src, ks, cache, extent, shared, run_bounds, _ANY_PATH))
     else:
         run_bounds = _run_bounds(d)
+        path_range = lowest, float(s_hi[0] if _one_row(s_hi) else np.max(s_hi))
         near = _runs_near_bodies(frames, src, ks, cache, extent, shared, run_bounds, path_range)
     coned = [k for k, pays in zip(ks, _cones_pay(frames, src, ks, cache)) if pays]
     cones = dict(zip(coned, _frame_cones(frames, src, coned, shared, cache))) if coned else {}
@@ -781,9 +801,12 @@ def _cones_pay(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> list
     more tightly than its box, by mean projected area (over all directions: pi r^2 for a sphere,
     2 (ab + bc + ca) for a box of half-extents a, b, c).  Else they drop few of the rays the box
     keeps, for a per-frame cost of many rays' maps and queries (a row of the 11x11 bars: spheres
-    4x the box)."""
+    4x the box).  Kept with the frames' boxes (a thread's, for all its bundles)."""
+    boxes = _boxes(frames, src, ks, cache)
+    if boxes.cones_pay is not None:
+        return boxes.cones_pay
     pays = []
-    for k, (a, b, c) in zip(ks, _boxes(frames, src, ks, cache).half.tolist()):
+    for k, (a, b, c) in zip(ks, boxes.half.tolist()):
         frame = frames.frames[k]
         if frame.spin is not None:
             squares = frame.geometry.radius ** 2
@@ -793,6 +816,7 @@ def _cones_pay(frames: FrameSet, src: int, ks, cache: TraceCache | None) -> list
             pays.append(False)
             continue
         pays.append(math.pi * squares < 2.0 * (a * b + b * c + c * a))
+    boxes.cones_pay = pays
     return pays
 
 
@@ -1274,12 +1298,13 @@ class _Boxes:
     (3, m): a bundle's slab test, :func:`_may_meet`, then takes the extremes of three rows, not of
     m short ones).  Made by :func:`_boxes_of_sources`."""
 
-    __slots__ = _BOX_FIELDS + ("_parallel",)
+    __slots__ = _BOX_FIELDS + ("_parallel", "cones_pay")
 
     def __init__(self, fields: dict):
         for name, value in fields.items():
             setattr(self, name, value)
         self._parallel: dict[bytes, tuple] = {}
+        self.cones_pay: list[bool] | None = None  # :func:`_cones_pay` of these frames, once worked out (read only)
 
     def widened(self, extent) -> np.ndarray:
         """Half-extents (m, 3) widened for rounding, for rays whose (largest |coordinate| of x0,
@@ -1427,6 +1452,15 @@ def _segments_meet_boxes(origin, direction, t_max: float, lo, hi, parallel) -> n
 _HIT_TABLE_TRIANGLES = 1 << 16
 
 
+def _one_or_table(values):
+    """A contiguous table of ``values``, or its one number (a float) where every entry has the
+    same bits: adding or multiplying by it rounds as by the gathered copies, without the gather."""
+    bits = values.view(np.int64)
+    if len(values) and (bits == bits[0]).all():
+        return float(values[0])
+    return np.ascontiguousarray(values)
+
+
 def _triangle_rows(geometry, prim):
     """The first corner, the two edges out of it and the unit normal (Geometry.face_normals, from
     the edges at hand) of triangles ``prim``: four new (n, 3) arrays."""
@@ -1457,8 +1491,10 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
         # a flat mesh's one normal (not spun) for all its hits: a read-only broadcast row
         ng = rows.broadcast(one, n) if one is not None and not spins else np.take(normals, index, axis=0, mode="clip")
         gathered = np.empty((3, n))
-        gather = lambda tables: ([np.take(table, index, out=out, mode="clip") for table, out in zip(axis_tables, gathered)]
-                                 for axis_tables in tables)  # (in range: clip only skips the check)
+        gather = lambda tables: (None if axis_tables is None else  # (in range: clip only skips the check)
+                                 [table if isinstance(table, float) else np.take(table, index, out=out, mode="clip")
+                                  for table, out in zip(axis_tables, gathered)]
+                                 for axis_tables in tables)
         axes = gather(tables)
         corners = None if corner_tables is None else gather(corner_tables)
     else:
@@ -1466,7 +1502,11 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
         axes = [(p0[:, axis], p1[:, axis], p2[:, axis]) for axis in range(3)]
         cn = None if geometry.corner_normals is None else rows.take(geometry.corner_normals, prim)
         corners = None if cn is None else [(cn[:, 0, axis], cn[:, 1, axis], cn[:, 2, axis]) for axis in range(3)]
-    for axis, (p0, e1, e2) in enumerate(axes):
+    for axis, corner_and_edges in enumerate(axes):
+        if corner_and_edges is None:  # every corner and edge +0 on this axis (hit_table): the sum is +0
+            position[:, axis] = 0.0 if spins else 0.0 + float(frame.offset[axis])
+            continue
+        p0, e1, e2 = corner_and_edges
         np.multiply(u, e1, out=column)
         column += p0
         column += np.multiply(v, e2, out=term)
