@@ -594,8 +594,6 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     offsets = np.cumsum([0] + [len(p["vertices"]) for p in parts[:-1]])
     # (a lone part's vertices are its own: _mesh_part places them in a new array)
     vertices = parts[0]["vertices"] if len(parts) == 1 else np.concatenate([p["vertices"] for p in parts])
-    triangles = _joined([p["triangles"] + o if o else p["triangles"] for p, o in zip(parts, offsets)],
-                        new="triangles" in parts[0]["new"])
     normals = uvs = None
     if any(p["normals"] is not None for p in parts):
         normals = np.concatenate([p["normals"] if p["normals"] is not None else _flat_normals(p) for p in parts])
@@ -609,16 +607,18 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     direct = embree_direct.ready(_embree_device())
 
     def index_side():
+        triangles = _joined([p["triangles"] + o if o else p["triangles"] for p, o in zip(parts, offsets)],
+                            new="triangles" in parts[0]["new"])
         is_used = np.zeros(len(vertices), dtype=bool)
         is_used[triangles] = True  # a mask, not np.unique: no sort (0.14 s -> 0.02 s for 1M triangles)
         # embree's index buffer as embree_direct makes it (uint32), here beside the vertices' side
-        return is_used, np.ascontiguousarray(triangles, dtype=np.uint32) if direct else triangles
+        return triangles, is_used, np.ascontiguousarray(triangles, dtype=np.uint32) if direct else triangles
 
-    if len(triangles) > _CHUNK:  # both sides at once, the vertices' as if all are used (the common case)
-        (is_used, indices), placed = _side_by_side(lambda side: side(), [(index_side,),
-                                                                         (lambda: _placed(vertices, vertices),)])
+    if sum(len(p["triangles"]) for p in parts) > _CHUNK:  # both sides at once, the vertices' as if all are used
+        (triangles, is_used, indices), placed = _side_by_side(lambda side: side(), [
+            (index_side,), (lambda: _placed(vertices, vertices),)])  # (the common case)
     else:  # (a small mesh's steps take less than handing them to a thread)
-        (is_used, indices), placed = index_side(), None
+        (triangles, is_used, indices), placed = index_side(), None
     if placed is None or not is_used.all():
         placed = _placed(vertices if is_used.all() else vertices[is_used], vertices)
     lo, hi, radius, anchor, padded = placed
