@@ -197,26 +197,32 @@ def test_triangles_handed_to_embree_directly_hit_exactly_as_through_embreex(monk
 def test_a_large_meshs_index_and_vertex_sides_side_by_side_build_what_one_thread_builds(monkeypatch, loose):
     """Over ``_CHUNK`` triangles the used-vertex mask and embree's index buffer are made on the
     build's threads beside the bounds, radius, anchor and float32 vertices (worked out as if
-    every vertex were used): the same geometry and hits as one thread's steps in turn, the bounds
-    those of the used vertices where a loose one lies far out."""
+    every vertex were used) and the copies of the corner normals and UVs: the same geometry and
+    hits as one thread's steps in turn, the bounds those of the used vertices where a loose one
+    lies far out."""
     monkeypatch.setattr(frames, "_CHUNK", 1000)
     vertices, triangles = shuffled_sphere()
     assert len(triangles) > frames._CHUNK
     if loose:
         vertices = np.concatenate([vertices, [[50.0, -40.0, 30.0]]])
-    scene = grid_scene((vertices, triangles))
+    rng = np.random.default_rng(3)
+    corners = {"corner_normals": rng.normal(size=(len(triangles), 3, 3)), "corner_uvs": rng.random((len(triangles), 3, 2))}
+    scene = grid_scene((vertices, triangles), **corners)
     sides = []
     side_by_side = frames._side_by_side
     monkeypatch.setattr(frames, "_side_by_side", lambda work, arguments, *a: sides.append(len(arguments))
                         or side_by_side(work, arguments, *a))
     beside = build_frames(scene)
-    assert sides == [2]
+    assert sides == [3]
     monkeypatch.setattr(frames, "_CHUNK", 10**9)
     alone = build_frames(scene)
-    assert sides == [2]
+    assert sides == [3]
     a, b = (f.frames[f.world].geometry for f in (beside, alone))
-    for name in ("lo", "hi", "anchor", "radius"):
+    for name in ("lo", "hi", "anchor", "radius", "triangles", "corner_normals", "corner_uvs"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    for name, given in corners.items():  # the geometry's own copies
+        np.testing.assert_array_equal(getattr(a, name), given)
+        assert not np.may_share_memory(getattr(a, name), given)
     assert (a.hi < 2.0).all() and a.radius < 2.0  # (the loose vertex left out)
     hits, plain = sphere_hits(beside), sphere_hits(alone)
     assert np.count_nonzero(hits.frame >= 0) > 1000
