@@ -30,7 +30,7 @@ from .persistent import GeometryCache
 from .sampling import Samples
 from .scene import RAY_CAMERA, Camera, RenderSettings, Scene, render_workers
 from .shading import MaterialTable, PreparedLight, Shader, prepare_lights
-from .tracer import TraceCache, cone_reaches
+from .tracer import TraceCache, misses_everything
 from .validation import RenderError, check_render
 
 _SMALLEST_SPLIT_TILE = 8  # pixels: tiles are not split below this (the Tile Size setting's own minimum)
@@ -162,17 +162,11 @@ class PreparedScene:
 
     def each_misses_everything(self, rects, cache: TraceCache | None = None) -> list[bool]:
         """:meth:`misses_everything` of each rectangle of ``rects``, all at once (a render's tiles)."""
-        return [reach < 0.0 for reach in self.each_cone_reach(rects, cache)]
-
-    def each_cone_reach(self, rects, cache: TraceCache | None = None) -> list[float]:
-        """Per rectangle of ``rects``, all at once: how far its camera rays' cone reaches into the
-        bodies' (:func:`~.tracer.cone_reaches`, radians): negative where it :meth:`misses_everything`,
-        inf where that cannot be known; the deeper, the more of its rays are traced and shaded."""
         frames = self.frames
         if self.samples_vary or self.path_tracer is not None or not frames.map(frames.camera, frames.world).is_identity:
-            return [math.inf] * len(rects)
-        return cone_reaches(frames, frames.camera, (float(self.camera_tau), self.camera_rays.position),
-                            self.camera_rays.cones(rects), cache)
+            return [False] * len(rects)
+        return misses_everything(frames, frames.camera, (float(self.camera_tau), self.camera_rays.position),
+                                 self.camera_rays.cones(rects), cache)
 
     def missing_rays(self, n: int):
         """``n`` camera rays that :meth:`misses_everything` found to miss: their shared

@@ -53,34 +53,28 @@ class Tile:
 
 class UnseenTiles:
     """The tiles of one render of a prepared scene that see nothing
-    (:meth:`~.prepared.PreparedScene.misses_everything`), each found once (those dealt, all at
-    once, with how deep each tile's cone reaches into the bodies': :meth:`reach`), and their pass
-    arrays by :func:`_unseen_key`, rendered once: every such tile of a shape has the same ones.
-    Shared by the render's threads (a dict's get and set are atomic; two threads may find the same)."""
+    (:meth:`~.prepared.PreparedScene.misses_everything`), each found once (those dealt, all at once), and their pass arrays
+    by :func:`_unseen_key`, rendered once: every such tile of a shape has the same ones.  Shared
+    by the render's threads (a dict's get and set are atomic; two threads may find the same)."""
 
     def __init__(self, prepared: PreparedScene):
         self.prepared = prepared
-        self._reach: dict[tuple, float] = {}
+        self._found: dict[tuple, bool] = {}
         self._passes: dict[tuple, dict] = {}
 
     def sees_nothing(self, rect, cache: TraceCache) -> bool:
-        reach = self._reach.get(tuple(rect))
-        if reach is None:
-            return self.find([rect], cache)[0]
-        return reach < 0.0
+        found = self._found.get(tuple(rect))
+        if found is None:
+            found = self.find([rect], cache)[0]
+        return found
 
     def find(self, rects, cache: TraceCache) -> list[bool]:
         """Whether each tile of ``rects`` sees nothing, those not yet found all at once."""
         keys = [tuple(rect) for rect in rects]
-        new = [key for key in dict.fromkeys(keys) if key not in self._reach]
+        new = [key for key in dict.fromkeys(keys) if key not in self._found]
         if new:
-            self._reach.update(zip(new, self.prepared.each_cone_reach(new, cache)))
-        return [self._reach[key] < 0.0 for key in keys]
-
-    def reach(self, rect) -> float:
-        """How deep the cone of a tile already found reaches into the bodies'
-        (:meth:`~.prepared.PreparedScene.each_cone_reach`): the deeper, the costlier the tile, roughly."""
-        return self._reach[tuple(rect)]
+            self._found.update(zip(new, self.prepared.each_misses_everything(new, cache)))
+        return [self._found[key] for key in keys]
 
     def passes(self, key) -> dict | None:
         """The pass arrays (read-only) of the tiles of ``key`` that see nothing, once one is rendered."""
@@ -362,16 +356,14 @@ def tiles_in_threads(prepared: PreparedScene, rects, workers: int, should_stop) 
 
 
 def seen_first(unseen: UnseenTiles, rects, should_stop: Callable[[], bool] = lambda: False) -> Iterator[tuple]:
-    """The tiles ``rects`` that see something, those whose cone reaches deepest into the bodies'
-    first (the costly ones: the threads then end on the tiles at the bodies' edges, then on
-    those that see nothing, which even out the threads' ends), then those that see nothing (in
-    their order), all found at once when the first is asked for (on the calling thread, with a
-    trace cache of its own: ~1 ms for a render's tiles, where one at a time took 0.1 ms a tile of
-    the threads' GIL); none more once ``should_stop()`` is true."""
+    """The tiles ``rects`` that see something, then those that see nothing (in their order),
+    all found at once when the first is asked for (on the calling thread, with a trace cache of
+    its own: ~1 ms for a render's tiles, where one at a time took 0.1 ms a tile of the threads'
+    GIL); none more once ``should_stop()`` is true."""
     rects = list(rects)
     empty = unseen.find(rects, TraceCache())
-    seen = sorted((rect for rect, nothing in zip(rects, empty) if not nothing), key=lambda rect: -unseen.reach(rect))
-    for rect in seen + [rect for rect, nothing in zip(rects, empty) if nothing]:
+    later = [rect for rect, nothing in zip(rects, empty) if nothing]
+    for rect in [rect for rect, nothing in zip(rects, empty) if not nothing] + later:
         if should_stop():
             return
         yield rect

@@ -964,31 +964,28 @@ def _bundle_cone(d):
     return axis, float(np.arccos(np.clip((d @ axis).min(), -1.0, 1.0)))
 
 
-def cone_reaches(frames: FrameSet, src: int, origin_event, cones, cache: TraceCache | None = None) -> list[float]:
-    """Per cone (axis, half-angle) of ``cones`` (None: not known to be under a right angle) of
-    backward rays from one event (tau, x) of frame src: how far (radians) it reaches into the
-    frames' sphere cones at most (the two half-angles' sum less the angle between the axes), inf
-    where that is not known.  Negative: it meets none of them (``apart > spread + angle`` for
-    every sphere, as ``_cones_meeting`` finding none), so every ray in it misses every surface
-    and the tracer's own cull would drop each (in a scene without animated segments, whose
-    candidate frames depend on the rays' events).  Deeper: more of its rays traced and shaded,
-    roughly.  Every cone against each frame's spheres at once."""
+def misses_everything(frames: FrameSet, src: int, origin_event, cones, cache: TraceCache | None = None) -> list[bool]:
+    """Per cone (axis, half-angle) of ``cones`` (None: not known to be under a right angle):
+    whether every backward ray from one event (tau, x) of frame src whose direction lies in it
+    misses every surface: the cone meets none of the frames' sphere cones, so the tracer's own
+    cull would drop each such ray (in a scene without animated segments, whose candidate frames
+    depend on the rays' events).  Every cone against each frame's spheres at once."""
     known = [i for i, cone in enumerate(cones) if cone is not None]
-    reaches = [math.inf] * len(cones)
+    missing = [False] * len(cones)
     if frames.groups or not known:
-        return reaches
+        return missing
     axes = np.array([cones[i][0] for i in known])
     angles = np.array([cones[i][1] for i in known])
-    deepest = np.full(len(known), -np.inf)
+    clear = np.ones(len(known), dtype=bool)
     for spheres in _frame_cones(frames, src, list(frames.geometry), origin_event, cache):
         if spheres is None:
-            return reaches
+            return missing
         sphere_axes, spread = spheres
         apart = np.arccos(np.clip(sphere_axes @ axes.T, -1.0, 1.0))  # (spheres, cones)
-        np.maximum(deepest, (spread[:, None] + angles - apart).max(axis=0, initial=-np.inf), out=deepest)
-    for i, reach in zip(known, deepest.tolist()):
-        reaches[i] = reach
-    return reaches
+        clear &= (apart > spread[:, None] + angles).all(axis=0)  # as _cones_meeting finds none
+    for i, gone in zip(known, clear.tolist()):
+        missing[i] = gone
+    return missing
 
 
 def _frame_cones(frames: FrameSet, src: int, ks, origin_event, cache: TraceCache | None) -> list:

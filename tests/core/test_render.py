@@ -544,8 +544,8 @@ def test_tiles_that_see_nothing_are_not_traced_and_render_the_same(monkeypatch, 
     monkeypatch.setattr(shading, "trace_nearest", lambda *args, **kw: traced.append(len(args[4])) or trace(*args, **kw))
     quick = render_image(scene, settings((48, 40), tile_size=8, **options))
     quick_rays, traced[:] = sum(traced), []
-    monkeypatch.setattr(prepared_module.PreparedScene, "each_cone_reach",
-                        lambda self, rects, cache=None: [np.inf] * len(rects))
+    monkeypatch.setattr(prepared_module.PreparedScene, "each_misses_everything",
+                        lambda self, rects, cache=None: [False] * len(rects))
     full = render_image(scene, settings((48, 40), tile_size=8, **options))
     assert quick_rays < 0.75 * sum(traced)  # (the exposure measurement traces a preview either way)
     assert 0.02 < (full["Depth"] < 1e9).mean() < 0.5
@@ -578,29 +578,22 @@ def test_tiles_that_see_nothing_are_rendered_once_per_shape(threads):
 
 
 def test_tiles_that_see_something_are_dealt_first(monkeypatch):
-    """The render threads take the tiles that see something first, those whose cone reaches
-    deepest into the ball's first (the costly ones: the threads end on the ball's edge), then
-    the short ones that see nothing (which even out the threads' ends), each tile once, all found
-    in one pass (one thread: in their order, also found in one pass)."""
+    """The render threads take the tiles that see something first, then the short ones that see
+    nothing (which even out the threads' ends), each tile once, all found in one pass (one thread: in their order, also found in one pass)."""
     from restframe_addon.core.prepared import prepare
-    from restframe_addon.core.render import UnseenTiles, render_tile, seen_first, tiles_in_threads
+    from restframe_addon.core.render import UnseenTiles, seen_first, tiles_in_threads
 
     prepared = prepare(lone_ball_off_centre(), settings((44, 40), tile_size=8, threads=2))
     rects = prepared.tiles()
     empty = [prepared.misses_everything(rect) for rect in rects]
     assert 0 < sum(empty) < len(rects) and empty[0] and not all(empty[:len(rects) - sum(empty)])  # not so already
     asked = []
-    each = type(prepared).each_cone_reach
-    monkeypatch.setattr(type(prepared), "each_cone_reach",
+    each = type(prepared).each_misses_everything
+    monkeypatch.setattr(type(prepared), "each_misses_everything",
                         lambda self, found, cache=None: asked.append(len(found)) or each(self, found, cache))
     order = list(seen_first(UnseenTiles(prepared), rects))
-    seen = [r for r, e in zip(rects, empty) if not e]
-    assert order[len(seen):] == [r for r, e in zip(rects, empty) if e] and sorted(order[:len(seen)]) == sorted(seen)
+    assert order == [r for r, e in zip(rects, empty) if not e] + [r for r, e in zip(rects, empty) if e]
     assert asked == [len(rects)]  # every tile's cone and cull at once, not one call per tile
-    # the deeper first: the more of a tile the ball covers, the earlier it is dealt
-    covered = [float((render_tile(prepared, rect).passes["Depth"] < 1e9).mean()) for rect in order[:len(seen)]]
-    assert covered == sorted(covered, reverse=True) and covered[0] > 0.5 > covered[-1]
-    assert order[:len(seen)] != seen  # (not so in the tiles' own order)
     tiles = list(tiles_in_threads(prepared, rects, 2, lambda: False))
     assert sorted((t.x0, t.y0, t.x1, t.y1) for t in tiles) == sorted(rects)
     asked.clear()
