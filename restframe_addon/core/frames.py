@@ -594,27 +594,30 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
     offsets = np.cumsum([0] + [len(p["vertices"]) for p in parts[:-1]])
     # (a lone part's vertices are its own: _mesh_part places them in a new array)
     vertices = parts[0]["vertices"] if len(parts) == 1 else np.concatenate([p["vertices"] for p in parts])
-    triangles = _joined([p["triangles"] + o if o else p["triangles"] for p, o in zip(parts, offsets)],
-                        new="triangles" in parts[0]["new"])
-    normals = uvs = None
-    if any(p["normals"] is not None for p in parts):
-        normals = np.concatenate([p["normals"] if p["normals"] is not None else _flat_normals(p) for p in parts])
-    if any(p["uvs"] is not None for p in parts):
-        uvs = np.concatenate([p["uvs"] if p["uvs"] is not None else np.zeros((len(p["triangles"]), 3, 2)) for p in parts])
+    direct = embree_direct.ready(_embree_device())
+
+    def index_side():
+        triangles = _joined([p["triangles"] + o if o else p["triangles"] for p, o in zip(parts, offsets)],
+                            new="triangles" in parts[0]["new"])
+        is_used = np.zeros(len(vertices), dtype=bool)
+        is_used[triangles] = True  # a mask, not np.unique: no sort (0.14 s -> 0.02 s for 1M triangles)
+        # embree's index buffer as embree_direct makes it (uint32), here beside the vertices' side
+        return triangles, is_used, np.ascontiguousarray(triangles, dtype=np.uint32) if direct else triangles
+
+    if sum(len(p["triangles"]) for p in parts) > _CHUNK:  # the vertices' side as if all are used (the common case)
+        (triangles, is_used, indices), placed, (normals, uvs) = _side_by_side(lambda side: side(), [
+            (index_side,), (lambda: _placed(vertices, vertices),), (lambda: _corner_attributes(parts),)])
+    else:  # one after the other (a small mesh's steps take less than handing them to a thread)
+        (triangles, is_used, indices), placed, (normals, uvs) = index_side(), None, _corner_attributes(parts)
     visibility = holdout = None
     if any(p["visibility"] != RAY_ALL for p in parts):
         visibility = np.concatenate([np.full(len(p["triangles"]), p["visibility"], dtype=np.uint8) for p in parts])
     if any(p["holdout"] for p in parts):
         holdout = np.concatenate([np.full(len(p["triangles"]), p["holdout"]) for p in parts])
-    is_used = np.zeros(len(vertices), dtype=bool)
-    is_used[triangles] = True  # a mask, not np.unique: no sort (0.14 s -> 0.02 s for 1M triangles)
-    used = vertices if is_used.all() else vertices[is_used]
-    x, y, z = (used[:, axis] for axis in range(3))  # by column: numpy is slow along a length-3 axis
-    lo, hi = np.array([x.min(), y.min(), z.min()]), np.array([x.max(), y.max(), z.max()])
-    radius = float(np.sqrt(np.max(x * x + y * y + z * z)))
-    anchor = 0.5 * (lo + hi)
+    if placed is None or not is_used.all():
+        placed = _placed(vertices if is_used.all() else vertices[is_used], vertices)
+    lo, hi, radius, anchor, padded = placed
     scene = rtcore_scene.EmbreeScene(_embree_device())
-    padded = embree_direct.padded_vertices(vertices, anchor)  # float32, rounded once
     local_vertices = padded[:, :3]
     shared = embree_direct.shared_vertices(_embree_device(), padded)
     piece = _PIECE_TRIANGLES if shared is None else _DIRECT_PIECE_TRIANGLES
@@ -624,7 +627,7 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
         for start in piece_start:
             if should_stop():
                 return None
-            _attach_piece(scene, local_vertices, triangles[start:start + piece], claimed_by, shared)
+            _attach_piece(scene, local_vertices, indices[start:start + piece], claimed_by, shared)
     finally:
         if shared is not None:
             shared.release()
@@ -639,6 +642,27 @@ def _geometry(parts: list[dict], should_stop=lambda: False) -> Geometry | None:
         corner_normals=normals, corner_uvs=uvs, lo=lo, hi=hi, anchor=anchor, embree=scene,
         piece_start=piece_start, tri_visibility=visibility, tri_holdout=holdout,
     )
+
+
+def _corner_attributes(parts: list[dict]) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The parts' corner normals and UVs (M, 3, 3) and (M, 3, 2), in arrays of the geometry's own
+    (None: no part has them; a part without them gets flat normals, zero UVs)."""
+    normals = uvs = None
+    if any(p["normals"] is not None for p in parts):
+        normals = np.concatenate([p["normals"] if p["normals"] is not None else _flat_normals(p) for p in parts])
+    if any(p["uvs"] is not None for p in parts):
+        uvs = np.concatenate([p["uvs"] if p["uvs"] is not None else np.zeros((len(p["triangles"]), 3, 2)) for p in parts])
+    return normals, uvs
+
+
+def _placed(used: np.ndarray, vertices: np.ndarray):
+    """(lo, hi, radius, anchor, float32 vertices in embree's layout about the anchor) of a
+    geometry's ``vertices`` from those of them its triangles ``used``."""
+    x, y, z = (used[:, axis] for axis in range(3))  # by column: numpy is slow along a length-3 axis
+    lo, hi = np.array([x.min(), y.min(), z.min()]), np.array([x.max(), y.max(), z.max()])
+    radius = float(np.sqrt(np.max(x * x + y * y + z * z)))
+    anchor = 0.5 * (lo + hi)
+    return lo, hi, radius, anchor, embree_direct.padded_vertices(vertices, anchor)  # float32, rounded once
 
 
 def _joined(arrays: list[np.ndarray], new: bool = False) -> np.ndarray:

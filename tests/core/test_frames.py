@@ -193,6 +193,43 @@ def test_triangles_handed_to_embree_directly_hit_exactly_as_through_embreex(monk
         np.testing.assert_array_equal(getattr(direct, name), getattr(direct_in_pieces, name), err_msg=name)
 
 
+@pytest.mark.parametrize("loose", [False, True], ids=["every vertex used", "a loose vertex far out"])
+def test_a_large_meshs_index_and_vertex_sides_side_by_side_build_what_one_thread_builds(monkeypatch, loose):
+    """Over ``_CHUNK`` triangles the used-vertex mask and embree's index buffer are made on the
+    build's threads beside the bounds, radius, anchor and float32 vertices (worked out as if
+    every vertex were used) and the copies of the corner normals and UVs: the same geometry and
+    hits as one thread's steps in turn, the bounds those of the used vertices where a loose one
+    lies far out."""
+    monkeypatch.setattr(frames, "_CHUNK", 1000)
+    vertices, triangles = shuffled_sphere()
+    assert len(triangles) > frames._CHUNK
+    if loose:
+        vertices = np.concatenate([vertices, [[50.0, -40.0, 30.0]]])
+    rng = np.random.default_rng(3)
+    corners = {"corner_normals": rng.normal(size=(len(triangles), 3, 3)), "corner_uvs": rng.random((len(triangles), 3, 2))}
+    scene = grid_scene((vertices, triangles), **corners)
+    sides = []
+    side_by_side = frames._side_by_side
+    monkeypatch.setattr(frames, "_side_by_side", lambda work, arguments, *a: sides.append(len(arguments))
+                        or side_by_side(work, arguments, *a))
+    beside = build_frames(scene)
+    assert sides == [3]
+    monkeypatch.setattr(frames, "_CHUNK", 10**9)
+    alone = build_frames(scene)
+    assert sides == [3]
+    a, b = (f.frames[f.world].geometry for f in (beside, alone))
+    for name in ("lo", "hi", "anchor", "radius", "triangles", "corner_normals", "corner_uvs"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    for name, given in corners.items():  # the geometry's own copies
+        np.testing.assert_array_equal(getattr(a, name), given)
+        assert not np.may_share_memory(getattr(a, name), given)
+    assert (a.hi < 2.0).all() and a.radius < 2.0  # (the loose vertex left out)
+    hits, plain = sphere_hits(beside), sphere_hits(alone)
+    assert np.count_nonzero(hits.frame >= 0) > 1000
+    for name in ("frame", "prim", "s", "u", "v"):
+        np.testing.assert_array_equal(getattr(hits, name), getattr(plain, name), err_msg=name)
+
+
 def test_without_a_proved_embree_library_the_build_goes_through_embreex(monkeypatch):
     monkeypatch.setattr(embree_direct, "_library", None)
     monkeypatch.setattr(embree_direct, "_loaded_embree", lambda: None)
