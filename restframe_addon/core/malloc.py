@@ -5,7 +5,7 @@ rays is 1.5 MB) thousands of times.  With glibc's defaults a freed block at the 
 is given back to the system as soon as 128 KB-32 MB lie free there, and the next allocation of
 the same size page-faults it back in: moving_sphere on one thread took 70-140k page faults and
 12-20% more CPU time than with the tuning below (docs/speed.md); in one worker process
-16-53k faults a render against 3.6k, and 7-12% more CPU.  (The 11x11 bars' 64-px tiles fault
+16-53k faults a render against 3.6k, and 4-15% more CPU.  (The 11x11 bars' 64-px tiles fault
 ~460 times a render either way: glibc's own sliding thresholds already keep arrays that small.)
 Keeping up to 256 MB free lets the next batch reuse the same pages.  The top pad measured neither
 faster nor slower (it only sizes the heap's growth steps), nor did huge pages for the heap
