@@ -779,8 +779,10 @@ def _clusters_of(meshes: list[tuple], should_stop=lambda: False, depth: int = 4)
                                             threaded))
     spheres = np.empty((len(groups), 4))
     spheres[:, :3] = 0.5 * (lo + hi)
-    # the radii as np.linalg.norm works each out (sqrt(x . x)), without its per-call checks
-    spheres[:, 3] = [0.5 * math.sqrt(float(span.dot(span))) for span in hi - lo]
+    # the radii term by term: BLAS's dot of a 3-vector rounds differently with its address's
+    # alignment on some CPUs (AVX-512 OpenBLAS kernels), these do not
+    span = hi - lo
+    spheres[:, 3] = 0.5 * np.sqrt(span[:, 0] * span[:, 0] + span[:, 1] * span[:, 1] + span[:, 2] * span[:, 2])
     owner = np.searchsorted(first[1:], [int(group[0]) for group in groups], side="right")  # each group's mesh
     return np.split(spheres, np.cumsum(np.bincount(owner, minlength=len(meshes)))[:-1])
 

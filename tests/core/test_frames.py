@@ -224,7 +224,8 @@ def plain_clusters(vertices, triangles, depth=4):
     for group in groups:
         points = tri[group].reshape(-1, 3)
         lo, hi = points.min(axis=0), points.max(axis=0)
-        spheres.append([*(0.5 * (lo + hi)), 0.5 * float(np.linalg.norm(hi - lo))])
+        span = hi - lo  # its length term by term (np.linalg.norm's BLAS dot rounds by the address's alignment)
+        spheres.append([*(0.5 * (lo + hi)), 0.5 * float(np.sqrt(span[0] * span[0] + span[1] * span[1] + span[2] * span[2]))])
     return np.array(spheres)
 
 

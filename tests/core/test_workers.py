@@ -517,6 +517,61 @@ def test_the_workers_messages_come_whole_and_in_order_however_the_pipe_cuts_them
     assert messages == [("tile", k, "x" * 70000 * k) for k in range(3)] + [("dead",)]
 
 
+@pytest.mark.parametrize("reader_threads", [False, True], ids=["selector", "reader threads"])
+def test_reading_the_workers_pipes_allocates_no_buffer_a_read(reader_threads):
+    """Many small messages are read into one buffer, not each into a fresh one of the read's size
+    (os.read of 1 MiB: a mapping made and unmapped per read)."""
+    tracemalloc = pytest.importorskip("tracemalloc")
+    child = textwrap.dedent("""
+        import pickle, struct, sys, time
+        out = sys.stdout.buffer
+        for k in range(40):
+            frame = pickle.dumps(("tile", k))
+            out.write(struct.pack("<Q", len(frame)) + frame); out.flush(); time.sleep(0.002)
+    """)
+
+    class Writer:
+        def __init__(self):
+            self.process = subprocess.Popen([sys.executable, "-c", child], stdout=subprocess.PIPE)
+            self.pid, self.receiving_cpu = self.process.pid, 0.0
+
+    inbox, writer = workers._Inbox(reader_threads=reader_threads), Writer()
+    tracemalloc.start()
+    try:
+        inbox.add(writer)
+        messages, deadline = [], time.monotonic() + 30
+        while (not messages or messages[-1][0] != "dead") and time.monotonic() < deadline:
+            messages += [message for source, message in inbox.take(0.05) if source is writer]
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    writer.process.wait()
+    assert messages == [("tile", k) for k in range(40)] + [("dead",)]
+    assert peak < 4 * workers._READ_BYTES, peak
+
+
+def test_a_workers_built_comes_with_its_first_share(pool, monkeypatch):
+    """A scene built ahead says so with the worker's first share, in one read: no read (and no
+    wake-up of the render loop) for the "built" alone; the render's stats still have each build."""
+    reads = []
+    read_chunk = workers._Inbox._read_chunk
+
+    def recorded(worker, pending, buffer, take):
+        kinds = []
+        alive = read_chunk(worker, pending, buffer, lambda item: (kinds.append(item[1][0]), take(item)))
+        reads.append(kinds)
+        return alive
+
+    monkeypatch.setattr(workers._Inbox, "_read_chunk", staticmethod(recorded))
+    scene, render_settings = busy_scene(Velocity((0.0, 0.3, 0.0))), settings(tile_size=6)
+    pool.build_ahead(scene, render_settings, 2)
+    prepared = prepare(scene, render_settings)
+    assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
+    assert any("built" in kinds for kinds in reads)
+    assert all("tile" in kinds for kinds in reads if "built" in kinds), reads
+    assert sorted(pool.last_stats.builds) == sorted(pool.pids[:2])
+
+
 def test_processes_render_the_same_bits_through_reader_threads():
     """Windows' way of reading the workers (a reader thread per worker) on this platform."""
     pool = workers.WorkerPool()
