@@ -4,8 +4,12 @@ A render allocates and frees arrays of a sample batch's size (an (n, 3) float64 
 rays is 1.5 MB) thousands of times.  With glibc's defaults a freed block at the top of the heap
 is given back to the system as soon as 128 KB-32 MB lie free there, and the next allocation of
 the same size page-faults it back in: moving_sphere on one thread took 70-140k page faults and
-12-20% more CPU time than with the tuning below (docs/speed.md).  Keeping up to 256 MB free
-lets the next batch reuse the same pages.  Worker processes get it from their environment (it
+12-20% more CPU time than with the tuning below (docs/speed.md); in one worker process
+16-53k faults a render against 3.6k, and 4-15% more CPU.  (The 11x11 bars' 64-px tiles fault
+~460 times a render either way: glibc's own sliding thresholds already keep arrays that small.)
+Keeping up to 256 MB free lets the next batch reuse the same pages.  The top pad measured neither
+faster nor slower (it only sizes the heap's growth steps), nor did huge pages for the heap
+(``glibc.malloc.hugetlb``).  Worker processes get it from their environment (it
 holds from their start); the process that renders in its own threads sets it when it renders
 (:func:`tune`), for good (the memory it keeps is at most the trim threshold).  Elsewhere than glibc
 (macOS, Windows, musl, or a Blender whose own allocator replaces malloc) nothing is changed.

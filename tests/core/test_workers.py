@@ -609,7 +609,11 @@ def test_short_shares_are_dealt_for_a_batch_and_the_loop_sleeps_half_of_it():
     assert not pace.wants(_Dealt(*range(8)), True)  # 8: 2 batches
     assert pace.pause([_Dealt(*range(8)), _Dealt(*range(8, 16))]) == workers._BATCH
     assert pace.pause([_Dealt(*range(8)), _Dealt(8, 9)]) == pytest.approx(0.25 * workers._BATCH)  # half of 2 shares
-    assert pace.pause([_Dealt(*range(8)), _Dealt()]) == 0  # a worker with nothing: wait for the first message
+    assert pace.pause([_Dealt(*range(8)), _Dealt()], todo) == 0  # a worker with nothing: wait for the first message
+    # nothing left to deal: no sleep once each worker holds at most two shares (the render's end), a sleep before
+    assert pace.pause([_Dealt(0, 1), _Dealt(2)], []) == 0 and pace.pause([_Dealt(0, 1)], []) == 0
+    assert pace.pause([_Dealt(0, 1, 2), _Dealt(3)], []) == pytest.approx(0.125 * workers._BATCH)
+    assert pace.pause([_Dealt(0, 1), _Dealt(2)], todo) > 0  # more to deal: one wake-up for several shares
     end = todo[-8:]  # 2 batches of work left: 1 a worker, so no more than two shares each
     assert not pace.batching(end, 2) and not pace.wants(_Dealt(0, 1), pace.batching(end, 2))
     assert pace.batching(end, 1) and pace.wants(_Dealt(0, 1), pace.batching(end, 1))  # one worker: nobody to wait for
