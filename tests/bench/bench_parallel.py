@@ -65,6 +65,9 @@ SCENES = {  # name: (.blend, resolution or None for the file's, samples or None,
     "moving_sphere": ("moving_sphere.blend", (960, 540), 8, None),
     "bars_sideways (11x11 bars, 11 velocities)": ("bars_sideways.blend", None, None, 64),
 }
+# times the repeats of a scene whose render is short: the bars' 0.1-0.2 s renders, where one load
+# spike moved the least of 3 by 10% (malloc17, docs/speed.md)
+REPEAT_FACTOR = {"bars_sideways": 3}
 
 
 def export_blend(blend: str, resolution, samples, tile_size):
@@ -228,6 +231,7 @@ def scene_report(sec: Section, name: str, spec, pools: dict, repeats: int, quick
     blend, resolution, samples, tile_size = spec
     short = name.split(" (")[0]
     key = short.split("_")[0]  # the numbers' prefix: "moving", "bars"
+    repeats *= REPEAT_FACTOR.get(short, 1)
     if quick:
         resolution, samples = (96, 54), 1
     streaming, streamed = engine_streaming(blend, resolution, samples, tile_size)  # warms the session pool
@@ -316,7 +320,7 @@ def scene_report(sec: Section, name: str, spec, pools: dict, repeats: int, quick
             f"{len(prepared.tiles())} tiles of {prepared.settings.tile_size} px, pickled scene {payload / 1e6:.2f} MB "
             f"(pickled in {pickling:.2f} s, rebuilt from it in {rebuild:.2f} s: what each process render adds)")
     sec.add()
-    sec.add(f"Load average during the runs: {min(loads):.2f}-{max(loads):.2f}. "
+    sec.add(f"{repeats} interleaved repeats. Load average during the runs: {min(loads):.2f}-{max(loads):.2f}. "
             f"Every variant's Combined pass bit-identical to threads x1: {same}.")
     sec.add()
     base = min(times["threads x1"])
@@ -519,7 +523,8 @@ def run(ctx: Context, repeats: int | None = None) -> Section:
         list(pools["twin"].render(prepare(*export_blend("moving_sphere.blend", (8, 8), 1, None)), lambda: False, 1))
         sec.add(f"Host: {os.cpu_count()} cores; load average at start {os.getloadavg()[0]:.2f} "
                 f"(a shared machine: other work runs alongside). Two warm workers started and rendered an "
-                f"8x8 image in {start_up:.2f} s. {repeats} interleaved repeats of every variant.")
+                f"8x8 image in {start_up:.2f} s. {repeats} interleaved repeats of every variant (of a short "
+                f"render more: each scene says how many).")
         sec.add()
         for name, spec in SCENES.items():
             ctx.log(f"  {name}")
