@@ -142,10 +142,11 @@ def facing_normals(frames: FrameSet, segments, prim, u, v, d_k, tau_hit=None, ca
 def _turned_to_viewer(ng, ns, d_k):
     """Geometric and shading normals (hit_geometry's own arrays: turned in place) facing the
     viewer, whether the back was hit, and the cosines ns . (-d_k) with the view where they come
-    from the turn's own dot products (else None: a flat mesh's hits on both sides).  A flat
-    mesh's one broadcast normal stays one row while every hit is on the same side (a new array
-    if they are on both); then the cosines are its dot products (all behind) or their negations
-    (all in front).  ``rows.dot`` of the negated directions makes the same products and sums up
+    from the turn's own dot products (else None: a flat mesh's broadcast normal, hits on both
+    sides).  A flat mesh's one broadcast normal stays one row while every hit is on the same side
+    (a new array if they are on both); then the cosines are its dot products (all behind) or their
+    negations (all in front); flat per-hit normals', |ng . d_k| (behind, dot > 0: the product of
+    the two negated rows; in front, its negation).  ``rows.dot`` of the negated directions makes the same products and sums up
     to their sign (the sign of an exact 0 aside, which no user of a cosine with the view tells
     apart), row by row in either of its ways (a row's sum does not depend on the other rows)."""
     dot = rows.dot(ng, d_k)
@@ -157,11 +158,12 @@ def _turned_to_viewer(ng, ns, d_k):
             ng = rows.broadcast(-ng[:1], len(ng))
             return ng, ng, back, dot
         ng = ns = np.array(ng)
+        dot = None  # (summed by the broadcast row's columns, the rows' turned normals by rows.dot's other way)
     for normals in (ng,) if ns is ng else (ng, ns):
         for axis in range(3):
             np.negative(normals[:, axis], out=normals[:, axis], where=back)
     if ns is ng:  # flat: the turned normal faces the viewer (or grazes it)
-        return ng, ng, back, None
+        return ng, ng, back, None if dot is None else np.abs(dot, out=dot)
     toward = rows.dot(ns, d_k)
     away = toward >= 0.0
     cos_view = np.negative(toward, out=toward)  # (the same products, negated, as ns . (-d_k))

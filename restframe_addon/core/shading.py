@@ -536,17 +536,20 @@ class Shader:
         return self._surfaces(segments, prim, u, v, d_k, tau_hit, cache)[:5]
 
     def _surfaces(self, segments, prim, u, v, d_k, tau_hit, cache):
-        """:meth:`frames_surface_info` and the cosines ns . (-d_k) where facing_normals has them
-        (None with a normal map applied, or where it has not)."""
+        """:meth:`frames_surface_info`, the cosines ns . (-d_k) where facing_normals has them
+        (None with a normal map applied, or where it has not), and each frame's UVs (:func:`hit_uv`)
+        where the normal maps needed them (else None: not worked out)."""
         position, ng, ns, back, cos_view = facing_normals(self.frames, segments, prim, u, v, d_k, tau_hit, cache)
         material = self._frames_materials(segments, prim)
+        uvs = None
         if self.materials.normal_mapped:
             own = False  # (ns may be ng, or the geometry's: copied before a normal map writes into it)
-            for k, s in segments:
+            uvs = [hit_uv(self.frames.frames[k], prim[s], u[s], v[s], cache) for k, s in segments]
+            for (k, s), uv in zip(segments, uvs):
                 frame = self.frames.frames[k]
-                if frame.geometry.corner_uvs is None:
+                if uv is None:
                     continue
-                plain, uv = ns[s], hit_uv(frame, prim[s], u[s], v[s], cache)
+                plain = ns[s]
                 mapped = self._normal_mapped(frame, prim[s], material[s], uv, ng[s], plain, back[s], d_k[s],
                                              np.zeros(len(plain)) if tau_hit is None else tau_hit[s])
                 if mapped is not plain and len(segments) == 1:  # (one frame: _normal_mapped's copy is every row)
@@ -557,7 +560,7 @@ class Shader:
                     ns[s] = mapped
                 if mapped is not plain:
                     cos_view = None
-        return position, ng, ns, material, back, cos_view
+        return position, ng, ns, material, back, cos_view, uvs
 
     def _shade_surfaces(self, segments, tau, d_k, prim, u, v, depth, ids, lam, cache):
         """The values leaving hits toward their rays, in each hit's frame: the hits of several
@@ -567,8 +570,9 @@ class Shader:
         if self._emission_only(depth):  # no normals, texture or base colour needed
             mat = self._frames_materials(segments, prim)
             return self._emission(segments, tau, prim, mat, lam)
-        position, ng, ns, mat, back, cos_view = self._surfaces(segments, prim, u, v, d_k, tau, cache)
-        uvs = [hit_uv(self.frames.frames[k], prim[s], u[s], v[s], cache) for k, s in segments]
+        position, ng, ns, mat, back, cos_view, uvs = self._surfaces(segments, prim, u, v, d_k, tau, cache)
+        if uvs is None:  # (not already worked out for the normal maps)
+            uvs = [hit_uv(self.frames.frames[k], prim[s], u[s], v[s], cache) for k, s in segments]
         if all(uv is None for uv in uvs) or all(uv is not None for uv in uvs):
             base = self.colour.base_color(mat, None if uvs[0] is None else joined_frames(uvs), lam,
                                           columns=True)  # (brdf scales it column by column)

@@ -489,7 +489,10 @@ def test_a_flat_meshs_hits_share_its_one_normal_as_a_broadcast_row_turned_as_the
             np.testing.assert_array_equal(a, b)
         # the cosines with the view, from the turn's dot products: those the shader would make itself
         assert (turned[3] is None) == (not rows.is_broadcast(turned[0]))
-        for normals, cos_view in ((expected[1], expected[3]), (turned[1], turned[3])):
+        flat = per_hit[1].copy()  # per-hit flat normals (ns is ng): the cosines |ng . d_k|
+        flat_turned = passes._turned_to_viewer(flat, flat, d_k)
+        assert flat_turned[3] is not None
+        for normals, cos_view in ((expected[1], expected[3]), (turned[1], turned[3]), flat_turned[1::2]):
             if cos_view is not None:
                 np.testing.assert_array_equal(cos_view, rows.dot(normals, -d_k))
     # smooth shading normals: the cosines of the turned ones, those turned away replaced by ng's

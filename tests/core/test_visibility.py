@@ -189,6 +189,36 @@ def test_a_normal_map_tilts_the_shading_normal_along_the_uv_tangent(tilt, streng
     np.testing.assert_allclose(patch(passes, "Normal"), [math.sin(effective), 0.0, math.cos(effective)], atol=1e-6)
 
 
+def test_a_normal_mapped_hits_uvs_are_worked_out_once_a_shading_batch(monkeypatch):
+    """The shading's base colour reuses the UVs the normal map looked up (one hit_uv a frame and
+    batch, where it took two), and the image stays the closed form."""
+    from restframe_addon.core import shading
+
+    calls = {"hit_uv": 0, "batches": 0}
+    hit_uv, shade = shading.hit_uv, shading.Shader._shade_surfaces
+
+    def counted_uv(*args, **kw):
+        calls["hit_uv"] += 1
+        return hit_uv(*args, **kw)
+
+    def counted_batch(self, *args, **kw):
+        before = calls["hit_uv"]
+        out = shade(self, *args, **kw)
+        calls["batches"] += 1
+        assert calls["hit_uv"] - before == len(args[0])  # one per frame of the batch
+        return out
+
+    monkeypatch.setattr(shading, "hit_uv", counted_uv)
+    monkeypatch.setattr(shading.Shader, "_shade_surfaces", counted_batch)
+    tilt = math.radians(20)
+    mapped = Material("bumpy", base_color=(1, 1, 1), specular_ior_level=0.0, roughness=1.0,
+                      normal_texture=normal_image((math.sin(tilt), 0.0, math.cos(tilt))))
+    vertices, triangles, uvs = uv_quad((0, 0, 0), (100, 100))
+    seen = patch(render([Mesh("ground", vertices, triangles, corner_uvs=uvs)], (mapped,), passes=()))
+    assert calls["batches"] > 0
+    assert seen[0] == pytest.approx(SUN * math.cos(SUN_TILT - tilt) / math.pi, rel=1e-5)
+
+
 def test_a_normal_map_follows_the_uv_layout():
     """V along +y: a green tilt leans the normal toward +y; with the UVs mirrored (U along -x) a red tilt leans it toward -x."""
     tilt = math.radians(25)
