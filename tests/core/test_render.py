@@ -604,8 +604,8 @@ def test_tiles_that_see_something_are_dealt_first(monkeypatch):
 
 def test_a_tiles_camera_rays_are_culled_once_for_all_its_samples(monkeypatch):
     """One sample a batch: the runs near the frames' body boxes are worked out once a tile (from
-    bounds holding every sample's rays, ``CameraRays.run_bounds``), not once a batch; the same
-    bits as culling each batch's own rays."""
+    bounds holding every sample's rays and the pixel-centre rays, ``CameraRays.run_bounds``), not
+    once a batch and again for the pixel-centre rays; the same bits as culling each batch's own rays."""
     from restframe_addon.core import render, tracer
     from restframe_addon.core.camera import CameraRays
     from restframe_addon.core.prepared import prepare
@@ -620,7 +620,7 @@ def test_a_tiles_camera_rays_are_culled_once_for_all_its_samples(monkeypatch):
     near = tracer._runs_near_bodies
     monkeypatch.setattr(tracer, "_runs_near_bodies", lambda *args: culls.append(1) or near(*args))
     once = render.render_tile(prepared, prepared.region)
-    assert len(culls) == 2  # the pixel-centre rays', then the tile's for its 4 batches
+    assert len(culls) == 1  # the tile's, for the pixel-centre rays and its 4 batches
     monkeypatch.setattr(CameraRays, "run_bounds", lambda *args: None)
     culls.clear()
     each = render.render_tile(prepared, prepared.region)
