@@ -87,12 +87,13 @@ class UnseenTiles:
         self._passes[key] = passes
 
 
-def _tile_runs(prepared: PreparedScene, tile_runs: dict, rect, part: slice) -> RunBounds | None:
-    """The :class:`~.tracer.RunBounds` of the pinhole rays through the pixels ``part`` of ``rect``
-    (one a pixel, wherever in it), kept in ``tile_runs`` for the tile's later bundles of them."""
-    key = part.start, part.stop
+def _tile_runs(prepared: PreparedScene, tile_runs: dict, rect, part: slice, count: int = 1) -> RunBounds | None:
+    """The :class:`~.tracer.RunBounds` of the pinhole rays through the pixels ``part`` of ``rect``,
+    ``count`` consecutive ones a pixel (a divisor of ``RunBounds.RUN``), wherever in it, kept in
+    ``tile_runs`` for the tile's later bundles of them."""
+    key = part.start, part.stop, count
     if key not in tile_runs:
-        bounds = prepared.camera_rays.run_bounds(rect, part, RunBounds.RUN)
+        bounds = prepared.camera_rays.run_bounds(rect, part, RunBounds.RUN // count)
         tile_runs[key] = None if bounds is None else RunBounds(*bounds)
     return tile_runs[key]
 
@@ -128,7 +129,7 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     n = len(pixel)
     # the pixels' coordinates, their strata's starts and halves of the (pixel, sample) hash, for jittered samples
     xs = ys = starts = halves = None
-    tile_runs = {}  # (first pixel, pixel past the last) -> their rays' RunBounds (None: the camera has none)
+    tile_runs = {}  # (first pixel, pixel past the last, rays a pixel) -> their rays' RunBounds (None: the camera has none)
     shader = prepared.shader
     if empty:
         centre, centre_hits = prepared.missing_rays(n), no_hits(n, read_only=True)
@@ -175,8 +176,8 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
                                                    None if starts is None else starts[part], keys)
             rays, observed = prepared.sample_rays(px, py, keys=(pix, smp, samples))
             runs = None
-            if count == 1 and not prepared.samples_vary:  # a pixel's rays from one event: cull them once a tile
-                runs = _tile_runs(prepared, tile_runs, rect, part)
+            if RunBounds.RUN % count == 0 and not prepared.samples_vary:  # rays from one event: cull them once a tile
+                runs = _tile_runs(prepared, tile_runs, rect, part, count)
             hits = shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache, runs=runs)
         color, hit, hole = _sample(prepared, rays, hits, ids, cache, observed)
         if summed:
