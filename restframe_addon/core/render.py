@@ -87,6 +87,17 @@ class UnseenTiles:
         self._passes[key] = passes
 
 
+def _tile_runs(prepared: PreparedScene, tile_runs: dict, rect, part: slice, count: int = 1) -> RunBounds | None:
+    """The :class:`~.tracer.RunBounds` of the pinhole rays through the pixels ``part`` of ``rect``,
+    ``count`` consecutive ones a pixel (a divisor of ``RunBounds.RUN``), wherever in it, kept in
+    ``tile_runs`` for the tile's later bundles of them."""
+    key = part.start, part.stop, count
+    if key not in tile_runs:
+        bounds = prepared.camera_rays.run_bounds(rect, part, RunBounds.RUN // count)
+        tile_runs[key] = None if bounds is None else RunBounds(*bounds)
+    return tile_runs[key]
+
+
 def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] = lambda: False,
                 cache: TraceCache | None = None, rows: tuple[int, int] | None = None,
                 unseen: UnseenTiles | None = None) -> Tile:
@@ -118,14 +129,14 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
     n = len(pixel)
     # the pixels' coordinates, their strata's starts and halves of the (pixel, sample) hash, for jittered samples
     xs = ys = starts = halves = None
-    tile_runs = {}  # (first pixel, pixel past the last) -> their rays' RunBounds (None: the camera has none)
+    tile_runs = {}  # (first pixel, pixel past the last, rays a pixel) -> their rays' RunBounds (None: the camera has none)
     shader = prepared.shader
     if empty:
         centre, centre_hits = prepared.missing_rays(n), no_hits(n, read_only=True)
     else:
-        centre = prepared.centre_rays(rect)
+        centre = prepared.centre_rays(rect)  # (pinhole rays: the tile's run bounds hold them, as every sample's)
         centre_hits = shader.trace(frames.camera, *centre, RAY_CAMERA, pixel, np.broadcast_to(np.int64(0), (n,)), 0,
-                                   cache, for_passes=True)
+                                   cache, for_passes=True, runs=_tile_runs(prepared, tile_runs, rect, slice(0, n)))
     passes = pixel_passes(frames, prepared.scene.light_speed, prepared.passes, centre, centre_hits,
                           shader.shading_normals if prepared.materials.normal_mapped else None, cache)
     samples = max(int(settings.samples), 1)
@@ -165,11 +176,8 @@ def render_tile(prepared: PreparedScene, rect, should_stop: Callable[[], bool] =
                                                    None if starts is None else starts[part], keys)
             rays, observed = prepared.sample_rays(px, py, keys=(pix, smp, samples))
             runs = None
-            if count == 1 and not prepared.samples_vary:  # a pixel's rays from one event: cull them once a tile
-                runs = tile_runs.get((part.start, part.stop))
-                if runs is None:
-                    bounds = prepared.camera_rays.run_bounds(rect, part, RunBounds.RUN)
-                    runs = tile_runs[part.start, part.stop] = None if bounds is None else RunBounds(*bounds)
+            if RunBounds.RUN % count == 0 and not prepared.samples_vary:  # rays from one event: cull them once a tile
+                runs = _tile_runs(prepared, tile_runs, rect, part, count)
             hits = shader.trace(frames.camera, *rays, RAY_CAMERA, pix, smp, 0, cache, runs=runs)
         color, hit, hole = _sample(prepared, rays, hits, ids, cache, observed)
         if summed:

@@ -604,8 +604,8 @@ def test_tiles_that_see_something_are_dealt_first(monkeypatch):
 
 def test_a_tiles_camera_rays_are_culled_once_for_all_its_samples(monkeypatch):
     """One sample a batch: the runs near the frames' body boxes are worked out once a tile (from
-    bounds holding every sample's rays, ``CameraRays.run_bounds``), not once a batch; the same
-    bits as culling each batch's own rays."""
+    bounds holding every sample's rays and the pixel-centre rays, ``CameraRays.run_bounds``), not
+    once a batch and again for the pixel-centre rays; the same bits as culling each batch's own rays."""
     from restframe_addon.core import render, tracer
     from restframe_addon.core.camera import CameraRays
     from restframe_addon.core.prepared import prepare
@@ -620,7 +620,7 @@ def test_a_tiles_camera_rays_are_culled_once_for_all_its_samples(monkeypatch):
     near = tracer._runs_near_bodies
     monkeypatch.setattr(tracer, "_runs_near_bodies", lambda *args: culls.append(1) or near(*args))
     once = render.render_tile(prepared, prepared.region)
-    assert len(culls) == 2  # the pixel-centre rays', then the tile's for its 4 batches
+    assert len(culls) == 1  # the tile's, for the pixel-centre rays and its 4 batches
     monkeypatch.setattr(CameraRays, "run_bounds", lambda *args: None)
     culls.clear()
     each = render.render_tile(prepared, prepared.region)
@@ -629,3 +629,35 @@ def test_a_tiles_camera_rays_are_culled_once_for_all_its_samples(monkeypatch):
         np.testing.assert_array_equal(values, each.passes[name], err_msg=name)
     sky = np.isclose(once.passes["Combined"][..., :3], once.passes["Combined"][-1, -1, :3]).all(axis=-1)
     assert 0.1 < sky.mean() < 0.9  # (runs of rays that miss everything, and rays that hit)
+
+
+def test_a_small_tiles_batches_of_several_samples_a_pixel_are_culled_once_too(monkeypatch):
+    """Two samples a pixel a batch (a divisor of ``RunBounds.RUN``): each run of rays is that of 8
+    pixels, and its bounds (``CameraRays.run_bounds`` of 8-pixel runs) cull both batches once; the
+    same bits as culling each batch's own rays."""
+    from restframe_addon.core import render, tracer
+    from restframe_addon.core.camera import CameraRays
+    from restframe_addon.core.prepared import prepare
+
+    v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, 24, 12)
+    scene = Scene(camera=look_at_camera((0, -4, 0.5), (0, 0, 0)), lights=[Light("lamp", "SUN", (1, -3, 2), power=3.0)],
+                  meshes=[Mesh("ball", v, t, velocity=Velocity((0.6, 0.0, 0.0))),
+                          Mesh("floor", *quad((0.0, 0.0, -1.2), (6.0, 6.0), normal_axis=2))])
+    monkeypatch.setattr(render, "_MAX_VALUES", 32 * 32 * 3 * 2)  # two samples a batch
+    monkeypatch.setattr(render, "_BATCH_VALUES", 32 * 32 * 3 * 2)
+    prepared = prepare(scene, settings((32, 32), tile_size=32, samples=4))
+    assert [count for _, _, count in render._batches(32 * 32, 4, 3)] == [2, 2]
+    culls, runs = [], []
+    near = tracer._runs_near_bodies
+    monkeypatch.setattr(tracer, "_runs_near_bodies", lambda *args: culls.append(1) or near(*args))
+    run_bounds = CameraRays.run_bounds
+    monkeypatch.setattr(CameraRays, "run_bounds", lambda self, rect, part, run: runs.append(run) or run_bounds(
+        self, rect, part, run))
+    once = render.render_tile(prepared, prepared.region)
+    assert len(culls) == 2 and runs == [16, 8]  # the pixel-centre rays', then the tile's for its 2 batches
+    monkeypatch.setattr(CameraRays, "run_bounds", lambda *args: None)
+    culls.clear()
+    each = render.render_tile(prepared, prepared.region)
+    assert len(culls) == 3
+    for name, values in once.passes.items():
+        np.testing.assert_array_equal(values, each.passes[name], err_msg=name)
