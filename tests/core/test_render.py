@@ -602,6 +602,19 @@ def test_tiles_that_see_something_are_dealt_first(monkeypatch):
     assert asked == [len(rects)]  # and their emptiness found at once too
 
 
+def _ball_over_floor() -> Scene:
+    """A ball at 0.6c over a floor in sunlight, seen from above the floor: the cull tests' scene."""
+    v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, 24, 12)
+    return Scene(camera=look_at_camera((0, -4, 0.5), (0, 0, 0)), lights=[Light("lamp", "SUN", (1, -3, 2), power=3.0)],
+                 meshes=[Mesh("ball", v, t, velocity=Velocity((0.6, 0.0, 0.0))),
+                         Mesh("floor", *quad((0.0, 0.0, -1.2), (6.0, 6.0), normal_axis=2))])
+
+
+def _same_passes(once, each) -> None:
+    for name, values in once.passes.items():
+        np.testing.assert_array_equal(values, each.passes[name], err_msg=name)
+
+
 def test_a_tiles_camera_rays_are_culled_once_for_all_its_samples(monkeypatch):
     """One sample a batch: the runs near the frames' body boxes are worked out once a tile (from
     bounds holding every sample's rays and the pixel-centre rays, ``CameraRays.run_bounds``), not
@@ -610,10 +623,7 @@ def test_a_tiles_camera_rays_are_culled_once_for_all_its_samples(monkeypatch):
     from restframe_addon.core.camera import CameraRays
     from restframe_addon.core.prepared import prepare
 
-    v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, 24, 12)
-    scene = Scene(camera=look_at_camera((0, -4, 0.5), (0, 0, 0)), lights=[Light("lamp", "SUN", (1, -3, 2), power=3.0)],
-                  meshes=[Mesh("ball", v, t, velocity=Velocity((0.6, 0.0, 0.0))),
-                          Mesh("floor", *quad((0.0, 0.0, -1.2), (6.0, 6.0), normal_axis=2))])
+    scene = _ball_over_floor()
     monkeypatch.setattr(render, "_MAX_VALUES", 32 * 32 * 3)  # one sample a batch
     prepared = prepare(scene, settings((32, 32), tile_size=32, samples=4))
     culls = []
@@ -625,8 +635,7 @@ def test_a_tiles_camera_rays_are_culled_once_for_all_its_samples(monkeypatch):
     culls.clear()
     each = render.render_tile(prepared, prepared.region)
     assert len(culls) == 5
-    for name, values in once.passes.items():
-        np.testing.assert_array_equal(values, each.passes[name], err_msg=name)
+    _same_passes(once, each)
     sky = np.isclose(once.passes["Combined"][..., :3], once.passes["Combined"][-1, -1, :3]).all(axis=-1)
     assert 0.1 < sky.mean() < 0.9  # (runs of rays that miss everything, and rays that hit)
 
@@ -639,10 +648,7 @@ def test_a_small_tiles_batches_of_several_samples_a_pixel_are_culled_once_too(mo
     from restframe_addon.core.camera import CameraRays
     from restframe_addon.core.prepared import prepare
 
-    v, t = uv_sphere((0.0, 0.0, 0.0), 1.0, 24, 12)
-    scene = Scene(camera=look_at_camera((0, -4, 0.5), (0, 0, 0)), lights=[Light("lamp", "SUN", (1, -3, 2), power=3.0)],
-                  meshes=[Mesh("ball", v, t, velocity=Velocity((0.6, 0.0, 0.0))),
-                          Mesh("floor", *quad((0.0, 0.0, -1.2), (6.0, 6.0), normal_axis=2))])
+    scene = _ball_over_floor()
     monkeypatch.setattr(render, "_MAX_VALUES", 32 * 32 * 3 * 2)  # two samples a batch
     monkeypatch.setattr(render, "_BATCH_VALUES", 32 * 32 * 3 * 2)
     prepared = prepare(scene, settings((32, 32), tile_size=32, samples=4))
@@ -659,5 +665,4 @@ def test_a_small_tiles_batches_of_several_samples_a_pixel_are_culled_once_too(mo
     culls.clear()
     each = render.render_tile(prepared, prepared.region)
     assert len(culls) == 3
-    for name, values in once.passes.items():
-        np.testing.assert_array_equal(values, each.passes[name], err_msg=name)
+    _same_passes(once, each)
