@@ -146,9 +146,10 @@ def _turned_to_viewer(ng, ns, d_k):
     sides).  A flat mesh's one broadcast normal stays one row while every hit is on the same side
     (a new array if they are on both); then the cosines are its dot products (all behind) or their
     negations (all in front); flat per-hit normals', |ng . d_k| (behind, dot > 0: the product of
-    the two negated rows; in front, its negation).  ``rows.dot`` of the negated directions makes the same products and sums up
-    to their sign (the sign of an exact 0 aside, which no user of a cosine with the view tells
-    apart), row by row in either of its ways (a row's sum does not depend on the other rows)."""
+    the two negated rows; in front, its negation).  ``rows.dot`` of the negated directions makes
+    the same products and sums up to their sign (the sign of an exact 0 aside, which no user of a
+    cosine with the view tells apart), row by row in either of its ways (a row's sum does not
+    depend on the other rows)."""
     dot = rows.dot(ng, d_k)
     back = dot > 0.0
     if rows.is_broadcast(ng):  # (flat shading: ns is ng)

@@ -572,23 +572,22 @@ def _nearest(frames: FrameSet, src: int, tau0, x0, d, s_lo, s_hi, cache: TraceCa
         s = rest if w is None else rest / (w if found is None else rows.take(w, found))
         # ties keep the earlier frame
         nearer = s < (best if found is None else best[found if rays is None else rays[found]])
-        if first and nearer.all():  # every ray hit, nearer than its bound (a floor under the camera): nothing to select
-            hits = Hits(frame=np.full(n, k, np.int32), s=s, s_frame=s if w is None else t,
-                        w=np.broadcast_to(1.0, (n,)) if w is None else w, prim=prim, u=u, v=v, d_frame=dk, tau_frame=tau_k)
-            borrowed = True
-            best = s  # (min(best, s) is s; hits.s and best stay equal, each later frame writing both alike)
-            continue
         if first:
-            s = np.where(nearer, s, np.inf)
+            # every ray hit, nearer than its bound (a floor under the camera): its hits as they are,
+            # nothing to select (and min(best, s) is s)
+            every = bool(nearer.all())
+            if not every:
+                s = np.where(nearer, s, np.inf)
             # s_frame, w, d_frame and tau_frame shared (s, a broadcast 1, the rays' own arrays) until a
             # later frame writes into them
-            hits = Hits(frame=np.where(nearer, np.int32(k), np.int32(-1)), s=s,
-                        s_frame=s if w is None else np.where(nearer, t, np.inf),
-                        w=np.broadcast_to(1.0, (n,)) if w is None else w, prim=np.where(nearer, prim, np.int32(-1)),
+            hits = Hits(frame=np.full(n, k, np.int32) if every else np.where(nearer, np.int32(k), np.int32(-1)), s=s,
+                        s_frame=s if w is None else t if every else np.where(nearer, t, np.inf),
+                        w=np.broadcast_to(1.0, (n,)) if w is None else w,
+                        prim=prim if every else np.where(nearer, prim, np.int32(-1)),
                         u=u, v=v, d_frame=dk, tau_frame=tau_k)
             borrowed = True
             if k != candidates[-1]:  # (the later frames' bound)
-                best = np.minimum(best, s)
+                best = s if every else np.minimum(best, s)
             continue
         if hits is None:
             hits, borrowed = no_hits(n), False

@@ -29,9 +29,9 @@ own two-process scaling of the same run (below 1.9, the machine is the limit, no
 and the strict projection (everything this process does for a render counted as serial) at least 12x
 on 16 cores, the worse of the first F12 (cold) and a warm one, with this process's CPU measured in
 renders on 16 worker processes (the least of three F12s; their tiles and shares; the engine's
-streaming of those tiles fitted from two F12s through Blender).  The rows scaled from one worker's costs per share and per tile are
-kept beside it: they count the loop's cost per render (its results image, the first deal) again for
-every share, an upper bound.
+streaming of those tiles fitted from two F12s through Blender).  The rows scaled from one worker's
+costs per share and per tile are kept beside it: they count the loop's cost per render (its
+results image, the first deal) again for every share, an upper bound.
 """
 
 from __future__ import annotations
