@@ -6,6 +6,8 @@ is split into tiles or threads, so region renders and full renders agree exactly
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from . import rows
@@ -166,18 +168,32 @@ def stratified_positions(xs: np.ndarray, ys: np.ndarray, pixel: np.ndarray, firs
     if samples == 1:
         return np.repeat(xs + 0.5, count), np.repeat(ys + 0.5, count)
     side = int(np.ceil(np.sqrt(samples)))
-    cells = side * side
-    steps = np.arange(first, first + count) * _coprime_step(cells) % cells
-    # :func:`strata` for each per-pixel start (cells x count): a pixel's strata are its start's row,
-    # gathered per pixel (count numbers at once) instead of worked out per sample
-    table = (np.arange(cells)[:, None] + steps) % cells
+    strata_columns, strata_rows = _strata_table(samples, first, count)
     start = strata_starts(pixel, samples) if starts is None else starts
-    column = (table % side).astype(np.float64).take(start, axis=0).ravel()
-    row = (table // side).astype(np.float64).take(start, axis=0).ravel()
+    # (start is in range: clip only skips the check)
+    column, row = (np.take(table, start, axis=0, mode="clip").ravel() for table in (strata_columns, strata_rows))
     x, y = _jittered(block_keys(pixel_halves(pixel), first, count) if keys is None else keys, column, row, side)
     x.reshape(len(pixel), count)[...] += xs[:, None]
     y.reshape(len(pixel), count)[...] += ys[:, None]
     return x, y
+
+
+@lru_cache(maxsize=256)
+def _strata_table(samples: int, first: int, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`strata` of samples first .. first + count - 1 for every per-pixel start (cells x
+    count; a pixel's strata are its start's row, gathered per pixel instead of worked out per
+    sample), as the strata's columns and rows (floats), read-only: the same for every batch of
+    these samples (one count: 1-D tables, whose gather is a plain 1-D take)."""
+    side = int(np.ceil(np.sqrt(samples)))
+    cells = side * side
+    steps = np.arange(first, first + count) * _coprime_step(cells) % cells
+    table = (np.arange(cells)[:, None] + steps) % cells
+    if count == 1:
+        table = table[:, 0]
+    found = (table % side).astype(np.float64), (table // side).astype(np.float64)
+    for part in found:
+        part.flags.writeable = False
+    return found
 
 
 def strata_starts(pixel: np.ndarray, samples: int) -> np.ndarray | None:
