@@ -704,18 +704,19 @@ class Shader:
             e_sel = rows.take(e_k, sel)
             blocked = self._occluded(segments, sel, tau, position, ng, e_sel, [part[0] for part in incident],
                                      s_max, ids, _cutout_dimension(depth, 8 + index), cache)
-            weight = rows.take(strength, sel) * rows.take(cos_n, sel)
+            cos_sel = rows.take(cos_n, sel)
+            weight = rows.take(strength, sel) * cos_sel
             shadowed = np.count_nonzero(blocked)
             if shadowed == len(blocked):
                 continue
             if shadowed * _SHADE_IN_SHADOW > len(blocked):  # many in shadow: shade only the others
                 lit = np.flatnonzero(~blocked)
-                e_sel, weight = np.take(e_sel, lit, axis=0), np.take(weight, lit)
+                e_sel, weight, cos_sel = np.take(e_sel, lit, axis=0), np.take(weight, lit), np.take(cos_sel, lit)
                 sel = lit if isinstance(sel, slice) else np.take(sel, lit)
             elif shadowed:  # a few: cheaper to shade them too, with no light
                 weight[blocked] = 0.0
             f = self.brdf(rows.take(ns, sel), rows.take(view, sel), e_sel, rows.take(base, sel), rows.take(mat, sel),
-                          rows.take(cos_n, sel), None if cos_view is None else rows.take(cos_view, sel))
+                          cos_sel, None if cos_view is None else rows.take(cos_view, sel))
             emitted = self.colour.light(index, self.colour.shift(_rows(lam, sel), rows.take(doppler, sel)), len(f),
                                         None if clock is None else rows.take(clock, sel))
             f = _weighted_product(f, emitted, weight)
@@ -942,12 +943,9 @@ def hit_uv(frame, prim, u, v, cache: TraceCache | None = None):
         term = np.empty(len(prim))
         for c, corners in enumerate(tables):
             column = uv[:, c]
-            np.take(corners[0], index, out=column, mode="clip")  # (prim is in range: clip skips the check)
-            column *= weights[0]
+            _weighted_corner(corners[0], index, weights[0], column)
             for corner in (1, 2):
-                np.take(corners[corner], index, out=term, mode="clip")
-                term *= weights[corner]
-                column += term
+                column += _weighted_corner(corners[corner], index, weights[corner], term)
         return uv
     cuv = np.take(corner_uvs, prim, axis=0)
     # column by column (see rows), into contiguous columns, in place (temporaries cost page faults)
@@ -959,6 +957,16 @@ def hit_uv(frame, prim, u, v, cache: TraceCache | None = None):
         column += np.multiply(u, cuv[:, 1, c], out=term)
         column += np.multiply(v, cuv[:, 2, c], out=term)
     return uv
+
+
+def _weighted_corner(table, index, weight, out):
+    """``table[index] * weight`` into ``out``: the corners' values at the hits (a table shared by
+    every triangle is one number: the same products, no gather)."""
+    if isinstance(table, float):
+        return np.multiply(weight, table, out=out)
+    np.take(table, index, out=out, mode="clip")  # (prim is in range: clip skips the check)
+    out *= weight
+    return out
 
 
 def uv_tangents(frame, prim, tau=None):

@@ -397,14 +397,15 @@ class TraceCache:
         """``shading.hit_uv``'s UVs of every triangle of a small mesh ``geometry`` (at most
         ``_HIT_TABLE_TRIANGLES``; else None), one contiguous (triangles,) table per corner of each
         component (U of the three corners, then V), made at its first lit hit: 1-D gathers into
-        contiguous columns instead of six strided passes over (n, 3, 2) gathered rows."""
+        contiguous columns instead of six strided passes over (n, 3, 2) gathered rows.  A table
+        whose triangles all share one value is that number (a quad's corners: no gather)."""
         if geometry.corner_uvs is None or len(geometry.triangles) > _HIT_TABLE_TRIANGLES:
             return None
         kept = self._uv_tables.get(id(geometry))
         if kept is None or kept[0] is not geometry:
             uvs = geometry.corner_uvs
             kept = self._uv_tables[id(geometry)] = (
-                geometry, tuple(tuple(np.ascontiguousarray(uvs[:, corner, c]) for corner in range(3)) for c in range(2)))
+                geometry, tuple(tuple(_one_value_or_table(uvs[:, corner, c]) for corner in range(3)) for c in range(2)))
         return kept[1]
 
     def flat_side(self, geometry):
@@ -413,6 +414,12 @@ class TraceCache:
         if kept is None or kept[0] is not geometry:
             kept = self._flat[id(geometry)] = (geometry, _flat_side(geometry))
         return kept[1]
+
+
+def _one_value_or_table(values):
+    """The one float64 number every entry of ``values`` (1-D) is, else a contiguous copy of them."""
+    values = np.ascontiguousarray(values, dtype=np.float64)
+    return float(values[0]) if len(values) and bool((values == values[0]).all()) else values
 
 
 def _flat_side(geometry):

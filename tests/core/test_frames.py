@@ -525,6 +525,27 @@ def test_hit_uvs_from_a_threads_uv_tables_are_bit_for_bit_the_per_hit_uvs():
     assert hit_uv(build_frames(grid_scene((vertices, triangles))).frames[0], prim, u, v, cache) is None
 
 
+def test_a_uv_table_every_triangle_shares_is_one_number_with_the_same_bits():
+    """A small mesh's corner whose U (or V) every triangle shares (a quad's: two triangles from one
+    corner) is kept as that number, multiplied in without a gather: the same bits as the gathered
+    corner rows (a corner of 0 too, whose products are signed zeros)."""
+    from restframe_addon.core.shading import hit_uv
+
+    vertices, triangles = shuffled_sphere()
+    rng = np.random.default_rng(7)
+    corner_uvs = rng.random((len(triangles), 3, 2)) * 3.0 - 1.0
+    corner_uvs[:, 0] = (0.0, 0.75)  # both components of the first corner shared
+    corner_uvs[:, 2, 1] = -1.25  # the last corner's V shared
+    frame = build_frames(grid_scene((vertices, triangles), corner_uvs=corner_uvs)).frames[0]
+    cache = tracer.TraceCache()
+    prim = rng.integers(0, len(triangles), 4000).astype(np.int32)
+    u, v = (rng.random(len(prim)).astype(np.float32) * 0.5 for _ in range(2))
+    kept = hit_uv(frame, prim, u, v, cache)
+    shared = [[isinstance(table, float) for table in component] for component in cache.uv_table(frame.geometry)]
+    assert shared == [[True, False, False], [True, False, True]]
+    assert kept.tobytes() == np.ascontiguousarray(hit_uv(frame, prim, u, v)).tobytes()
+
+
 def test_padded_vertices_are_the_float64_offsets_rounded_once_in_embrees_layout():
     vertices = np.random.default_rng(3).normal(size=(1001, 3)) * 1e3
     anchor = np.array([0.1, -2.5, 7.0])
