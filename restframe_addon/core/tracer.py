@@ -417,9 +417,11 @@ class TraceCache:
 
 
 def _one_value_or_table(values):
-    """The one float64 number every entry of ``values`` (1-D) is, else a contiguous copy of them."""
-    values = np.ascontiguousarray(values, dtype=np.float64)
-    return float(values[0]) if len(values) and bool((values == values[0]).all()) else values
+    """The one number every entry of ``values`` (1-D) is bit for bit (0.0 and -0.0 differ), else a
+    contiguous copy of them."""
+    values = np.ascontiguousarray(values)
+    bits = values.view(f"u{values.itemsize}")
+    return float(values[0]) if len(values) and bool((bits == bits[0]).all()) else values
 
 
 def _flat_side(geometry):

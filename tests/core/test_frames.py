@@ -528,7 +528,7 @@ def test_hit_uvs_from_a_threads_uv_tables_are_bit_for_bit_the_per_hit_uvs():
 def test_a_uv_table_every_triangle_shares_is_one_number_with_the_same_bits():
     """A small mesh's corner whose U (or V) every triangle shares (a quad's: two triangles from one
     corner) is kept as that number, multiplied in without a gather: the same bits as the gathered
-    corner rows (a corner of 0 too, whose products are signed zeros)."""
+    corner rows (a corner of 0 too, whose products are signed zeros; 0.0 and -0.0 are not one number)."""
     from restframe_addon.core.shading import hit_uv
 
     vertices, triangles = shuffled_sphere()
@@ -536,6 +536,7 @@ def test_a_uv_table_every_triangle_shares_is_one_number_with_the_same_bits():
     corner_uvs = rng.random((len(triangles), 3, 2)) * 3.0 - 1.0
     corner_uvs[:, 0] = (0.0, 0.75)  # both components of the first corner shared
     corner_uvs[:, 2, 1] = -1.25  # the last corner's V shared
+    corner_uvs[:, 1, 1] = np.where(np.arange(len(triangles)) % 2, 0.0, -0.0)  # equal, not the same bits
     frame = build_frames(grid_scene((vertices, triangles), corner_uvs=corner_uvs)).frames[0]
     cache = tracer.TraceCache()
     prim = rng.integers(0, len(triangles), 4000).astype(np.int32)
