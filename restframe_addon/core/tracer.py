@@ -692,16 +692,37 @@ class RunBounds:
 
     RUN = 16  # rays per run (``_RUN``)
 
-    def __init__(self, low, high):
+    def __init__(self, low, high, within: "tuple[RunBounds, int] | None" = None):
         self.bounds = low, high
-        # (src, frames, event, rays) -> (the runs near each frame, the rays of each frame without cones)
-        self._kept: dict[tuple, tuple] = {}
+        self._within = within  # (the RunBounds these runs are a stretch of, the first of them there)
+        self._near: dict[tuple, list] = {}  # (src, frames, event) -> the runs near each frame
+        self._kept: dict[tuple, dict] = {}  # (src, frames, event, rays) -> the rays of each frame without cones
 
-    def near(self, key, compute) -> tuple:
-        found = self._kept.get(key)
-        if found is None:
-            found = self._kept[key] = (compute(), {})
-        return found
+    def stretch(self, first: int, count: int) -> "RunBounds":
+        """The runs ``first`` .. ``first + count - 1`` of these (a batch of some of a tile's pixels):
+        their bounds, and the runs near each frame taken from those worked out for all of these (the
+        same runs: each run is tested on its own bounds, whatever others are tested with it)."""
+        low, high = self.bounds
+        return RunBounds(low[:, first:first + count], high[:, first:first + count], (self, first))
+
+    def near(self, key, rays: int, compute) -> tuple:
+        """(:meth:`runs_near`, the rays of each frame without cones kept for bundles of ``rays`` rays)."""
+        return self.runs_near(key, compute), self._kept.setdefault((*key, rays), {})
+
+    def runs_near(self, key, compute) -> list:
+        """The runs near each frame for ``key`` = (src, frames, event), worked out by
+        ``compute(bounds)`` once (a stretch's from those of the runs it is a stretch of)."""
+        near = self._near.get(key)
+        if near is None:
+            if self._within is None:
+                near = compute(self.bounds)
+            else:
+                whole, first = self._within
+                stop = first + self.bounds[0].shape[1]
+                near = [runs[start:end] - first for runs in whole.runs_near(key, compute)
+                        for start, end in [np.searchsorted(runs, (first, stop)).tolist()]]
+            self._near[key] = near
+        return near
 
 
 _ANY_PATH = (0.0, math.inf)  # the path range of RunBounds' culling: any bundle's whose rays start at s >= 0
@@ -730,8 +751,9 @@ def _cull_bundle(frames: FrameSet, src: int, ks, shared, d, s_lo, s_hi, cache: T
     kept = None  # the rays of frames without cones, from tile_runs
     if tile_runs is not None and tile_runs.bounds[0].shape[1] == n // _RUN and lowest >= 0.0:
         run_bounds = tile_runs.bounds
-        near, kept = tile_runs.near((src, tuple(ks), shared[0], shared[1].tobytes(), n), lambda: _runs_near_bodies(
-            frames, src, ks, cache, extent, shared, run_bounds, _ANY_PATH))
+        near, kept = tile_runs.near((src, tuple(ks), shared[0], shared[1].tobytes()), n,
+                                    lambda bounds: _runs_near_bodies(frames, src, ks, cache, extent, shared, bounds,
+                                                                     _ANY_PATH))
     else:
         run_bounds = _run_bounds(d)
         path_range = lowest, float(s_hi[0] if _one_row(s_hi) else np.max(s_hi))
