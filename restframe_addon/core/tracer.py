@@ -1191,29 +1191,35 @@ def _near_body(frames: FrameSet, src: int, k: int, cache, extent, tau0, x0, d, s
     if n == 0:
         return np.zeros(0, dtype=bool)
     t_box, x_box, velocity, widen = _body_box(frames, src, k, cache, extent)
-    since = None
-    offsets, speeds = [], []  # per axis: x0 - X(tau0) and e = d + v
-    for axis in range(3):
+
+    def relative(axis: int, first: int = 0):
+        """x0 - X(tau0) and e = d + v along ``axis`` of the rays from ``first`` on (contiguous)."""
         v = float(velocity[axis])
-        offset, e = np.empty(n), np.empty(n)
-        if v == 0.0:  # (x + 0 * since = x; d + 0 turns -0 into +0, which decides only rays that stay
-            # at a constant coordinate outside the slab: they miss the box either way)
-            np.subtract(x0[:, axis], x_box[axis], out=offset)
-            np.copyto(e, d[:, axis])  # (contiguous: numpy divides by it 2.5x faster than by a strided column)
+        offset, e = np.empty(n - first), np.empty(n - first)
+        if v == 0.0:  # (X(tau0) is x_box: (tau0 - t) 0 + x_box; d + 0 turns -0 into +0, which decides
+            # only rays that stay at a constant coordinate outside the slab: they miss the box either way)
+            np.subtract(x0[first:, axis], x_box[axis], out=offset)
+            np.copyto(e, d[first:, axis])  # (contiguous: numpy divides by it 2.5x faster than by a strided column)
         else:
-            since = tau0 - t_box if since is None else since
-            np.multiply(since, v, out=offset)  # the box centre's displacement at the ray's start
+            np.subtract(tau0[first:], t_box, out=offset)
+            offset *= v  # the box centre's displacement at the ray's start
             offset += x_box[axis]
-            np.subtract(x0[:, axis], offset, out=offset)
-            np.add(d[:, axis], v, out=e)
-        offsets.append(offset)
-        speeds.append(e)
-    rays = _blocks_near(offsets, speeds, widen, s_lo, s_hi)
+            np.subtract(x0[first:, axis], offset, out=offset)
+            np.add(d[first:, axis], v, out=e)
+        return offset, e
+
+    columns = []  # relative(axis) of every ray, axis by axis as the block test asks for them
+    rays = _blocks_near(lambda axis: columns.append(relative(axis)) or columns[axis], widen, s_lo, s_hi)
     if rays is None:
-        return _slabs_hold(offsets, speeds, widen, s_lo, s_hi)
+        columns += [relative(axis) for axis in range(len(columns), 3)]
+        return _slabs_hold([o for o, _ in columns], [e for _, e in columns], widen, s_lo, s_hi)
     near = np.zeros(n, dtype=bool)
     if len(rays):
-        near[rays] = _slabs_hold([a[rays] for a in offsets], [a[rays] for a in speeds], widen,
+        # the axes the block test did not ask for (every block dropped before): only the rays past the
+        # last whole block are left, worked out for them alone
+        first = n - len(rays)
+        columns = [(o[rays], e[rays]) for o, e in columns] + [relative(axis, first) for axis in range(len(columns), 3)]
+        near[rays] = _slabs_hold([o for o, _ in columns], [e for _, e in columns], widen,
                                  s_lo[:len(rays)] if _one_row(s_lo) else s_lo[rays],
                                  s_hi[:len(rays)] if _one_row(s_hi) else s_hi[rays])
     return near
@@ -1238,7 +1244,7 @@ _NEAR_BLOCK = 2048  # consecutive shadow rays (hits of a run of pixels) tested a
 _NEAR_SHARE = 0.5  # the share of kept rays above which _near_body tests every ray (no gathers)
 
 
-def _blocks_near(offsets, speeds, widen, s_lo, s_hi):
+def _blocks_near(column, widen, s_lo, s_hi):
     """Indices (increasing) of the rays of :func:`_near_body` whose block of ``_NEAR_BLOCK``
     consecutive rays may pass through the box, and of the rays past the last whole block; None
     for every ray (most are kept).
@@ -1248,6 +1254,8 @@ def _blocks_near(offsets, speeds, widen, s_lo, s_hi):
     sign of e, in e, and so is their rounding, so every ray's lie between the values at the
     block's corners (unless e may be 0 there: any path length); the block's path range is the
     bundle's.  A block it drops holds no ray :func:`_slabs_hold` keeps (a NaN keeps its block).
+    ``column(axis)`` = (offset, e) of every ray along that axis, asked for axis by axis: once every
+    block is dropped, the other axes are not (a tile's shadow rays far from the body).
     """
     n = len(s_lo)
     count = n // _NEAR_BLOCK
@@ -1257,7 +1265,8 @@ def _blocks_near(offsets, speeds, widen, s_lo, s_hi):
     enter = np.full(count, float(s_lo[0] if _one_row(s_lo) else s_lo.min()))
     leave = np.full(count, float(s_hi[0] if _one_row(s_hi) else s_hi.max()))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        for axis, (offset, e) in enumerate(zip(offsets, speeds)):
+        for axis in range(3):
+            offset, e = column(axis)
             blocks_offset, blocks_e = offset[:whole].reshape(count, -1), e[:whole].reshape(count, -1)
             o_lo, o_hi, e_lo, e_hi = blocks_offset.min(1), blocks_offset.max(1), blocks_e.min(1), blocks_e.max(1)
             ends = [np.subtract(bound, o, out=np.empty(count)) for bound in (-widen[axis], widen[axis])
@@ -1271,6 +1280,8 @@ def _blocks_near(offsets, speeds, widen, s_lo, s_hi):
             near[either_way], far[either_way] = -np.inf, np.inf
             np.maximum(enter, near, out=enter)
             np.minimum(leave, far, out=leave)
+            if (enter > leave).all():
+                break
     kept = np.flatnonzero(~(enter > leave))  # (NaN: kept)
     if len(kept) * _NEAR_BLOCK > _NEAR_SHARE * n:
         return None
