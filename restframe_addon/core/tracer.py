@@ -1510,8 +1510,8 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
     but for a flat mesh's normal (with ``cache``, not spinning): one read-only broadcast row.
     ``cache``: the calling thread's, which keeps the rows of small meshes' triangles."""
     geometry = frame.geometry
-    # p0 + u e1 + v e2 one axis at a time in a contiguous column, written once into its column of
-    # the positions; float32 u, v widened once (exactly).  A body that does not spin is moved to
+    # p0 + u e1 + v e2 one axis at a time in a contiguous column, its last sum written into its
+    # column of the positions; float32 u, v widened once (exactly).  A body that does not spin is moved to
     # frame coordinates (RestFrame.to_frame: + offset) in the same column.
     u = np.asarray(u, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)
@@ -1541,10 +1541,11 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
         p0, e1, e2 = corner_and_edges
         np.multiply(u, e1, out=column)
         column += p0
-        column += np.multiply(v, e2, out=term)
-        if not spins:
-            column += frame.offset[axis]
-        position[:, axis] = column
+        if spins:
+            np.add(column, np.multiply(v, e2, out=term), out=position[:, axis])  # (the last sum into its column)
+        else:
+            column += np.multiply(v, e2, out=term)
+            np.add(column, frame.offset[axis], out=position[:, axis])
     if corners is None:
         ns = ng
     else:  # the corners' normals weighted by (1 - u - v, u, v), axis by axis as the position
@@ -1552,8 +1553,7 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
         for axis, (n0, n1, n2) in enumerate(corners):
             np.multiply(n0, first, out=column)
             column += np.multiply(u, n1, out=term)
-            column += np.multiply(v, n2, out=term)
-            ns[:, axis] = column
+            np.add(column, np.multiply(v, n2, out=term), out=ns[:, axis])
         ns = rows.normalized(ns)
     if spins:
         position, ng = frame.to_frame(position, ng, tau)
