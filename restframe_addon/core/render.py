@@ -90,11 +90,17 @@ class UnseenTiles:
 def _tile_runs(prepared: PreparedScene, tile_runs: dict, rect, part: slice, count: int = 1) -> RunBounds | None:
     """The :class:`~.tracer.RunBounds` of the pinhole rays through the pixels ``part`` of ``rect``,
     ``count`` consecutive ones a pixel (a divisor of ``RunBounds.RUN``), wherever in it, kept in
-    ``tile_runs`` for the tile's later bundles of them."""
+    ``tile_runs`` for the tile's later bundles of them.  One sample a pixel, a stretch of the runs
+    of all the tile's pixels (the pixel-centre rays'), their culls included, once those are kept."""
     key = part.start, part.stop, count
     if key not in tile_runs:
-        bounds = prepared.camera_rays.run_bounds(rect, part, RunBounds.RUN // count)
-        tile_runs[key] = None if bounds is None else RunBounds(*bounds)
+        x0, y0, x1, y1 = rect
+        whole = tile_runs.get((0, (x1 - x0) * (y1 - y0), 1))  # (the pixel-centre rays')
+        if whole is not None and count == 1 and part.start % RunBounds.RUN == 0:
+            tile_runs[key] = whole.stretch(part.start // RunBounds.RUN, (part.stop - part.start) // RunBounds.RUN)
+        else:
+            bounds = prepared.camera_rays.run_bounds(rect, part, RunBounds.RUN // count)
+            tile_runs[key] = None if bounds is None else RunBounds(*bounds)
     return tile_runs[key]
 
 

@@ -701,16 +701,37 @@ class RunBounds:
 
     RUN = 16  # rays per run (``_RUN``)
 
-    def __init__(self, low, high):
+    def __init__(self, low, high, within: "tuple[RunBounds, int] | None" = None):
         self.bounds = low, high
-        # (src, frames, event, rays) -> (the runs near each frame, the rays of each frame without cones)
-        self._kept: dict[tuple, tuple] = {}
+        self._within = within  # (the RunBounds these runs are a stretch of, the first of them there)
+        self._near: dict[tuple, list] = {}  # (src, frames, event) -> the runs near each frame
+        self._kept: dict[tuple, dict] = {}  # (src, frames, event, rays) -> the rays of each frame without cones
 
-    def near(self, key, compute) -> tuple:
-        found = self._kept.get(key)
-        if found is None:
-            found = self._kept[key] = (compute(), {})
-        return found
+    def stretch(self, first: int, count: int) -> "RunBounds":
+        """The runs ``first`` .. ``first + count - 1`` of these (a batch of some of a tile's pixels):
+        their bounds, and the runs near each frame taken from those worked out for all of these (the
+        same runs: each run is tested on its own bounds, whatever others are tested with it)."""
+        low, high = self.bounds
+        return RunBounds(low[:, first:first + count], high[:, first:first + count], (self, first))
+
+    def near(self, key, rays: int, compute) -> tuple:
+        """(:meth:`runs_near`, the rays of each frame without cones kept for bundles of ``rays`` rays)."""
+        return self.runs_near(key, compute), self._kept.setdefault((*key, rays), {})
+
+    def runs_near(self, key, compute) -> list:
+        """The runs near each frame for ``key`` = (src, frames, event), worked out by
+        ``compute(bounds)`` once (a stretch's from those of the runs it is a stretch of)."""
+        near = self._near.get(key)
+        if near is None:
+            if self._within is None:
+                near = compute(self.bounds)
+            else:
+                whole, first = self._within
+                stop = first + self.bounds[0].shape[1]
+                near = [runs[start:end] - first for runs in whole.runs_near(key, compute)
+                        for start, end in [np.searchsorted(runs, (first, stop)).tolist()]]
+            self._near[key] = near
+        return near
 
 
 _ANY_PATH = (0.0, math.inf)  # the path range of RunBounds' culling: any bundle's whose rays start at s >= 0
@@ -739,8 +760,9 @@ def _cull_bundle(frames: FrameSet, src: int, ks, shared, d, s_lo, s_hi, cache: T
     kept = None  # the rays of frames without cones, from tile_runs
     if tile_runs is not None and tile_runs.bounds[0].shape[1] == n // _RUN and lowest >= 0.0:
         run_bounds = tile_runs.bounds
-        near, kept = tile_runs.near((src, tuple(ks), shared[0], shared[1].tobytes(), n), lambda: _runs_near_bodies(
-            frames, src, ks, cache, extent, shared, run_bounds, _ANY_PATH))
+        near, kept = tile_runs.near((src, tuple(ks), shared[0], shared[1].tobytes()), n,
+                                    lambda bounds: _runs_near_bodies(frames, src, ks, cache, extent, shared, bounds,
+                                                                     _ANY_PATH))
     else:
         run_bounds = _run_bounds(d)
         path_range = lowest, float(s_hi[0] if _one_row(s_hi) else np.max(s_hi))
@@ -1178,29 +1200,35 @@ def _near_body(frames: FrameSet, src: int, k: int, cache, extent, tau0, x0, d, s
     if n == 0:
         return np.zeros(0, dtype=bool)
     t_box, x_box, velocity, widen = _body_box(frames, src, k, cache, extent)
-    since = None
-    offsets, speeds = [], []  # per axis: x0 - X(tau0) and e = d + v
-    for axis in range(3):
+
+    def relative(axis: int, first: int = 0):
+        """x0 - X(tau0) and e = d + v along ``axis`` of the rays from ``first`` on (contiguous)."""
         v = float(velocity[axis])
-        offset, e = np.empty(n), np.empty(n)
-        if v == 0.0:  # (x + 0 * since = x; d + 0 turns -0 into +0, which decides only rays that stay
-            # at a constant coordinate outside the slab: they miss the box either way)
-            np.subtract(x0[:, axis], x_box[axis], out=offset)
-            np.copyto(e, d[:, axis])  # (contiguous: numpy divides by it 2.5x faster than by a strided column)
+        offset, e = np.empty(n - first), np.empty(n - first)
+        if v == 0.0:  # (X(tau0) is x_box: (tau0 - t) 0 + x_box; d + 0 turns -0 into +0, which decides
+            # only rays that stay at a constant coordinate outside the slab: they miss the box either way)
+            np.subtract(x0[first:, axis], x_box[axis], out=offset)
+            np.copyto(e, d[first:, axis])  # (contiguous: numpy divides by it 2.5x faster than by a strided column)
         else:
-            since = tau0 - t_box if since is None else since
-            np.multiply(since, v, out=offset)  # the box centre's displacement at the ray's start
+            np.subtract(tau0[first:], t_box, out=offset)
+            offset *= v  # the box centre's displacement at the ray's start
             offset += x_box[axis]
-            np.subtract(x0[:, axis], offset, out=offset)
-            np.add(d[:, axis], v, out=e)
-        offsets.append(offset)
-        speeds.append(e)
-    rays = _blocks_near(offsets, speeds, widen, s_lo, s_hi)
+            np.subtract(x0[first:, axis], offset, out=offset)
+            np.add(d[first:, axis], v, out=e)
+        return offset, e
+
+    columns = []  # relative(axis) of every ray, axis by axis as the block test asks for them
+    rays = _blocks_near(lambda axis: columns.append(relative(axis)) or columns[axis], widen, s_lo, s_hi)
     if rays is None:
-        return _slabs_hold(offsets, speeds, widen, s_lo, s_hi)
+        columns += [relative(axis) for axis in range(len(columns), 3)]
+        return _slabs_hold([o for o, _ in columns], [e for _, e in columns], widen, s_lo, s_hi)
     near = np.zeros(n, dtype=bool)
     if len(rays):
-        near[rays] = _slabs_hold([a[rays] for a in offsets], [a[rays] for a in speeds], widen,
+        # the axes the block test did not ask for (every block dropped before): only the rays past the
+        # last whole block are left, worked out for them alone
+        first = n - len(rays)
+        columns = [(o[rays], e[rays]) for o, e in columns] + [relative(axis, first) for axis in range(len(columns), 3)]
+        near[rays] = _slabs_hold([o for o, _ in columns], [e for _, e in columns], widen,
                                  s_lo[:len(rays)] if _one_row(s_lo) else s_lo[rays],
                                  s_hi[:len(rays)] if _one_row(s_hi) else s_hi[rays])
     return near
@@ -1225,7 +1253,7 @@ _NEAR_BLOCK = 2048  # consecutive shadow rays (hits of a run of pixels) tested a
 _NEAR_SHARE = 0.5  # the share of kept rays above which _near_body tests every ray (no gathers)
 
 
-def _blocks_near(offsets, speeds, widen, s_lo, s_hi):
+def _blocks_near(column, widen, s_lo, s_hi):
     """Indices (increasing) of the rays of :func:`_near_body` whose block of ``_NEAR_BLOCK``
     consecutive rays may pass through the box, and of the rays past the last whole block; None
     for every ray (most are kept).
@@ -1235,6 +1263,8 @@ def _blocks_near(offsets, speeds, widen, s_lo, s_hi):
     sign of e, in e, and so is their rounding, so every ray's lie between the values at the
     block's corners (unless e may be 0 there: any path length); the block's path range is the
     bundle's.  A block it drops holds no ray :func:`_slabs_hold` keeps (a NaN keeps its block).
+    ``column(axis)`` = (offset, e) of every ray along that axis, asked for axis by axis: once every
+    block is dropped, the other axes are not (a tile's shadow rays far from the body).
     """
     n = len(s_lo)
     count = n // _NEAR_BLOCK
@@ -1244,7 +1274,8 @@ def _blocks_near(offsets, speeds, widen, s_lo, s_hi):
     enter = np.full(count, float(s_lo[0] if _one_row(s_lo) else s_lo.min()))
     leave = np.full(count, float(s_hi[0] if _one_row(s_hi) else s_hi.max()))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        for axis, (offset, e) in enumerate(zip(offsets, speeds)):
+        for axis in range(3):
+            offset, e = column(axis)
             blocks_offset, blocks_e = offset[:whole].reshape(count, -1), e[:whole].reshape(count, -1)
             o_lo, o_hi, e_lo, e_hi = blocks_offset.min(1), blocks_offset.max(1), blocks_e.min(1), blocks_e.max(1)
             ends = [np.subtract(bound, o, out=np.empty(count)) for bound in (-widen[axis], widen[axis])
@@ -1258,6 +1289,8 @@ def _blocks_near(offsets, speeds, widen, s_lo, s_hi):
             near[either_way], far[either_way] = -np.inf, np.inf
             np.maximum(enter, near, out=enter)
             np.minimum(leave, far, out=leave)
+            if (enter > leave).all():
+                break
     kept = np.flatnonzero(~(enter > leave))  # (NaN: kept)
     if len(kept) * _NEAR_BLOCK > _NEAR_SHARE * n:
         return None
@@ -1486,8 +1519,8 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
     but for a flat mesh's normal (with ``cache``, not spinning): one read-only broadcast row.
     ``cache``: the calling thread's, which keeps the rows of small meshes' triangles."""
     geometry = frame.geometry
-    # p0 + u e1 + v e2 one axis at a time in a contiguous column, written once into its column of
-    # the positions; float32 u, v widened once (exactly).  A body that does not spin is moved to
+    # p0 + u e1 + v e2 one axis at a time in a contiguous column, its last sum written into its
+    # column of the positions; float32 u, v widened once (exactly).  A body that does not spin is moved to
     # frame coordinates (RestFrame.to_frame: + offset) in the same column.
     u = np.asarray(u, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)
@@ -1517,10 +1550,11 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
         p0, e1, e2 = corner_and_edges
         np.multiply(u, e1, out=column)
         column += p0
-        column += np.multiply(v, e2, out=term)
-        if not spins:
-            column += frame.offset[axis]
-        position[:, axis] = column
+        if spins:
+            np.add(column, np.multiply(v, e2, out=term), out=position[:, axis])  # (the last sum into its column)
+        else:
+            column += np.multiply(v, e2, out=term)
+            np.add(column, frame.offset[axis], out=position[:, axis])
     if corners is None:
         ns = ng
     else:  # the corners' normals weighted by (1 - u - v, u, v), axis by axis as the position
@@ -1528,8 +1562,7 @@ def hit_geometry(frame: RestFrame, prim, u, v, tau=None, cache: TraceCache | Non
         for axis, (n0, n1, n2) in enumerate(corners):
             np.multiply(n0, first, out=column)
             column += np.multiply(u, n1, out=term)
-            column += np.multiply(v, n2, out=term)
-            ns[:, axis] = column
+            np.add(column, np.multiply(v, n2, out=term), out=ns[:, axis])
         ns = rows.normalized(ns)
     if spins:
         position, ng = frame.to_frame(position, ng, tau)

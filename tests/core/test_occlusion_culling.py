@@ -221,3 +221,27 @@ def test_blocks_of_shadow_rays_dropped_whole_hold_no_ray_the_per_ray_test_keeps(
     assert {2, 3, 6, 8} <= {int(i) // block for i in tested[0]} and len(tested[0]) < 7 * block  # (3: the NaN's)
     assert 0.1 * block < near[6 * block:7 * block].sum() < 0.9 * block
     assert near[2 * block:3 * block].all() == np.isinf(s_hi[0])  # (they pass it at s > 1000)
+
+
+def test_blocks_dropped_on_the_first_axes_leave_the_other_axes_to_the_rays_past_the_last_block(monkeypatch):
+    """Every whole block far off along x (dropped on the first axis): ``_blocks_near`` asks for no
+    other axis, and the rays past the last whole block, some through the box and some off it,
+    get the per-ray test's mask ray for ray, from those axes worked out for them alone."""
+    frame_set = frames()
+    k = next(k for k in frame_set.geometry if k != frame_set.world)
+    block = tracer._NEAR_BLOCK
+    tau0, x0, d = rays_past_the_box(3 * block + 700, 11, spread=3.0)
+    x0[:3 * block, 0] += 80.0  # (the whole blocks' rays pass it far off along x)
+    d[:3 * block] = np.array([0.0, 0.6, 0.8]) + np.random.default_rng(3).uniform(-1e-3, 1e-3, (3 * block, 3))
+    s_lo, s_hi = np.full(len(d), 1e-6), np.full(len(d), 12.0)
+    extent = (float(np.max(np.abs(x0))), float(np.max(np.abs(tau0))))
+    args = (frame_set, frame_set.world, k, None, extent, tau0, x0, d, s_lo, s_hi)
+    asked = []
+    blocks_near = tracer._blocks_near
+    monkeypatch.setattr(tracer, "_blocks_near", lambda column, *rest: blocks_near(
+        lambda axis: asked.append(axis) or column(axis), *rest))
+    near = tracer._near_body(*args)
+    assert asked == [0]
+    monkeypatch.setattr(tracer, "_blocks_near", lambda *a: None)
+    assert np.array_equal(near, tracer._near_body(*args))
+    assert not near[:3 * block].any() and 0.1 < near[3 * block:].mean() < 0.9
