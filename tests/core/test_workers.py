@@ -340,8 +340,8 @@ def test_render_stats_account_for_every_share(pool):
 
 
 def test_shares_come_back_in_the_results_image_and_it_is_removed(pool, monkeypatch):
-    """Every share, bands too, is written in place (nothing comes through the pipes), and no
-    worker keeps the image mapped.  A whole render's image is kept for the next render of its
+    """Every share, bands too, is written in place (nothing comes through the pipes), and a
+    worker keeps only the image the parent keeps mapped, until its file goes.  A whole render's image is kept for the next render of its
     size, which takes it (its pages stay mapped here) once no tile of it is held; while one is,
     the next render makes its own and removes the kept file (the held tiles outlive it,
     unchanged); a render of another size removes it too."""
@@ -353,9 +353,7 @@ def test_shares_come_back_in_the_results_image_and_it_is_removed(pool, monkeypat
     assert stats.shares > len(prepared.tiles()) and stats.in_place == stats.shares
     (first,) = [image.path for image in pool._kept]
     assert set(_results_files(os.getpid())) - others == {first}
-    for pid in pool.pids:
-        with open(f"/proc/{pid}/maps") as maps:
-            assert "restframe-tiles-" not in maps.read()
+    assert set().union(*(_mapped_results(pid) for pid in pool.pids)) <= {first}
     expected = assemble(prepared, tiles)
     assert_same_passes(expected, in_threads(prepared))
     again = assemble(prepared, pool.render(prepared, lambda: False, 2))  # the first render's tiles are held
@@ -368,6 +366,16 @@ def test_shares_come_back_in_the_results_image_and_it_is_removed(pool, monkeypat
     smaller = prepare(busy_scene(), settings(tile_size=12, resolution=(12, 6)))
     list(pool.render(smaller, lambda: False, 2))
     assert second not in _results_files(os.getpid()) and len(pool._kept) == 1
+    deadline = time.monotonic() + 5.0  # an idle worker lets a removed image go within _WATCHDOG
+    while any(second in _mapped_results(pid) for pid in pool.pids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(second in _mapped_results(pid) for pid in pool.pids)
+
+
+def _mapped_results(pid) -> set:
+    """The results images the process ``pid`` maps."""
+    with open(f"/proc/{pid}/maps") as maps:
+        return {line.split()[5] for line in maps if "restframe-tiles-" in line}
 
 
 def test_a_stopped_render_keeps_no_results_image(pool):
@@ -741,3 +749,60 @@ def test_a_worker_maps_the_scene_file_copy_on_write_and_its_arrays_outlive_the_f
     assert path.read_bytes() == written
     os.remove(path)
     assert back[0] == -1.0 and np.array_equal(back[1:], value["a"][1:])
+
+
+def test_a_worker_runs_as_batch_work_at_the_same_nice(pool):
+    """Linux: SCHED_BATCH, so a worker woken by the parent's message does not preempt the parent
+    mid-deal (the next worker's shares were written milliseconds later)."""
+    if not hasattr(os, "SCHED_BATCH"):
+        pytest.skip("no SCHED_BATCH here")
+    prepared = prepare(busy_scene(), settings())
+    assemble(prepared, pool.render(prepared, lambda: False, 2))
+    for pid in pool.pids:
+        assert os.sched_getscheduler(pid) == os.SCHED_BATCH
+        assert os.getpriority(os.PRIO_PROCESS, pid) == os.getpriority(os.PRIO_PROCESS, 0)
+
+
+def test_a_scene_warmed_as_it_is_built_finds_no_tiles_emptiness_again(monkeypatch):
+    """render.warm_up finds every tile's emptiness at once; the shares of whole tiles then look
+    for none again, and the measured scene keeps what was found but not the kept passes."""
+    from test_render import lone_ball_off_centre
+
+    from restframe_addon.core.prepared import build_unmeasured, measured_as
+    from restframe_addon.core.tracer import TraceCache
+
+    prepared = prepare(lone_ball_off_centre(), settings(resolution=(44, 40), tile_size=8, threads=2))
+    built, cache = build_unmeasured(prepared.scene, prepared.settings), TraceCache()
+    built_unseen = render_module.warm_up(built, cache)
+    unseen = built_unseen.measured(measured_as(built, prepared.measurements))
+    monkeypatch.setattr(type(prepared), "each_misses_everything", lambda *args: pytest.fail("looked again"))
+    tiles = [render_module.render_tile(unseen.prepared, rect, cache=cache, unseen=unseen) for rect in prepared.tiles()]
+    assert built_unseen._passes == {} and unseen._passes  # kept for the measured scene alone
+    monkeypatch.undo()
+    assert_same_passes(assemble(prepared, iter(tiles)), in_threads(prepared))
+
+
+def test_a_workers_mapping_of_the_results_image_is_kept_until_its_file_goes(monkeypatch):
+    rects, layout = [(0, 0, 4, 2), (0, 2, 4, 4)], {"Combined": 4, "Depth": 1}
+    share = {name: np.full((2, 4, channels), 7.0, np.float32) for name, channels in layout.items()}
+    results = workers._ResultsImage.create(rects, layout)
+    mapping, maps = workers._ResultsMapping(), []
+    real_mmap = mmap.mmap
+    monkeypatch.setattr(workers.mmap, "mmap", lambda *args, **kw: maps.append(args) or real_mmap(*args, **kw))
+    try:
+        assert workers._write_share(results.place(0), rects[0], None, share, mapping)
+        assert workers._write_share(results.place(1), rects[1], None, share, mapping)
+        assert len(maps) == 1 and mapping.held  # one mapping for both shares
+        mapping.release_if_gone()
+        assert mapping.held  # its file is still there: kept for the next render
+        assert np.all(results.values == 7.0)
+    finally:
+        workers._remove(results.path)
+    mapping.release_if_gone()
+    assert not mapping.held
+    monkeypatch.setattr(workers, "_KEPT_RESULTS_BYTES", 8)  # too large to keep
+    again = workers._ResultsImage.create(rects, layout)
+    try:
+        assert workers._write_share(again.place(0), rects[0], None, share, mapping) and not mapping.held
+    finally:
+        workers._remove(again.path)
