@@ -9,6 +9,7 @@ import io
 import mmap
 import os
 import pickle
+import shutil
 import signal
 import subprocess
 import sys
@@ -246,11 +247,12 @@ def test_workers_end_with_their_parent(tmp_path):
 
 
 def _scene_files(pid):
-    return glob.glob(os.path.join(tempfile.gettempdir(), f"restframe-scene-{pid}-*")) + _results_files(pid)
+    return [path for folder in workers._SHARED_FOLDERS
+            for path in glob.glob(os.path.join(folder, f"restframe-scene-{pid}-*"))] + _results_files(pid)
 
 
 def _results_files(pid):
-    return [path for folder in workers._RESULTS_FOLDERS
+    return [path for folder in workers._SHARED_FOLDERS
             for path in glob.glob(os.path.join(folder, f"restframe-tiles-{pid}-*"))]
 
 
@@ -428,7 +430,7 @@ def test_a_results_image_that_cannot_be_removed_yet_goes_with_the_next_render(po
 
 
 def test_without_room_for_a_results_image_the_results_come_through_the_pipes(pool, monkeypatch):
-    monkeypatch.setattr(workers, "_RESULTS_FOLDERS", ("/nonexistent-folder",))
+    monkeypatch.setattr(workers, "_SHARED_FOLDERS", ("/nonexistent-folder",))
     monkeypatch.setattr(workers, "_MIN_SHARE_PIXELS", 1)
     # a size of its own: an image kept from an earlier render of this pool would be taken again
     prepared = prepare(busy_scene(Velocity((0.0, 0.4, 0.0))), settings(tile_size=12, samples=2, resolution=(30, 18)))
@@ -719,14 +721,35 @@ def test_a_pickled_scene_file_gives_back_aligned_writable_arrays(tmp_path, monke
     pickled = workers._Pickled(value)
     assert len(pickled.arrays) == 2  # the large ones out of band: not in the pickle
     with open(tmp_path / "scene", "wb") as file:
-        size = pickled.write(file)
-    assert size == os.path.getsize(tmp_path / "scene")
+        pickled.write(file)
+    assert pickled.size == os.path.getsize(tmp_path / "scene")
     back = workers._Pickled.read(str(tmp_path / "scene"))
     assert back.keys() == value.keys() and back["text"] == "x"
     for name in ("a", "b", "f", "empty", "small"):
         assert np.array_equal(back[name], value[name]) and back[name].dtype == value[name].dtype
     for name in ("a", "f"):
         assert back[name].flags.writeable and back[name].ctypes.data % workers._ALIGN == 0
+
+
+def test_a_scene_file_goes_into_the_first_shared_folder_with_room_else_the_temporary_folder(tmp_path, monkeypatch):
+    """Shared memory first (no file system blocks to allocate: the write is what an F12 waits
+    for), a folder without room for the file twice over skipped, the temporary folder last."""
+    pickled = workers._Pickled({"a": np.arange(workers._IN_BAND_BYTES // 4, dtype=np.float64)})
+    small, roomy = tmp_path / "small", tmp_path / "roomy"
+    small.mkdir(), roomy.mkdir()
+    usage = shutil.disk_usage
+    monkeypatch.setattr(workers.shutil, "disk_usage", lambda folder: usage(folder)._replace(
+        free=2 * pickled.size - 1 if str(folder) == str(small) else 2 * pickled.size))
+    monkeypatch.setattr(workers, "_SHARED_FOLDERS", (str(tmp_path / "missing"), str(small), str(roomy)))
+    path = pickled.save("restframe-scene-test-")
+    assert os.path.dirname(path) == str(roomy) and os.listdir(small) == []
+    assert workers._Pickled.read(path)["a"].tolist() == list(range(workers._IN_BAND_BYTES // 4))
+    monkeypatch.setattr(workers, "_SHARED_FOLDERS", (str(small),))
+    path = pickled.save("restframe-scene-test-")
+    try:
+        assert os.path.dirname(path) == tempfile.gettempdir() and os.path.getsize(path) == pickled.size
+    finally:
+        os.remove(path)
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="a worker reads the scene's file there (a mapped file cannot be removed)")
