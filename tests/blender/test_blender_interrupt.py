@@ -20,11 +20,12 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 
 @pytest.fixture(scope="module")
 def slow_blend(tmp_path_factory):
-    """A lit plane at 64x48 with 4096 samples: seconds a frame, so a signal lands mid-frame."""
+    """A lit plane at 128x96 with 4096 samples: several seconds a frame even on a fast core, so a
+    signal sent 1.5 s in lands mid-frame."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.engine = 'RESTFRAME'
-    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 64, 48, 100
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 128, 96, 100
     scene.restframe.samples = 4096
     add_camera(scene)
     add_plane(scene, velocity=(0.5, 0.0, 0.0))
