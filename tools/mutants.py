@@ -72,7 +72,7 @@ MUTANTS = (
                   "from .lorentz import Boost, compose_velocities, events_of_boosts\n")),
            (T_OBSERVERS,)),
     Mutant("shadow-cull-at-rest", "shadow rays culled against a moving body's box as if it stood still",
-           (Patch(TRACER, "np.add(d[:, axis], v, out=e)", "np.copyto(e, d[:, axis])"),),
+           (Patch(TRACER, "np.add(d[first:, axis], v, out=e)", "np.copyto(e, d[first:, axis])"),),
            ("tests/core/test_occlusion_culling.py",)),
     Mutant("doppler-chain-last-step", "Doppler factors along a chain of boosts not multiplied (last step only)",
            (Patch(FRAMES, "w = w * step_w", "w = step_w"),),
