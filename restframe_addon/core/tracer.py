@@ -1200,6 +1200,7 @@ def _near_body(frames: FrameSet, src: int, k: int, cache, extent, tau0, x0, d, s
     if n == 0:
         return np.zeros(0, dtype=bool)
     t_box, x_box, velocity, widen = _body_box(frames, src, k, cache, extent)
+    since = {}  # first -> tau0 - t_box of the rays from first on, worked out once for the moving axes
 
     def relative(axis: int, first: int = 0):
         """x0 - X(tau0) and e = d + v along ``axis`` of the rays from ``first`` on (contiguous)."""
@@ -1210,8 +1211,9 @@ def _near_body(frames: FrameSet, src: int, k: int, cache, extent, tau0, x0, d, s
             np.subtract(x0[first:, axis], x_box[axis], out=offset)
             np.copyto(e, d[first:, axis])  # (contiguous: numpy divides by it 2.5x faster than by a strided column)
         else:
-            np.subtract(tau0[first:], t_box, out=offset)
-            offset *= v  # the box centre's displacement at the ray's start
+            if first not in since:
+                since[first] = tau0[first:] - t_box
+            np.multiply(since[first], v, out=offset)  # the box centre's displacement at the ray's start
             offset += x_box[axis]
             np.subtract(x0[first:, axis], offset, out=offset)
             np.add(d[first:, axis], v, out=e)
