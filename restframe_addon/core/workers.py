@@ -173,22 +173,43 @@ class _Pickled:
     from their place into the file, not first into the pickle (moving_sphere's 5.6 MB scene:
     0.4-0.5 ms to pickle instead of 3.9-4.1, on the loaded VM), and a reader's arrays are views
     of the file's one mapping (or of the one buffer it reads it into), each at a multiple of
-    ``_ALIGN`` bytes."""
+    ``_ALIGN`` bytes.
 
-    _HEAD = struct.Struct("<QQ")  # the pickle's size, the number of arrays (then each array's size)
+    An array that ``known`` (:class:`_SceneFiles`) finds byte for byte in a file written
+    before is not written again: the file's table names that file and place (a texture or mesh
+    that did not change between two F12s, exported again; moving_sphere's 5.6 MB of arrays are
+    compared in under a millisecond, where writing them into new pages took 2.4-20 ms here)."""
 
-    def __init__(self, value):
+    _HEAD = struct.Struct("<QQ")  # the pickle's size, the number of arrays (then each array's entry)
+    _ENTRY = struct.Struct("<QQQ")  # an array's size, its file (0: this one, k: the k-th named), its offset there
+
+    def __init__(self, value, known: "_SceneFiles | None" = None):
         buffers = []  # the large arrays' (a false answer: out of band); small ones stay in the pickle
         self.pickle = pickle.dumps(value, protocol=5, buffer_callback=lambda buffer: (
             buffer.raw().nbytes < _IN_BAND_BYTES or buffers.append(buffer)))
-        self.arrays = [buffer.raw() for buffer in buffers]
-        sizes = [array.nbytes for array in self.arrays]
-        self._head = self._HEAD.pack(len(self.pickle), len(sizes)) + struct.pack(f"<{len(sizes)}Q", *sizes)
-        self._paddings, offset = [], len(self._head) + len(self.pickle)  # the zeros before each array
-        for array in self.arrays:
+        self.arrays = []  # the arrays written into this file
+        self.named = []  # the earlier files this one's table names (each once), for the reader
+        raws = [buffer.raw() for buffer in buffers]
+        places = [None if known is None else known.find(array) for array in raws]
+        offset = self._HEAD.size + self._ENTRY.size * len(raws) + len(self.pickle)
+        entries, self._paddings = [], []  # the zeros before each array written
+        for array, place in zip(raws, places):
+            if place is not None:
+                path, at = place
+                if path not in self.named:
+                    self.named.append(path)
+                entries.append((array.nbytes, 1 + self.named.index(path), at))
+                continue
             self._paddings.append(-offset % _ALIGN)
-            offset += self._paddings[-1] + array.nbytes
+            offset += self._paddings[-1]
+            entries.append((array.nbytes, 0, offset))
+            self.arrays.append(array)
+            offset += array.nbytes
+        self.entries = entries  # (size, file, offset) of every array, in the pickle's order
+        self._head = self._HEAD.pack(len(self.pickle), len(entries)) + b"".join(
+            self._ENTRY.pack(*entry) for entry in entries)
         self.size = offset  # the bytes of its file
+        self.bytes = len(self.pickle) + sum(size for size, _, _ in entries)  # the value's, its arrays written here or not
 
     def write(self, file):
         """Write it into the ``file`` open for writing (:attr:`size` bytes)."""
@@ -214,30 +235,104 @@ class _Pickled:
         return path
 
     @classmethod
-    def read(cls, path: str):
-        """The value in the file ``path`` (written by :meth:`write`).
+    def read(cls, paths):
+        """The value in the file ``paths[0]`` (written by :meth:`write`; ``paths[1:]``: the files
+        its table names, :attr:`named`; a lone path: a file that names none).
 
         Where a mapped file can still be removed (POSIX), its arrays are views of a private
-        (copy-on-write) mapping of it: the pages the parent just wrote are shared, not copied
+        (copy-on-write) mapping of each file: the pages the parent wrote are shared, not copied
         into fresh memory (moving_sphere's 5.6 MB: 0.2 ms instead of 2.0-2.5 ms of a cold
-        worker's build, which an F12 waits for); the mapping lives while its arrays do.  Elsewhere
-        (Windows, where the parent could not remove a file a worker maps) it is read into memory."""
+        worker's build, which an F12 waits for); the mappings live while their arrays do.
+        Elsewhere (Windows, where the parent could not remove a file a worker maps) each is read
+        into memory."""
+        paths = (paths,) if isinstance(paths, str) else tuple(paths)
+        data = [cls._contents(paths[0])]
+        pickled, count = cls._HEAD.unpack_from(data[0])
+        start = cls._HEAD.size + cls._ENTRY.size * count
+        buffers = []
+        for size, file, offset in cls._ENTRY.iter_unpack(data[0][cls._HEAD.size:start]):
+            while len(data) <= file:
+                data.append(None)
+            if data[file] is None:
+                data[file] = cls._contents(paths[file])
+            buffers.append(data[file][offset:offset + size])
+        return pickle.loads(data[0][start:start + pickled], buffers=buffers)
+
+    @staticmethod
+    def _contents(path: str) -> np.ndarray:
+        """A file's bytes: a private mapping of it, or (Windows) a copy read at ``_ALIGN``."""
         with open(path, "rb") as file:
             if _MAP_SCENE_FILES:
-                data = np.frombuffer(mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_COPY), np.uint8)
-            else:
-                size = os.fstat(file.fileno()).st_size
-                data = np.empty(size + _ALIGN, np.uint8)
-                data = data[-data.ctypes.data % _ALIGN:][:size]
-                file.readinto(memoryview(data))
-        pickled, count = cls._HEAD.unpack_from(data)
-        offset = cls._HEAD.size + 8 * count
-        buffers, start = [], offset + pickled
-        for size in struct.unpack_from(f"<{count}Q", data, cls._HEAD.size):
-            start += -start % _ALIGN
-            buffers.append(data[start:start + size])
-            start += size
-        return pickle.loads(data[offset:offset + pickled], buffers=buffers)
+                return np.frombuffer(mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_COPY), np.uint8)
+            size = os.fstat(file.fileno()).st_size
+            data = np.empty(size + _ALIGN, np.uint8)
+            data = data[-data.ctypes.data % _ALIGN:][:size]
+            file.readinto(memoryview(data))
+            return data
+
+
+class _SceneFiles:
+    """The files of the last scene sent, which the workers read: its own, then the earlier ones
+    its table names; each named file's arrays, to find a new scene's unchanged arrays in.
+
+    One owner (the pool).  A file goes once the scene sent last no longer names it (the workers
+    that hold an earlier scene keep their mappings of it, which outlive the file)."""
+
+    def __init__(self):
+        self.paths: list[str] = []  # [the scene's own file, *the files it names]
+        self.bytes = 0  # of the scene's arrays and pickle: what a worker holds of it
+        self._arrays: dict[int, list[tuple[str, int]]] = {}  # size -> (file, offset) of each array
+        self._views: dict[str, np.ndarray] = {}  # file -> its bytes, read-only mapped here (lazily)
+        self._differs = np.empty(1 << 15, bool)  # :meth:`_same`'s words compared at a time (256 KiB of each array)
+
+    def find(self, array: memoryview) -> tuple[str, int] | None:
+        """(file, offset) of an array with ``array``'s bytes in the files of the last scene (None
+        also where such a file cannot be read: removed by someone else, the array is written again)."""
+        for path, offset in self._arrays.get(array.nbytes, ()):
+            try:
+                if self._same(self._view(path)[offset:offset + array.nbytes], array):
+                    return path, offset
+            except (OSError, ValueError):
+                pass
+        return None
+
+    def replace(self, path: str, pickled: _Pickled):
+        """The scene just written into ``path`` is the last one sent: the files it does not
+        name go."""
+        named = {0: path, **{index: named for index, named in enumerate(pickled.named, start=1)}}
+        arrays: dict[int, list[tuple[str, int]]] = {}
+        for size, file, offset in pickled.entries:
+            arrays.setdefault(size, []).append((named[file], offset))
+        self.clear(keep=set(named.values()))
+        self.paths, self.bytes, self._arrays = [path, *pickled.named], pickled.bytes, arrays
+
+    def clear(self, keep=frozenset()):
+        """Forget the files (and remove them) but those in ``keep``."""
+        for path in self.paths:
+            if path not in keep:
+                self._views.pop(path, None)  # unmapped here before it is removed (Windows)
+                _remove(path)
+        self.paths, self.bytes, self._arrays = [path for path in self.paths if path in keep], 0, {}
+
+    def _view(self, path: str) -> np.ndarray:
+        if path not in self._views:
+            with open(path, "rb") as file:
+                self._views[path] = np.frombuffer(mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ), np.uint8)
+        return self._views[path]
+
+    def _same(self, stored: np.ndarray, array: memoryview) -> bool:
+        """Whether an array's bytes are ``stored`` (as many), compared as 8-byte words a chunk at a
+        time into one buffer (a temporary the size of the arrays would take fresh pages every
+        time), stopping at the first chunk that differs."""
+        fresh = np.frombuffer(array, np.uint8)  # a PickleBuffer's raw(): its bytes, one dimension
+        whole = len(fresh) // 8 * 8
+        old_words, new_words = stored[:whole].view(np.uint64), fresh[:whole].view(np.uint64)
+        for start in range(0, len(new_words), len(self._differs)):
+            differs = self._differs[:len(new_words) - start]
+            np.not_equal(old_words[start:start + len(differs)], new_words[start:start + len(differs)], out=differs)
+            if differs.any():
+                return False
+        return bool(np.array_equal(stored[whole:], fresh[whole:]))
 
 
 def _pass_regions(image: np.ndarray, start: int, layout: dict[str, int], rect) -> dict[str, np.ndarray]:
@@ -715,7 +810,7 @@ class WorkerPool:
         self._jobs = itertools.count(1)
         self._scene_ids = itertools.count(1)
         self._sent_scene = None  # (weakref to the scene, its settings pickled, its id) last pickled
-        self._scene_file = None  # the file holding its pickle, which the workers read
+        self._scene_files = _SceneFiles()  # the files holding its pickle and arrays, which the workers read
         self._ahead = None  # (scene id, pickling, sending) of a scene sent by build_ahead, for its render's stats
         self._unremoved: list[str] = []  # results images still mapped when their render ended (Windows)
         weakref.finalize(self, _remove_all, self._unremoved)
@@ -723,8 +818,7 @@ class WorkerPool:
         # again): the next render of its size takes it (_ResultsImage.create), else its file goes
         self._kept: list[_ResultsImage] = []
         weakref.finalize(self, _remove_images, self._kept)
-        self._scene_file_removal = None  # removes it when the pool goes (weakref.finalize: at exit at the latest)
-        self._scene_bytes = 0  # its size
+        weakref.finalize(self, self._scene_files.clear)  # when the pool goes (at exit at the latest)
         self._tokens = itertools.count(1)
         self._broken = None  # why workers cannot run here, once every worker of a render died before it was ready
         self.last_stats: RenderStats | None = None  # of the last render in worker processes
@@ -760,7 +854,7 @@ class WorkerPool:
             self._start(0)  # raises where no worker can start: then nothing is pickled
             stats = RenderStats(time.monotonic())
             scene_id = self._scene_id(scene, settings, stats)
-            ahead = self._start(worker_count(count, self._scene_bytes, available_memory()))
+            ahead = self._start(worker_count(count, self._scene_files.bytes, available_memory()))
             self._send_scene(ahead, scene_id, stats)
             sending = time.thread_time()
             for worker in ahead:  # now: they build while this process prepares
@@ -779,7 +873,7 @@ class WorkerPool:
             stats.pickling, stats.sending = self._ahead[1:]
         self._ahead = None
         try:
-            workers = self._start(worker_count(count, self._scene_bytes, available_memory()))
+            workers = self._start(worker_count(count, self._scene_files.bytes, available_memory()))
         except WorkersUnavailable as error:
             self._forget_scene()
             warn(f"{error}: rendering in threads")
@@ -872,7 +966,7 @@ class WorkerPool:
         measured = None if measurements is None else (scene_id, measurements)
         for worker in workers:
             if worker.scene_id != scene_id:
-                worker.post(("scene", scene_id, self._scene_file))
+                worker.post(("scene", scene_id, tuple(self._scene_files.paths)))
                 worker.scene_id, worker.measured = scene_id, None
             if measured is not None and worker.measured != measured:
                 worker.post(("measured", *measured))
@@ -880,29 +974,27 @@ class WorkerPool:
         stats.sending += time.thread_time() - sending
 
     def _scene_id(self, scene: Scene, settings: RenderSettings, stats: RenderStats) -> int:
-        """The id of the scene and settings, pickled once into ``_scene_file`` (kept for workers
-        started later; the previous scene's file goes); the same scene with the same settings
+        """The id of the scene and settings, pickled once into a new file of ``_scene_files`` (kept
+        for workers started later; its arrays that the previous scene's files hold are named, not
+        written again, and the files it does not name go); the same scene with the same settings
         (rendered again, or built ahead) keeps its id and is not pickled or sent again."""
         settings_pickle = pickle.dumps(settings, protocol=pickle.HIGHEST_PROTOCOL)
         if (self._sent_scene is None or self._sent_scene[0]() is not scene
                 or self._sent_scene[1] != settings_pickle):
             pickling = time.thread_time()
-            pickled = _Pickled((scene, settings))
+            self._sent_scene = None
+            pickled = _Pickled((scene, settings), self._scene_files)
             stats.pickling = time.thread_time() - pickling
             writing = time.thread_time()
-            self._forget_scene()
-            self._scene_file = pickled.save(f"restframe-scene-{os.getpid()}-")
-            self._scene_file_removal = weakref.finalize(self, _remove, self._scene_file)
-            self._scene_bytes = pickled.size
+            self._scene_files.replace(pickled.save(f"restframe-scene-{os.getpid()}-"), pickled)
             stats.sending = time.thread_time() - writing
             self._sent_scene = (weakref.ref(scene), settings_pickle, next(self._scene_ids))
         return self._sent_scene[2]
 
     def _forget_scene(self):
-        """Remove the file of the scene sent last (workers that hold it have read it)."""
-        if self._scene_file_removal is not None:
-            self._scene_file_removal()
-        self._sent_scene, self._scene_file, self._scene_file_removal, self._scene_bytes = None, None, None, 0
+        """Remove the files of the scene sent last (workers that hold it have read them)."""
+        self._scene_files.clear()
+        self._sent_scene = None
 
     def _start(self, count: int) -> list[_Worker]:
         """``count`` live workers, starting the missing ones."""
@@ -1056,10 +1148,10 @@ def serve(commands, results, parent_pid: int):
     inbox: queue.Queue = queue.Queue()
     cancelled = [0]  # renders up to this job were cancelled (Esc)
     # the files of the last scene and results image sent: removed here if the parent dies without doing it
-    scene_file, results_file = [None], [None]
+    scene_files, results_file = [()], [None]
 
     def orphaned():
-        for path in (scene_file[0], results_file[0]):
+        for path in (*scene_files[0], results_file[0]):
             if path is not None:
                 _remove(path)
         os._exit(0)
@@ -1085,7 +1177,7 @@ def serve(commands, results, parent_pid: int):
             if message[0] == "exit":
                 os._exit(0)
             if message[0] == "scene":
-                scene_file[0] = message[2]
+                scene_files[0] = message[2]
             if message[0] == "tile" and message[6] is not None:
                 results_file[0] = message[6][0]
             if message[0] == "cancel":

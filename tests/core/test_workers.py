@@ -205,7 +205,7 @@ def test_workers_end_with_their_parent(tmp_path):
         prepared = prepare(busy_scene(), settings(tile_size=8))
         list(pool.render(prepared, lambda: False, 2))
         print(*pool.pids, flush=True)
-        print(os.getpid(), os.path.exists(pool._scene_file), flush=True)
+        print(os.getpid(), os.path.exists(pool._scene_files.paths[0]), flush=True)
         if sys.argv[1] == "close":
             codes = [worker.process for worker in pool._workers]
             pool.close()
@@ -829,3 +829,55 @@ def test_a_workers_mapping_of_the_results_image_is_kept_until_its_file_goes(monk
         assert workers._write_share(again.place(0), rects[0], None, share, mapping) and not mapping.held
     finally:
         workers._remove(again.path)
+
+
+def test_a_scene_file_names_the_arrays_an_earlier_file_holds_and_writes_only_the_others(tmp_path):
+    """An array byte for byte one of the last scene's (a texture exported again for the next F12)
+    is named by its file and place, not written again; read back through both files, every array
+    is whole; a changed array (its last byte) is written."""
+    large = workers._IN_BAND_BYTES // 8
+    first = {"kept": np.arange(large, dtype=np.float64), "changed": np.ones(large), "f": np.asfortranarray(
+        np.arange(2.0 * large).reshape(2, large))}
+    known = workers._SceneFiles()
+    pickled = workers._Pickled(first, known)
+    known.replace(pickled.save(str(tmp_path / "one-")), pickled)
+    first_path = known.paths[0]
+    second = {"kept": first["kept"].copy(), "changed": first["changed"].copy(), "f": first["f"].copy(order="F"),
+              "text": "x"}
+    second["changed"][-1] = 2.0
+    again = workers._Pickled(second, known)
+    assert [array.nbytes for array in again.arrays] == [second["changed"].nbytes] and again.named == [first_path]
+    assert again.size < pickled.size - 2 * first["kept"].nbytes
+    known.replace(again.save(str(tmp_path / "two-")), again)
+    assert known.paths[1:] == [first_path] and os.path.exists(first_path)
+    back = workers._Pickled.read(tuple(known.paths))
+    assert back.keys() == second.keys() and back["text"] == "x"
+    for name in ("kept", "changed", "f"):
+        assert np.array_equal(back[name], second[name]) and back[name].dtype == second[name].dtype
+        assert back[name].flags.writeable and back[name].ctypes.data % workers._ALIGN == 0
+    assert back["f"].flags.f_contiguous
+    third = workers._Pickled({"other": np.zeros(large)}, known)  # names nothing: the earlier files go
+    known.replace(third.save(str(tmp_path / "three-")), third)
+    assert not os.path.exists(first_path) and len(known.paths) == 1 and sorted(os.listdir(tmp_path)) == [
+        os.path.basename(known.paths[0])]
+    known.clear()
+    assert os.listdir(tmp_path) == [] and known.paths == []
+
+
+def test_a_new_scene_sends_only_its_changed_arrays_and_renders_the_same_bits(pool, monkeypatch):
+    """Two F12s of one scene exported twice (the camera's velocity changed): the second scene's
+    file names the first's mesh arrays instead of holding them, the workers build it from both
+    files to the same bits as threads; a scene that shares nothing removes the first file."""
+    monkeypatch.setattr(workers, "_IN_BAND_BYTES", 256)  # busy_scene's meshes out of band
+    first, second = (prepare(busy_scene(velocity), settings(tile_size=6)) for velocity in (
+        Velocity(), Velocity((0.3, 0.0, 0.0))))
+    files = []
+    for prepared in (first, second):
+        assert_same_passes(assemble(prepared, pool.render(prepared, lambda: False, 2)), in_threads(prepared))
+        files.append(list(pool._scene_files.paths))
+    assert len(files[0]) == 1 and files[1][1:] == files[0]
+    assert os.path.getsize(files[1][0]) < os.path.getsize(files[0][0]) / 2
+    monkeypatch.setattr(workers, "_IN_BAND_BYTES", 1 << 30)  # nothing out of band: nothing named
+    third = prepare(busy_scene(Velocity((0.0, 0.3, 0.0))), settings(tile_size=6))
+    assert_same_passes(assemble(third, pool.render(third, lambda: False, 2)), in_threads(third))
+    assert not any(os.path.exists(path) for path in files[1]) and len(pool._scene_files.paths) == 1
