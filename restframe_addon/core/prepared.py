@@ -230,8 +230,11 @@ def build_unmeasured(scene: Scene, settings: RenderSettings, geometry_cache: Geo
                      ) -> PreparedScene:
     """The scene built for rendering as :func:`prepare` builds it, but not measured: for a
     worker process, which renders once :func:`measured_as` gives it the values the preparing
-    process measured.  ``geometry_cache``: the worker's own, across the frames it renders."""
-    return _build(scene, settings, geometry_cache=geometry_cache)
+    process measured.  Nor checked (:func:`~.validation.check_render`): the preparing process
+    checks it meanwhile, and a scene it refuses is never rendered (the check was a fifth of a
+    worker's build of moving_sphere, which an F12 waits for).  ``geometry_cache``: the
+    worker's own, across the frames it renders."""
+    return _build(scene, settings, geometry_cache=geometry_cache, checked=True)
 
 
 def measured_as(built: PreparedScene, measurements) -> PreparedScene:
@@ -246,9 +249,11 @@ def _rebuild(scene: Scene, settings: RenderSettings, measurements) -> PreparedSc
 
 
 def _build(scene: Scene, settings: RenderSettings, should_stop: Callable[[], bool] = lambda: False,
-           geometry_cache: GeometryCache | None = None) -> PreparedScene:
-    """Everything but the pre-passes (Doppler range as given, exposure 1)."""
-    check_render(scene, settings, EXTRA_PASSES)
+           geometry_cache: GeometryCache | None = None, checked: bool = False) -> PreparedScene:
+    """Everything but the pre-passes (Doppler range as given, exposure 1); ``checked``: the scene
+    and settings are known to pass :func:`~.validation.check_render`."""
+    if not checked:
+        check_render(scene, settings, EXTRA_PASSES)
     try:
         frames = build_frames(scene, should_stop, MotionSettings(settings.motion_tolerance), geometry_cache)
         lights = tuple(prepare_lights(scene, frames))

@@ -881,3 +881,26 @@ def test_a_new_scene_sends_only_its_changed_arrays_and_renders_the_same_bits(poo
     third = prepare(busy_scene(Velocity((0.0, 0.3, 0.0))), settings(tile_size=6))
     assert_same_passes(assemble(third, pool.render(third, lambda: False, 2)), in_threads(third))
     assert not any(os.path.exists(path) for path in files[1]) and len(pool._scene_files.paths) == 1
+
+
+def test_a_workers_build_leaves_the_check_to_the_preparing_process(pool, monkeypatch):
+    """build_unmeasured does not check the scene again (prepare does, meanwhile); a scene that
+    prepare refuses after the workers built it ahead is never rendered, and the pool renders the
+    next one."""
+    from restframe_addon.core import prepared as prepared_module
+    from restframe_addon.core.prepared import build_unmeasured
+
+    checked = []
+    check = prepared_module.check_render
+    monkeypatch.setattr(prepared_module, "check_render", lambda *args: checked.append(args) or check(*args))
+    good = busy_scene()
+    build_unmeasured(good, settings())
+    assert checked == []
+    prepare(good, settings())
+    assert len(checked) == 1
+    refused = settings(passes=("NoSuchPass",))
+    pool.build_ahead(busy_scene(), refused, 2)
+    with pytest.raises(RenderError, match="NoSuchPass"):
+        prepare(busy_scene(), refused)
+    later = prepare(busy_scene(), settings(tile_size=8))
+    assert_same_passes(assemble(later, pool.render(later, lambda: False, 2)), in_threads(later))
