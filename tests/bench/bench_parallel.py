@@ -8,7 +8,10 @@ renders a fresh copy of the prepared scene (a pickle round trip, untimed).  A ti
 render goes as an F12 goes: a fresh copy of the scene and settings is built ahead in the
 workers (``WorkerPool.build_ahead``) while this process prepares it (untimed, as for threads),
 then rendered, so it pays what an F12 pays after its prepare: pickling the scene, sending
-it, and whatever is left of the workers' build by then.  The workers are started before timing (they stay warm across renders; their start-up is reported
+it, and whatever is left of the workers' build by then.  As in a session's second F12 of an
+unchanged scene, the copy's arrays are the same bytes as the last render's: its file names them
+in the last scene's files instead of holding them (``WorkerPool._scene_files``); the strict rows
+also give F12s that write every array again.  The workers are started before timing (they stay warm across renders; their start-up is reported
 on its own).  CPU seconds (this process and its workers, Linux) are given next to the wall
 times: unlike those, they do not grow when other work takes the cores.  Variants run interleaved in one process, rotating their order each repeat, with
 the load average noted: the machine may be shared.  Run alone, it prints the section as Markdown.
