@@ -276,11 +276,15 @@ class _SceneFiles:
     its table names; each named file's arrays, to find a new scene's unchanged arrays in.
 
     One owner (the pool).  A file goes once the scene sent last no longer names it (the workers
-    that hold an earlier scene keep their mappings of it, which outlive the file)."""
+    that hold an earlier scene keep their mappings of it, which outlive the file).  Where the
+    files hold more than twice the scene's bytes (arrays of earlier scenes no longer used beside
+    the ones named), the next scene names none of the earlier files: it writes those arrays again
+    and the earlier files go, so the memory they hold stays bounded."""
 
     def __init__(self):
         self.paths: list[str] = []  # [the scene's own file, *the files it names]
         self.bytes = 0  # of the scene's arrays and pickle: what a worker holds of it
+        self._sizes: dict[str, int] = {}  # each file's size
         self._arrays: dict[int, list[tuple[str, int]]] = {}  # size -> (file, offset) of each array
         self._views: dict[str, np.ndarray] = {}  # file -> its bytes, read-only mapped here (lazily)
         self._differs = np.empty(1 << 15, bool)  # :meth:`_same`'s words compared at a time (256 KiB of each array)
@@ -300,10 +304,13 @@ class _SceneFiles:
         """The scene just written into ``path`` is the last one sent: the files it does not
         name go."""
         named = {0: path, **{index: named for index, named in enumerate(pickled.named, start=1)}}
+        self.clear(keep=set(named.values()))
+        self._sizes[path] = pickled.size
+        held = sum(self._sizes[file] for file in named.values())
         arrays: dict[int, list[tuple[str, int]]] = {}
         for size, file, offset in pickled.entries:
-            arrays.setdefault(size, []).append((named[file], offset))
-        self.clear(keep=set(named.values()))
+            if file == 0 or held <= 2 * pickled.bytes:
+                arrays.setdefault(size, []).append((named[file], offset))
         self.paths, self.bytes, self._arrays = [path, *pickled.named], pickled.bytes, arrays
 
     def clear(self, keep=frozenset()):
@@ -311,6 +318,7 @@ class _SceneFiles:
         for path in self.paths:
             if path not in keep:
                 self._views.pop(path, None)  # unmapped here before it is removed (Windows)
+                self._sizes.pop(path, None)
                 _remove(path)
         self.paths, self.bytes, self._arrays = [path for path in self.paths if path in keep], 0, {}
 

@@ -904,3 +904,26 @@ def test_a_workers_build_leaves_the_check_to_the_preparing_process(pool, monkeyp
         prepare(busy_scene(), refused)
     later = prepare(busy_scene(), settings(tile_size=8))
     assert_same_passes(assemble(later, pool.render(later, lambda: False, 2)), in_threads(later))
+
+
+def test_the_files_a_scene_names_hold_at_most_twice_its_bytes_before_they_are_written_again(tmp_path):
+    """Each scene keeps one array of an earlier file and changes the rest: once the files hold more
+    than twice the scene's bytes, the next scene names only the last file and writes the others'
+    arrays again, and the earlier files go."""
+    large = workers._IN_BAND_BYTES // 8
+    known, versions = workers._SceneFiles(), {name: 0 for name in "abcd"}
+    scenes, paths = [], []
+    for changed in ("abcd", "bcd", "cd", "d"):
+        for name in changed:
+            versions[name] += 1
+        value = {name: np.full(large, float(10 * version + ord(name))) for name, version in versions.items()}
+        pickled = workers._Pickled(value, known)
+        known.replace(pickled.save(str(tmp_path / f"{len(scenes)}-")), pickled)
+        scenes.append(value)
+        paths.append(list(known.paths))
+        back = workers._Pickled.read(tuple(known.paths))
+        assert all(np.array_equal(back[name], value[name]) for name in value)
+    assert [len(files) for files in paths] == [1, 2, 3, 2]
+    assert paths[3][1:] == paths[2][:1] and not any(os.path.exists(path) for path in paths[2][1:])
+    assert sorted(os.listdir(tmp_path)) == sorted(os.path.basename(path) for path in paths[3])
+    known.clear()
