@@ -14,7 +14,8 @@ the dedicated entry does both first.  Only the core is imported in a worker, nev
 The pool is module-level (:func:`pool`) and kept warm across the renders of a session and
 the frames of an animation.  A render pickles its scene and settings once into a file that
 every worker maps for itself (reads, on Windows), at once, so no worker waits for the scene to
-pass through the pipes of the others (a new scene replaces the old one there; the same one rendered again is
+pass through the pipes of the others (a new scene replaces the old one there, naming the arrays that
+the old one's files hold byte for byte instead of writing them again; the same one rendered again is
 not sent again).  The engine does that before it prepares the scene (:func:`build_ahead`), so
 the workers build it while this process does, and the render sends them only what the
 pre-passes measured.  It then deals work two shares at a time per worker (one in the
