@@ -662,6 +662,22 @@ def test_short_shares_render_the_same_bits_in_batches_with_fewer_wake_ups(pool, 
     assert not tiles[-1].more_ready and len(last_of_rounds) <= len([count for count in takes if count]) < shares
 
 
+def test_once_every_share_is_dealt_the_loop_deals_no_more(pool, monkeypatch):
+    """The wake-ups after the last share is dealt (one a finished share) do not go through the
+    workers to deal nothing; the pixels are those of threads."""
+    prepared = prepare(busy_scene(), settings(tile_size=4))
+    queued, deal = [], workers.WorkerPool._deal
+
+    def counted_deal(self, workers_, todo, *args):
+        queued.append(len(todo))
+        deal(self, workers_, todo, *args)
+
+    monkeypatch.setattr(workers.WorkerPool, "_deal", counted_deal)
+    tiles = list(pool.render(prepared, lambda: False, 2))
+    assert_same_passes(assemble(prepared, tiles), in_threads(prepared))
+    assert queued and 0 not in queued, queued
+
+
 def test_in_the_tail_of_long_shares_a_worker_holds_one_share_and_the_loop_does_not_sleep():
     rects = [(0, y, 100, y + 10) for y in range(0, 1000, 10)]  # 100 tiles of 1000 pixels
     shares = [(tile, None) for tile in range(len(rects))]
