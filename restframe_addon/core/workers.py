@@ -178,8 +178,9 @@ class _Pickled:
 
     An array that ``known`` (:class:`_SceneFiles`) finds byte for byte in a file written
     before is not written again: the file's table names that file and place (a texture or mesh
-    that did not change between two F12s, exported again; moving_sphere's 5.6 MB of arrays are
-    compared in under a millisecond, where writing them into new pages took 2.4-20 ms here)."""
+    that did not change between two F12s, exported again; moving_sphere's 5.5 MB of arrays are
+    compared in 0.55 ms, where writing them took 2.4-3.9 ms here, and up to 24 ms while the VM's
+    memory was new: docs/speed.md, session 13)."""
 
     _HEAD = struct.Struct("<QQ")  # the pickle's size, the number of arrays (then each array's entry)
     _ENTRY = struct.Struct("<QQQ")  # an array's size, its file (0: this one, k: the k-th named), its offset there
