@@ -472,20 +472,21 @@ def _precision_warnings(names: list[str], parts: list[dict], geometry: Geometry)
                 f"({2 * _EMBREE_REACH:.2g}): triangles will be missing; scale the scene down"]
     if len(parts) < 2:
         return []
-    anchor = geometry.anchor
-    rounded, worst = [], 0.0
-    for name, part in zip(names, parts):
-        x, y, z = (part["vertices"][:, axis] for axis in range(3))  # by column: numpy is slow along a length-3 axis
-        lo, hi = np.array([x.min(), y.min(), z.min()]), np.array([x.max(), y.max(), z.max()])
-        rounding = float(np.max(np.maximum(np.abs(lo - anchor), np.abs(hi - anchor)))) * 2.0**-24  # half an ulp
-        if rounding > _ROUNDING_WARNING * float(np.max(hi - lo)):
-            rounded.append(name)
-            worst = max(worst, rounding)
-    if not rounded:
+    # each part's bounds at once from the frame's vertices, the parts' one after another (a pass a
+    # column, not six reductions a part: 4.2 of the 11x11 bars' 12.7 ms prepare), by column: numpy
+    # is slow along a length-3 axis
+    starts = np.cumsum([0] + [len(part["vertices"]) for part in parts[:-1]])
+    columns = [geometry.vertices[:, axis] for axis in range(3)]
+    lo = np.stack([np.minimum.reduceat(column, starts) for column in columns], axis=1)
+    hi = np.stack([np.maximum.reduceat(column, starts) for column in columns], axis=1)
+    rounding = np.max(np.maximum(np.abs(lo - geometry.anchor), np.abs(hi - geometry.anchor)), axis=1) * 2.0**-24
+    far = rounding > _ROUNDING_WARNING * np.max(hi - lo, axis=1)  # rounded by more than half an ulp allows
+    if not far.any():
         return []
+    rounded = [name for name, is_far in zip(names, far.tolist()) if is_far]
     return [f"{', '.join(rounded)}: too far from the other objects with the same velocity for float32 geometry "
-            f"(rounded by up to {worst:.2g} scene units): move far objects nearer and scale them down "
-            "(they look the same from a camera at rest), or scale the scene down"]
+            f"(rounded by up to {float(rounding[far].max()):.2g} scene units): move far objects nearer and scale "
+            "them down (they look the same from a camera at rest), or scale the scene down"]
 
 
 def _add_clusters(geometries: list[Geometry], should_stop) -> None:

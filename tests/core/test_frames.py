@@ -596,3 +596,30 @@ def test_a_bodys_clock_at_hits_is_the_same_with_one_clock_for_all_triangles_as_g
     assert lone.object_clock(tau, prim).tobytes() == gathered.tobytes()
     two = build_frames(Scene(camera=camera, meshes=[Mesh("a", v, t), Mesh("b", v + 3.0, t)])).frames[-1]
     assert two.geometry.clock is None
+
+
+def test_precision_warnings_name_each_part_rounded_badly_about_the_frames_anchor():
+    """Each part's bounds come from the frame's joined vertices at once: the warning names the parts,
+    and only those, whose float32 rounding about the anchor exceeds 1e-3 of their size (a small card
+    far out between two near objects), with the worst rounding, as a part-by-part reference finds."""
+    rng = np.random.default_rng(7)
+    parts = [{"vertices": 5.0 * rng.normal(size=(30, 3))},
+             {"vertices": (2e3, -1e3, 4e2) + 1e-3 * rng.normal(size=(4, 3))},  # the small card, far out
+             {"vertices": 1.0 + rng.normal(size=(12, 3))},
+             {"vertices": (-3e2, 0.0, 0.0) + 1e-3 * rng.normal(size=(6, 3))}]
+    names = ["near", "card", "ball", "pebble"]
+    geometry = type("Frame", (), {"vertices": np.concatenate([p["vertices"] for p in parts]),
+                                  "anchor": np.zeros(3), "extent": 5e3})()
+    reference = {}
+    for name, part in zip(names, parts):
+        lo, hi = part["vertices"].min(axis=0), part["vertices"].max(axis=0)
+        rounding = np.abs(np.concatenate([lo, hi])).max() * 2.0**-24
+        if rounding > 1e-3 * (hi - lo).max():
+            reference[name] = rounding
+    assert sorted(reference) == ["card", "pebble"]
+    warnings = frames._precision_warnings(names, parts, geometry)
+    assert len(warnings) == 1 and warnings[0].startswith("card, pebble: too far from the other objects")
+    assert f"rounded by up to {max(reference.values()):.2g} scene units" in warnings[0]
+    near = [parts[0], parts[2]]
+    geometry.vertices = np.concatenate([p["vertices"] for p in near])
+    assert frames._precision_warnings(["near", "ball"], near, geometry) == []
