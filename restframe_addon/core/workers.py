@@ -248,13 +248,11 @@ class _Pickled:
         Elsewhere (Windows, where the parent could not remove a file a worker maps) each is read
         into memory."""
         paths = (paths,) if isinstance(paths, str) else tuple(paths)
-        data = [cls._contents(paths[0])]
+        data = [cls._contents(paths[0])] + [None] * (len(paths) - 1)  # each named file's, once it is asked for
         pickled, count = cls._HEAD.unpack_from(data[0])
         start = cls._HEAD.size + cls._ENTRY.size * count
         buffers = []
         for size, file, offset in cls._ENTRY.iter_unpack(data[0][cls._HEAD.size:start]):
-            while len(data) <= file:
-                data.append(None)
             if data[file] is None:
                 data[file] = cls._contents(paths[file])
             buffers.append(data[file][offset:offset + size])
